@@ -1,0 +1,113 @@
+"""Small 2-D geometry helpers shared by the algorithms.
+
+Conventions: robot frame x forward, y left, angles counter-clockwise in radians.
+A pose is ``(x_m, y_m, theta_rad)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def wrap_angle(a):
+    """Wrap angle(s) to [-pi, pi).
+
+    Parameters
+    ----------
+    a : float or ndarray
+        Angle(s) in radians.
+
+    Returns
+    -------
+    float or ndarray
+        Same shape as ``a``.
+    """
+    wrapped = (np.asarray(a, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
+    return wrapped if np.ndim(a) else float(wrapped)
+
+
+def beam_angles(n_beams: int, angle_min_rad: float, angle_increment_rad: float) -> np.ndarray:
+    """Bearings of the beams of a scan, shape (n_beams,), radians in the robot frame."""
+    return angle_min_rad + angle_increment_rad * np.arange(n_beams, dtype=float)
+
+
+def polar_to_xy(ranges_m: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
+    """Convert ranges and bearings to points in the sensor frame (paper eq. 1 with pose 0).
+
+    Parameters
+    ----------
+    ranges_m : ndarray, shape (N,)
+        Ranges in metres; non-finite entries give non-finite points.
+    angles_rad : ndarray, shape (N,)
+        Bearings in radians, 0 = straight ahead, counter-clockwise positive.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Points ``(x_m, y_m)``.
+    """
+    r = np.asarray(ranges_m, dtype=float)
+    a = np.asarray(angles_rad, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.column_stack((r * np.cos(a), r * np.sin(a)))
+
+
+def compose(pose, delta):
+    """Compose a pose with a relative motion expressed in the pose's frame.
+
+    Parameters
+    ----------
+    pose, delta : array_like, shape (3,)
+        ``(x_m, y_m, theta_rad)``.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ``pose ⊕ delta``, heading wrapped.
+    """
+    x, y, t = pose
+    dx, dy, dt = delta
+    c, s = np.cos(t), np.sin(t)
+    return np.array([x + c * dx - s * dy, y + s * dx + c * dy, wrap_angle(t + dt)])
+
+
+def relative(pose_a, pose_b):
+    """Motion from ``pose_a`` to ``pose_b`` in ``pose_a``'s frame (``pose_a ⊖ pose_b``).
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ``delta`` such that ``compose(pose_a, delta) == pose_b``.
+    """
+    xa, ya, ta = pose_a
+    xb, yb, tb = pose_b
+    c, s = np.cos(ta), np.sin(ta)
+    dx, dy = xb - xa, yb - ya
+    return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(tb - ta)])
+
+
+def to_frame(points_xy: np.ndarray, pose) -> np.ndarray:
+    """Express world points in the frame of ``pose``.
+
+    Parameters
+    ----------
+    points_xy : ndarray, shape (N, 2)
+        World coordinates in metres.
+    pose : array_like, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+    """
+    x, y, t = pose
+    c, s = np.cos(t), np.sin(t)
+    d = np.asarray(points_xy, dtype=float).reshape(-1, 2) - (x, y)
+    return np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
+
+
+def from_frame(points_xy: np.ndarray, pose) -> np.ndarray:
+    """Express points given in the frame of ``pose`` in the world frame; shape (N, 2)."""
+    x, y, t = pose
+    c, s = np.cos(t), np.sin(t)
+    p = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+    return np.column_stack((x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]))
