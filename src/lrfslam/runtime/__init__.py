@@ -1,0 +1,1 @@
+"""The one service runner: config layering, the Zenoh bus, replay, lifecycle."""

@@ -1,0 +1,277 @@
+"""Codecs between :mod:`lrfslam.msgs.types` and the versioned protobuf schemas.
+
+Every payload on the bus and in a recording is named by its schema's full name,
+which carries the version (``lrfslam.msgs.v1.LaserScan``). A decoder is chosen
+by that name: the current version decodes directly; an older version, once a v2
+exists, decodes with its own generated class and goes through an upgrade
+function registered in :data:`UPGRADES`, so old recordings keep replaying.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Generic, TypeVar
+
+import numpy as np
+from google.protobuf.message import DecodeError as ProtobufDecodeError
+from google.protobuf.message import Message as ProtobufMessage
+
+from lrfslam.errors import DecodeError, SchemaVersionError
+from lrfslam.msgs import types as t
+from lrfslam.msgs.v1 import (
+    features_pb2,
+    filtered_scan_pb2,
+    ground_truth_pb2,
+    laser_scan_pb2,
+    odometry_pb2,
+    service_status_pb2,
+    slam_state_pb2,
+)
+
+T = TypeVar("T")
+
+#: Zenoh encoding prefix; the schema name follows the ``;`` (``application/protobuf;<schema>``).
+ENCODING_PREFIX = "application/protobuf"
+
+
+@dataclass(frozen=True)
+class Codec(Generic[T]):
+    """Converts one message type to and from its protobuf schema."""
+
+    proto: type
+    to_proto: Callable[[T], ProtobufMessage]
+    from_proto: Callable[[Any], T]
+
+    @property
+    def schema(self) -> str:
+        """Full schema name with version, e.g. ``lrfslam.msgs.v1.LaserScan``."""
+        return self.proto.DESCRIPTOR.full_name
+
+    @property
+    def encoding(self) -> str:
+        """Zenoh encoding string naming this schema."""
+        return f"{ENCODING_PREFIX};{self.schema}"
+
+    def encode(self, value: T) -> bytes:
+        return self.to_proto(value).SerializeToString()
+
+    def decode(self, data: bytes, schema: str | None = None) -> T:
+        """Decode ``data`` written with ``schema`` (default: this codec's schema).
+
+        Raises
+        ------
+        SchemaVersionError
+            ``schema`` is neither this codec's nor an older version with an upgrade.
+        DecodeError
+            The bytes do not parse, or parse into an inconsistent message.
+        """
+        if schema is not None and schema != self.schema:
+            upgrade = UPGRADES.get((schema, self.schema))
+            if upgrade is None:
+                raise SchemaVersionError(schema, f"expected {self.schema}; no upgrade path known")
+            old_proto, convert = upgrade
+            return convert(_parse(old_proto, data, schema))
+        msg = _parse(self.proto, data, self.schema)
+        try:
+            return self.from_proto(msg)
+        except (ValueError, TypeError) as exc:
+            raise DecodeError(self.schema, str(exc)) from exc
+
+
+def _parse(proto: type, data: bytes, schema: str) -> Any:
+    msg = proto()
+    try:
+        msg.ParseFromString(bytes(data))
+    except (ProtobufDecodeError, RuntimeWarning, ValueError) as exc:
+        raise DecodeError(schema, f"malformed payload ({exc})") from exc
+    return msg
+
+
+def parse_encoding(encoding: str) -> str:
+    """Schema name carried in a Zenoh encoding string, ``""`` if there is none."""
+    prefix, _, schema = str(encoding).partition(";")
+    return schema if prefix == ENCODING_PREFIX else ""
+
+
+# ---- v1 mappings -------------------------------------------------------------------------
+
+
+def _header(h, stamp_ns: int, seq: int, frame_id: str = "") -> None:
+    h.stamp_ns = int(stamp_ns)
+    h.seq = int(seq)
+    h.frame_id = frame_id
+
+
+def _scan_to(m: t.LaserScan, out=None):
+    p = out if out is not None else laser_scan_pb2.LaserScan()
+    _header(p.header, m.stamp_ns, m.seq, m.frame_id)
+    p.angle_min_rad = m.angle_min_rad
+    p.angle_increment_rad = m.angle_increment_rad
+    p.range_min_m = m.range_min_m
+    p.range_max_m = m.range_max_m
+    p.ranges_m.extend(m.ranges_m.tolist())
+    p.status.extend(m.status.tolist())
+    p.scan_time_s = m.scan_time_s
+    p.source = m.source
+    return p
+
+
+def _scan_from(p) -> t.LaserScan:
+    if len(p.status) != len(p.ranges_m):
+        raise ValueError(f"{len(p.ranges_m)} ranges but {len(p.status)} status codes")
+    if not p.angle_increment_rad > 0:
+        raise ValueError(f"angle_increment_rad must be > 0, got {p.angle_increment_rad}")
+    return t.LaserScan(
+        p.header.stamp_ns, p.header.seq, np.array(p.ranges_m, np.float64), np.array(p.status, np.uint8),
+        p.angle_min_rad, p.angle_increment_rad, p.range_max_m, p.range_min_m, p.header.frame_id,
+        p.scan_time_s, p.source,
+    )
+
+
+def _odom_to(m: t.Odometry):
+    p = odometry_pb2.Odometry()
+    _header(p.header, m.stamp_ns, m.seq, m.frame_id)
+    p.pose.x_m, p.pose.y_m, p.pose.theta_rad = (float(v) for v in m.pose)
+    p.linear_mps = m.linear_mps
+    p.angular_radps = m.angular_radps
+    return p
+
+
+def _odom_from(p) -> t.Odometry:
+    return t.Odometry(p.header.stamp_ns, p.header.seq, (p.pose.x_m, p.pose.y_m, p.pose.theta_rad),
+                      p.linear_mps, p.angular_radps, p.header.frame_id)
+
+
+def _filtered_to(m: t.FilteredScan):
+    p = filtered_scan_pb2.FilteredScan()
+    _header(p.header, m.stamp_ns, m.seq, m.scan.frame_id)
+    _scan_to(m.scan, p.scan)
+    p.kept_beams.extend(m.kept_beams.tolist())
+    p.x_m.extend(m.points_xy_m[:, 0].tolist())
+    p.y_m.extend(m.points_xy_m[:, 1].tolist())
+    p.max_range_m = m.max_range_m
+    p.mode = m.mode
+    return p
+
+
+def _filtered_from(p) -> t.FilteredScan:
+    scan = _scan_from(p.scan)
+    k = len(p.kept_beams)
+    if len(p.x_m) != k or len(p.y_m) != k:
+        raise ValueError("kept_beams, x_m and y_m differ in length")
+    kept = np.array(p.kept_beams, np.int64)
+    if k and (kept.max() >= scan.ranges_m.size or np.any(np.diff(kept) <= 0)):
+        raise ValueError("kept_beams must be ascending indices into the scan")
+    return t.FilteredScan(p.header.stamp_ns, p.header.seq, scan, kept,
+                          np.column_stack((p.x_m, p.y_m)) if k else np.zeros((0, 2)), p.max_range_m, p.mode)
+
+
+def _features_to(m: t.Features):
+    p = features_pb2.Features()
+    _header(p.header, m.stamp_ns, m.seq, "laser")
+    p.scan_seq = m.scan_seq
+    for i in range(len(m)):
+        f = p.features.add()
+        f.kind = int(m.kind[i])
+        f.x_m, f.y_m = float(m.xy_m[i, 0]), float(m.xy_m[i, 1])
+        f.covariance_m2.extend(m.cov_m2[i].ravel().tolist())
+        f.beam = int(m.beam[i])
+        f.angle_deg = float(m.angle_deg[i])
+    return p
+
+
+def _features_from(p) -> t.Features:
+    fs = p.features
+    if any(len(f.covariance_m2) != 4 for f in fs):
+        raise ValueError("a feature covariance is not 2x2")
+    return t.Features(
+        p.header.stamp_ns, p.header.seq, p.scan_seq,
+        [f.kind for f in fs], [(f.x_m, f.y_m) for f in fs],
+        np.array([list(f.covariance_m2) for f in fs], np.float64).reshape(-1, 2, 2),
+        [f.beam for f in fs], [f.angle_deg for f in fs],
+    )
+
+
+def _slam_to(m: t.SlamState):
+    p = slam_state_pb2.SlamState()
+    _header(p.header, m.stamp_ns, m.seq, "map")
+    p.pose.x_m, p.pose.y_m, p.pose.theta_rad = (float(v) for v in m.pose)
+    p.pose_covariance.extend(m.pose_cov.ravel().tolist())
+    for i in range(m.landmark_ids.size):
+        lm = p.landmarks.add()
+        lm.id = int(m.landmark_ids[i])
+        lm.x_m, lm.y_m = float(m.landmark_xy_m[i, 0]), float(m.landmark_xy_m[i, 1])
+        lm.covariance_m2.extend(m.landmark_cov_m2[i].ravel().tolist())
+        lm.kind = int(m.landmark_kind[i])
+        lm.sightings = int(m.landmark_sightings[i])
+        lm.confirmed = bool(m.landmark_confirmed[i])
+    p.scan_seq = m.scan_seq
+    p.associated, p.added, p.rejected = m.associated, m.added, m.rejected
+    return p
+
+
+def _slam_from(p) -> t.SlamState:
+    if len(p.pose_covariance) != 9:
+        raise ValueError("pose_covariance is not 3x3")
+    lms = p.landmarks
+    if any(len(lm.covariance_m2) != 4 for lm in lms):
+        raise ValueError("a landmark covariance is not 2x2")
+    return t.SlamState(
+        p.header.stamp_ns, p.header.seq, p.scan_seq, (p.pose.x_m, p.pose.y_m, p.pose.theta_rad),
+        np.array(p.pose_covariance).reshape(3, 3),
+        [lm.id for lm in lms], [(lm.x_m, lm.y_m) for lm in lms],
+        np.array([list(lm.covariance_m2) for lm in lms], np.float64).reshape(-1, 2, 2),
+        [lm.kind for lm in lms], [lm.sightings for lm in lms], [lm.confirmed for lm in lms],
+        p.associated, p.added, p.rejected,
+    )
+
+
+def _truth_to(m: t.GroundTruth):
+    p = ground_truth_pb2.GroundTruth()
+    _header(p.header, m.stamp_ns, m.seq, "map")
+    p.pose.x_m, p.pose.y_m, p.pose.theta_rad = (float(v) for v in m.pose)
+    for cid, (x, y) in zip(m.corner_ids.tolist(), m.corners_xy_m.tolist()):
+        c = p.visible_corners.add()
+        c.id, c.x_m, c.y_m = cid, x, y
+    p.world = m.world
+    return p
+
+
+def _truth_from(p) -> t.GroundTruth:
+    cs = p.visible_corners
+    return t.GroundTruth(p.header.stamp_ns, p.header.seq, (p.pose.x_m, p.pose.y_m, p.pose.theta_rad),
+                         [c.id for c in cs], [(c.x_m, c.y_m) for c in cs], p.world)
+
+
+def _status_to(m: t.ServiceStatus):
+    p = service_status_pb2.ServiceStatus(
+        service=m.service, robot=m.robot, level=m.level, message=m.message,
+        wall_stamp_ns=m.wall_stamp_ns, uptime_s=m.uptime_s, last_data_stamp_ns=m.last_data_stamp_ns,
+        config_json=m.config_json, pid=m.pid, host=m.host,
+    )
+    p.counters.update({k: int(v) for k, v in m.counters.items()})
+    p.schemas.extend(m.schemas)
+    return p
+
+
+def _status_from(p) -> t.ServiceStatus:
+    return t.ServiceStatus(p.service, p.robot, p.level, p.message, p.wall_stamp_ns, p.uptime_s,
+                           dict(p.counters), p.last_data_stamp_ns, p.config_json, tuple(p.schemas),
+                           p.pid, p.host)
+
+
+LASER_SCAN: Codec[t.LaserScan] = Codec(laser_scan_pb2.LaserScan, _scan_to, _scan_from)
+ODOMETRY: Codec[t.Odometry] = Codec(odometry_pb2.Odometry, _odom_to, _odom_from)
+FILTERED_SCAN: Codec[t.FilteredScan] = Codec(filtered_scan_pb2.FilteredScan, _filtered_to, _filtered_from)
+FEATURES: Codec[t.Features] = Codec(features_pb2.Features, _features_to, _features_from)
+SLAM_STATE: Codec[t.SlamState] = Codec(slam_state_pb2.SlamState, _slam_to, _slam_from)
+GROUND_TRUTH: Codec[t.GroundTruth] = Codec(ground_truth_pb2.GroundTruth, _truth_to, _truth_from)
+SERVICE_STATUS: Codec[t.ServiceStatus] = Codec(service_status_pb2.ServiceStatus, _status_to, _status_from)
+
+#: Every codec of the current version, by schema name.
+CODECS: dict[str, Codec] = {c.schema: c for c in
+                            (LASER_SCAN, ODOMETRY, FILTERED_SCAN, FEATURES, SLAM_STATE, GROUND_TRUTH, SERVICE_STATUS)}
+
+#: (old schema, current schema) -> (old generated class, converter to the current type).
+#: Empty while v1 is the only version; a v2 adds its v1 entries here.
+UPGRADES: dict[tuple[str, str], tuple[type, Callable[[Any], Any]]] = {}

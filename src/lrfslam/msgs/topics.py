@@ -1,0 +1,94 @@
+"""The one registry of key expressions.
+
+Every key lives under ``lrf/<robot>/`` so several robots share one Zenoh
+network. The registry holds relative names; :func:`key` prefixes them. MCAP
+channels use the relative name as topic and keep the robot in the file metadata.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+from lrfslam.errors import ConfigError
+from lrfslam.msgs import codec as c
+
+T = TypeVar("T")
+
+ROOT = "lrf"
+_ROBOT_RE = re.compile(r"^[A-Za-z0-9_\-.]+$")
+
+
+@dataclass(frozen=True)
+class Topic(Generic[T]):
+    """A data stream: relative key, codec, and whether a slow consumer may lose samples."""
+
+    name: str
+    codec: c.Codec[T]
+    droppable: bool = True  # sensor-rate streams drop under congestion rather than stall the producer
+
+    @property
+    def schema(self) -> str:
+        return self.codec.schema
+
+
+SCAN: Topic = Topic("scan", c.LASER_SCAN)
+ODOM: Topic = Topic("odom", c.ODOMETRY)
+SCAN_FILTERED: Topic = Topic("scan/filtered", c.FILTERED_SCAN)
+FEATURES: Topic = Topic("features", c.FEATURES)
+SLAM_STATE: Topic = Topic("slam/state", c.SLAM_STATE)
+TRUTH: Topic = Topic("truth", c.GROUND_TRUTH)
+
+#: Data topics in pipeline order.
+DATA_TOPICS: tuple[Topic, ...] = (SCAN, ODOM, TRUTH, SCAN_FILTERED, FEATURES, SLAM_STATE)
+
+
+def health(service: str) -> Topic:
+    """Periodic status of ``service``."""
+    return Topic(f"health/{service}", c.SERVICE_STATUS)
+
+
+def by_name(name: str) -> Topic:
+    """Topic for a relative key (data topics and ``health/<service>``)."""
+    for topic in DATA_TOPICS:
+        if topic.name == name:
+            return topic
+    if name.startswith("health/"):
+        return health(name.split("/", 1)[1])
+    raise KeyError(name)
+
+
+def check_robot(robot: str) -> str:
+    """Return ``robot`` if it is a single key chunk, else raise ConfigError."""
+    if not _ROBOT_RE.match(robot or ""):
+        raise ConfigError(f"robot name {robot!r} must be one key chunk of letters, digits, '_', '-', '.'")
+    return robot
+
+
+def key(robot: str, name: str) -> str:
+    """Absolute key expression of relative ``name`` for ``robot``."""
+    return f"{ROOT}/{robot}/{name}"
+
+
+def relative(robot: str, key_expr: str) -> str:
+    """Relative name of an absolute key of ``robot``."""
+    prefix = f"{ROOT}/{robot}/"
+    if not key_expr.startswith(prefix):
+        raise KeyError(key_expr)
+    return key_expr[len(prefix):]
+
+
+def everything(robot: str) -> str:
+    """Key expression matching every data and health key of ``robot``."""
+    return f"{ROOT}/{robot}/**"
+
+
+def alive(robot: str, service: str) -> str:
+    """Liveliness token of a running service."""
+    return f"{ROOT}/{robot}/alive/{service}"
+
+
+def status(robot: str, service: str) -> str:
+    """Status queryable of a running service."""
+    return f"{ROOT}/{robot}/svc/{service}/status"

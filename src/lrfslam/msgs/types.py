@@ -1,0 +1,212 @@
+"""In-memory messages: frozen dataclasses holding numpy arrays.
+
+Services and tests see these; only :mod:`lrfslam.msgs.codec` sees protobuf.
+Field names carry units; shapes are given per field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# Beam status codes; the values are those of BeamStatus in schemas/.../laser_scan.proto.
+BEAM_VALID = 0
+BEAM_NO_RETURN = 1
+BEAM_DAZZLE = 2
+BEAM_OVERFLOW = 3
+BEAM_INVALID = 4
+
+# Feature kinds; the values are those of FeatureKind in features.proto.
+FEATURE_FORWARD = 1
+FEATURE_BACKWARD = 2
+
+HEALTH_OK, HEALTH_WARN, HEALTH_ERROR, HEALTH_STALE = 0, 1, 2, 3
+
+
+def _array(values, dtype, shape=None) -> np.ndarray:
+    a = np.array(values, dtype=dtype)
+    if shape is not None:
+        a = a.reshape(shape)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class LaserScan:
+    """One laser sweep.
+
+    ``ranges_m`` (N,) float64, +inf where the beam has no return, NaN where invalid;
+    ``status`` (N,) uint8 BEAM_* codes; beam i points at
+    ``angle_min_rad + i * angle_increment_rad`` in the laser frame.
+    """
+
+    stamp_ns: int
+    seq: int
+    ranges_m: np.ndarray
+    status: np.ndarray
+    angle_min_rad: float
+    angle_increment_rad: float
+    range_max_m: float = 8.0
+    range_min_m: float = 0.0
+    frame_id: str = "laser"
+    scan_time_s: float = 0.0
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ranges_m", _array(self.ranges_m, np.float64))
+        object.__setattr__(self, "status", _array(self.status, np.uint8))
+
+    @property
+    def angles_rad(self) -> np.ndarray:
+        """Bearing of each beam, shape (N,), radians."""
+        return self.angle_min_rad + self.angle_increment_rad * np.arange(self.ranges_m.size)
+
+    @classmethod
+    def from_ranges(cls, stamp_ns: int, seq: int, ranges_m, angle_min_rad: float,
+                    angle_increment_rad: float, range_max_m: float = 8.0, **kw) -> LaserScan:
+        """Build a scan whose status is derived from the ranges (inf: no return, NaN: invalid)."""
+        r = np.asarray(ranges_m, dtype=np.float64)
+        status = np.where(np.isnan(r), BEAM_INVALID, np.where(np.isinf(r), BEAM_NO_RETURN, BEAM_VALID))
+        return cls(stamp_ns, seq, r, status, angle_min_rad, angle_increment_rad, range_max_m, **kw)
+
+
+@dataclass(frozen=True, eq=False)
+class Odometry:
+    """Integrated wheel odometry; ``pose`` (3,) = (x_m, y_m, theta_rad) in the odom frame."""
+
+    stamp_ns: int
+    seq: int
+    pose: np.ndarray
+    linear_mps: float = 0.0
+    angular_radps: float = 0.0
+    frame_id: str = "odom"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pose", _array(self.pose, np.float64, (3,)))
+
+
+@dataclass(frozen=True, eq=False)
+class FilteredScan:
+    """The denoiser's output.
+
+    ``scan`` is the input after the range cut, ``kept_beams`` (K,) ascending beam
+    indices that survived, ``points_xy_m`` (K, 2) their points in the laser frame.
+    """
+
+    stamp_ns: int
+    seq: int
+    scan: LaserScan
+    kept_beams: np.ndarray
+    points_xy_m: np.ndarray
+    max_range_m: float
+    mode: str
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kept_beams", _array(self.kept_beams, np.int64))
+        object.__setattr__(self, "points_xy_m", _array(self.points_xy_m, np.float64, (-1, 2)))
+
+    @property
+    def kept_mask(self) -> np.ndarray:
+        """Boolean mask over the scan's beams, shape (N,)."""
+        mask = np.zeros(self.scan.ranges_m.size, dtype=bool)
+        mask[self.kept_beams] = True
+        return mask
+
+
+@dataclass(frozen=True, eq=False)
+class Features:
+    """Corner features of one scan, in the robot (laser) frame.
+
+    ``kind`` (K,) FEATURE_* codes, ``xy_m`` (K, 2), ``cov_m2`` (K, 2, 2),
+    ``beam`` (K,) source beam indices, ``angle_deg`` (K,) corner angle (NaN for backward).
+    """
+
+    stamp_ns: int
+    seq: int
+    scan_seq: int
+    kind: np.ndarray
+    xy_m: np.ndarray
+    cov_m2: np.ndarray
+    beam: np.ndarray
+    angle_deg: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", _array(self.kind, np.int8))
+        object.__setattr__(self, "xy_m", _array(self.xy_m, np.float64, (-1, 2)))
+        object.__setattr__(self, "cov_m2", _array(self.cov_m2, np.float64, (-1, 2, 2)))
+        object.__setattr__(self, "beam", _array(self.beam, np.int64))
+        object.__setattr__(self, "angle_deg", _array(self.angle_deg, np.float64))
+
+    def __len__(self) -> int:
+        return int(self.kind.size)
+
+
+@dataclass(frozen=True, eq=False)
+class SlamState:
+    """The EKF after one scan's features.
+
+    ``pose`` (3,), ``pose_cov`` (3, 3); landmarks: ``landmark_ids`` (L,) stable ids,
+    ``landmark_xy_m`` (L, 2), ``landmark_cov_m2`` (L, 2, 2), ``landmark_kind`` (L,),
+    ``landmark_sightings`` (L,), ``landmark_confirmed`` (L,) bool.
+    """
+
+    stamp_ns: int
+    seq: int
+    scan_seq: int
+    pose: np.ndarray
+    pose_cov: np.ndarray
+    landmark_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    landmark_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    landmark_cov_m2: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    landmark_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
+    landmark_sightings: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    landmark_confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    associated: int = 0
+    added: int = 0
+    rejected: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pose", _array(self.pose, np.float64, (3,)))
+        object.__setattr__(self, "pose_cov", _array(self.pose_cov, np.float64, (3, 3)))
+        object.__setattr__(self, "landmark_ids", _array(self.landmark_ids, np.int64))
+        object.__setattr__(self, "landmark_xy_m", _array(self.landmark_xy_m, np.float64, (-1, 2)))
+        object.__setattr__(self, "landmark_cov_m2", _array(self.landmark_cov_m2, np.float64, (-1, 2, 2)))
+        object.__setattr__(self, "landmark_kind", _array(self.landmark_kind, np.int8))
+        object.__setattr__(self, "landmark_sightings", _array(self.landmark_sightings, np.int64))
+        object.__setattr__(self, "landmark_confirmed", _array(self.landmark_confirmed, bool))
+
+
+@dataclass(frozen=True, eq=False)
+class GroundTruth:
+    """Simulator truth at one instant: ``pose`` (3,) map frame, visible corners (K,) ids and (K, 2) map xy."""
+
+    stamp_ns: int
+    seq: int
+    pose: np.ndarray
+    corner_ids: np.ndarray
+    corners_xy_m: np.ndarray
+    world: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pose", _array(self.pose, np.float64, (3,)))
+        object.__setattr__(self, "corner_ids", _array(self.corner_ids, np.int64))
+        object.__setattr__(self, "corners_xy_m", _array(self.corners_xy_m, np.float64, (-1, 2)))
+
+
+@dataclass(frozen=True)
+class ServiceStatus:
+    """Health and statistics of one service process (wall-clock based)."""
+
+    service: str
+    robot: str
+    level: int
+    message: str
+    wall_stamp_ns: int
+    uptime_s: float
+    counters: dict
+    last_data_stamp_ns: int = 0
+    config_json: str = ""
+    schemas: tuple = ()
+    pid: int = 0
+    host: str = ""

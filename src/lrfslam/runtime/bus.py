@@ -1,0 +1,176 @@
+"""Zenoh transport for one service: subscribers feeding a queue, publishers, status.
+
+Subscriber callbacks only copy the payload into a bounded queue (Zenoh forbids
+API calls or blocking inside callbacks); decoding happens in the service's main
+thread. A full queue drops the sample and counts it, so a slow stage never
+stalls Zenoh's receive thread and with it every other stream of the session.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import struct
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from lrfslam.errors import DecodeError, SchemaVersionError
+from lrfslam.msgs import topics
+from lrfslam.msgs.codec import ENCODING_PREFIX, parse_encoding
+from lrfslam.msgs.topics import Topic
+from lrfslam.runtime.service import Message, Output
+
+log = logging.getLogger(__name__)
+
+# rmw_zenoh-style attachment: sequence number and data stamp, so raw consumers
+# (the recorder) get both without decoding the payload.
+_ATTACHMENT = struct.Struct("<QQ")
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """How to reach the Zenoh network. Defaults: a peer on loopback, multicast scouting off."""
+
+    robot: str = "robot1"                               # namespace: every key is lrf/<robot>/...
+    mode: str = "peer"                                  # peer | client | router
+    connect: tuple[str, ...] = ("tcp/127.0.0.1:7447",)  # router/peers to dial (retried in the background)
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)      # ignored in client mode
+    zenoh_config: str = ""                              # optional Zenoh JSON5 file applied first
+    queue_size: int = 512                               # received samples waiting for the step
+    health_period_s: float = 1.0                        # how often health/<service> is published
+
+    def __post_init__(self) -> None:
+        topics.check_robot(self.robot)
+        if self.mode not in ("peer", "client", "router"):
+            from lrfslam.errors import ConfigError
+            raise ConfigError(f"bus.mode must be peer, client or router, got {self.mode!r}")
+
+
+def zenoh_config(cfg: BusConfig) -> zenoh.Config:
+    """The Zenoh session configuration for ``cfg``."""
+    conf = zenoh.Config.from_file(cfg.zenoh_config) if cfg.zenoh_config else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(cfg.mode))
+    conf.insert_json5("connect/endpoints", json.dumps(list(cfg.connect)))
+    if cfg.mode != "client":
+        conf.insert_json5("listen/endpoints", json.dumps(list(cfg.listen)))
+    # Multicast does not cross container networks and must not leave loopback in CI.
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+class LogOnce:
+    """Log each distinct (kind, detail) once; later occurrences are only counted."""
+
+    def __init__(self, logger: logging.Logger) -> None:
+        self._log = logger
+        self._seen: set[tuple[str, str]] = set()
+
+    def warning(self, kind: str, detail: str, msg: str, *args: Any) -> None:
+        if (kind, detail) not in self._seen:
+            self._seen.add((kind, detail))
+            self._log.warning(msg + " (further ones are only counted)", *args)
+
+
+def attachment(seq: int, stamp_ns: int) -> bytes:
+    return _ATTACHMENT.pack(int(seq) & 0xFFFFFFFFFFFFFFFF, int(stamp_ns))
+
+
+def parse_attachment(data: bytes | None) -> tuple[int, int]:
+    """(seq, stamp_ns) from an attachment, (0, 0) when absent or malformed."""
+    if not data or len(data) != _ATTACHMENT.size:
+        return 0, 0
+    return _ATTACHMENT.unpack(data)
+
+
+class ZenohBus:
+    """Inputs and outputs of one service over an open Zenoh session.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+    robot : str
+    inputs : tuple of Topic
+        Topics to subscribe to and decode.
+    raw : bool
+        Subscribe to everything under the robot instead, and deliver payloads undecoded.
+    queue_size : int
+    counts : Counter
+        Shared counters (``in.*``, ``out.*``, ``drop.queue``, ``error.*``).
+    """
+
+    def __init__(self, session: zenoh.Session, robot: str, inputs: tuple[Topic, ...], raw: bool,
+                 queue_size: int, counts: Counter) -> None:
+        self._session = session
+        self._robot = robot
+        self._raw = raw
+        self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self._counts = counts
+        self._once = LogOnce(log)
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._by_key = {topics.key(robot, t.name): t for t in inputs}
+        keys = [topics.everything(robot)] if raw else list(self._by_key)
+        self._subscribers = [session.declare_subscriber(k, self._on_sample) for k in keys]
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        att = sample.attachment
+        item = (str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding),
+                att.to_bytes() if att is not None else None)
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self._counts["drop.queue"] += 1
+
+    def get(self, timeout_s: float) -> Message | None:
+        """The next decodable input, or None after ``timeout_s`` without one."""
+        try:
+            key, payload, encoding, att = self._queue.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+        seq, stamp_ns = parse_attachment(att)
+        schema = parse_encoding(encoding)
+        if self._raw:
+            name = topics.relative(self._robot, key)
+            self._counts["in.raw"] += 1
+            return Message(None, payload, stamp_ns, schema, name, seq)
+        topic = self._by_key.get(key)
+        if topic is None:
+            return None
+        self._counts[f"in.{topic.name}"] += 1
+        try:
+            if not schema:
+                raise DecodeError("", f"encoding {encoding!r} names no {ENCODING_PREFIX} schema")
+            value = topic.codec.decode(payload, schema)
+        except DecodeError as exc:
+            kind = "error.schema" if isinstance(exc, SchemaVersionError) or not schema else "error.decode"
+            self._counts[kind] += 1
+            self._once.warning(kind, f"{topic.name}:{exc.schema}", "dropping a sample on %s: %s", key, exc)
+            return None
+        return Message(topic, value, getattr(value, "stamp_ns", stamp_ns), schema, topic.name,
+                       getattr(value, "seq", seq))
+
+    def publish(self, out: Output) -> None:
+        """Encode and put ``out.value`` on its topic's key with schema and attachment."""
+        self.put(out.topic, out.topic.codec.encode(out.value), out.value.stamp_ns, out.value.seq)
+
+    def put(self, topic: Topic, payload: bytes, stamp_ns: int, seq: int) -> None:
+        pub = self._publishers.get(topic.name)
+        if pub is None:
+            pub = self._session.declare_publisher(
+                topics.key(self._robot, topic.name),
+                encoding=zenoh.Encoding(topic.codec.encoding),
+                congestion_control=(zenoh.CongestionControl.DROP if topic.droppable
+                                    else zenoh.CongestionControl.BLOCK),
+            )
+            self._publishers[topic.name] = pub
+        pub.put(payload, attachment=attachment(seq, stamp_ns))
+        self._counts[f"out.{topic.name}"] += 1
+
+    def close(self) -> None:
+        for sub in self._subscribers:
+            sub.undeclare()
+        for pub in self._publishers.values():
+            pub.undeclare()

@@ -1,0 +1,165 @@
+"""Layered configuration for frozen config dataclasses.
+
+Precedence, lowest first: dataclass defaults < the config file (TOML) < the
+environment < ``--set name=value`` flags. Unknown keys are errors, so a typo
+fails at start-up instead of silently running defaults. Nested dataclasses are
+addressed with dots (``histogram.bin_deg``), as TOML sub-tables, and in the
+environment with a double underscore (``LRFSLAM_DENOISE_HISTOGRAM__BIN_DEG``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import tomllib
+import types
+import typing
+from pathlib import Path
+from typing import Any, Mapping, TypeVar
+
+from lrfslam.errors import ConfigError
+
+C = TypeVar("C")
+ENV_PREFIX = "LRFSLAM"
+
+
+def read_file(path: str | Path | None) -> dict:
+    """The parsed TOML file, or ``{}`` when no path is given."""
+    if not path:
+        return {}
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config file {path}: {exc}") from exc
+
+
+def coerce(value: Any, hint: Any, name: str) -> Any:
+    """Convert ``value`` (from TOML, env or a flag) to the field type ``hint``."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if value is None or (isinstance(value, str) and value.lower() in ("", "none", "null")):
+            return None
+        return coerce(value, args[0], name)
+    if origin is tuple:
+        args = typing.get_args(hint)
+        if isinstance(value, str):
+            value = json.loads(value) if value.strip().startswith("[") else [v for v in value.split(",") if v]
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{name}: expected a list, got {value!r}")
+        item = args[0] if args else str
+        return tuple(coerce(v, item, name) for v in value)
+    try:
+        if hint is bool:
+            if isinstance(value, str):
+                low = value.strip().lower()
+                if low not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+                    raise ValueError(value)
+                return low in ("1", "true", "yes", "on")
+            return bool(value)
+        if hint is int:
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError(value)
+            return int(value)
+        if hint is float:
+            return float(value)
+        if hint is str:
+            return str(value)
+        if hint is Path:
+            return Path(value)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{name}: cannot use {value!r} as {getattr(hint, '__name__', hint)}") from exc
+    return value
+
+
+def _flatten(table: Mapping, prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for k, v in table.items():
+        if isinstance(v, Mapping):
+            flat.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            flat[f"{prefix}{k}"] = v
+    return flat
+
+
+def _fields(cls: type, prefix: str = "") -> dict[str, tuple[Any, Any]]:
+    """Dotted field name -> (type hint, default) for every leaf field of ``cls``."""
+    hints = typing.get_type_hints(cls)
+    out: dict[str, tuple[Any, Any]] = {}
+    for f in dataclasses.fields(cls):
+        hint = hints[f.name]
+        if dataclasses.is_dataclass(hint):
+            out.update(_fields(hint, f"{prefix}{f.name}."))
+        else:
+            out[f"{prefix}{f.name}"] = (hint, f.default)
+    return out
+
+
+def _build(cls: type, values: Mapping[str, Any], prefix: str = "", base: Any = None) -> Any:
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        hint = hints[f.name]
+        sub_base = getattr(base, f.name) if base is not None else None
+        if dataclasses.is_dataclass(hint):
+            kwargs[f.name] = _build(hint, values, f"{prefix}{f.name}.", sub_base)
+        elif f"{prefix}{f.name}" in values:
+            kwargs[f.name] = values[f"{prefix}{f.name}"]
+        elif base is not None:
+            kwargs[f.name] = sub_base
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{cls.__name__}: {exc}") from exc
+
+
+def load(cls: type[C], *, table: Mapping | None = None, env: Mapping[str, str] | None = None,
+         env_prefix: str = "", sets: typing.Iterable[str] = (), base: C | None = None) -> C:
+    """Build a ``cls`` instance from the layers.
+
+    Parameters
+    ----------
+    cls : frozen dataclass type
+    table : mapping
+        The file's table for this config (already selected, e.g. ``file["slam"]``).
+    env : mapping
+        Environment; keys ``<env_prefix>_<FIELD>`` (upper case, ``__`` for dots) are read.
+    env_prefix : str
+        e.g. ``LRFSLAM_SLAM``; empty disables the environment layer.
+    sets : iterable of ``"name=value"``
+        Command-line overrides, dotted names for nested fields.
+    base : cls, optional
+        Start from this instance instead of the dataclass defaults (e.g. a mode preset).
+    """
+    fields = _fields(cls)
+    values: dict[str, Any] = {}
+    for layer, items in (("config file", _flatten(table or {}).items()), ("--set", _parse_sets(sets))):
+        if layer == "--set" and env is not None and env_prefix:
+            for name in fields:
+                var = f"{env_prefix}_{name.replace('.', '__').upper()}"
+                if var in env:
+                    values[name] = coerce(env[var], fields[name][0], var)
+        for name, raw in items:
+            if name not in fields:
+                raise ConfigError(f"unknown setting {name!r} for {cls.__name__} in {layer}; "
+                                  f"known: {', '.join(sorted(fields))}")
+            values[name] = coerce(raw, fields[name][0], name)
+    return _build(cls, values, base=base)
+
+
+def _parse_sets(sets: typing.Iterable[str]) -> list[tuple[str, str]]:
+    out = []
+    for item in sets:
+        name, eq, value = item.partition("=")
+        if not eq:
+            raise ConfigError(f"--set expects name=value, got {item!r}")
+        out.append((name.strip(), value.strip()))
+    return out
+
+
+def to_json(cfg: Any) -> str:
+    """The effective configuration as JSON, for status replies and recording metadata."""
+    return json.dumps(dataclasses.asdict(cfg), default=str, sort_keys=True)

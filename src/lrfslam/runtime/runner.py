@@ -1,0 +1,248 @@
+"""The one service runner: arguments, config layering, logging, signals, Zenoh, replay.
+
+``lrfslam <service> [options]`` ends up in :func:`main`. Live, it opens a Zenoh
+session, declares a liveliness token ``lrf/<robot>/alive/<service>``, answers
+``lrf/<robot>/svc/<service>/status``, publishes ``lrf/<robot>/health/<service>``
+and drives the service's step until SIGTERM/SIGINT. With ``--replay IN.mcap`` it
+drives the same step over a recording, as fast as the CPU allows, and writes the
+outputs to ``--out OUT.mcap``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import socket
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+import zenoh
+
+from lrfslam.errors import ConfigError, DecodeError, InputError, LrfSlamError, SchemaVersionError
+from lrfslam.msgs import topics
+from lrfslam.msgs import types as t
+from lrfslam.runtime import config as config_mod
+
+
+from lrfslam.runtime.bus import BusConfig, LogOnce, ZenohBus, zenoh_config
+from lrfslam.runtime.recording import ReadReport, RecordingWriter, read_recording
+from lrfslam.runtime.service import Message, RunContext, ServiceSpec, Source, run_offline
+
+log = logging.getLogger("lrfslam")
+
+LOG_FORMAT = "%(asctime)s %(levelname)s [{service}] %(name)s: %(message)s"
+
+
+def add_common_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags every service (and ``lrfslam up``) understands."""
+    parser.add_argument("--config", metavar="FILE", help="TOML config file ([bus] and [<service>] tables)")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="NAME=VALUE",
+                        help="override one setting of the service (dotted for nested: histogram.bin_deg=10)")
+    parser.add_argument("--robot", help="robot namespace (keys lrf/<robot>/...)")
+    parser.add_argument("-m", "--mode", choices=("peer", "client", "router"), help="Zenoh mode")
+    parser.add_argument("-e", "--connect", action="append", metavar="ENDPOINT",
+                        help="Zenoh endpoint to connect to, e.g. tcp/zenohd:7447 (repeatable)")
+    parser.add_argument("-l", "--listen", action="append", metavar="ENDPOINT",
+                        help="Zenoh endpoint to listen on (repeatable)")
+    parser.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config applied first")
+    parser.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING, ERROR")
+
+
+def bus_config(args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) -> BusConfig:
+    """Defaults < file [bus] < LRFSLAM_BUS_* < flags."""
+    sets = [f"{name}={value}" for name, value in (
+        ("robot", args.robot), ("mode", args.mode), ("zenoh_config", args.zenoh_config),
+        ("connect", ",".join(args.connect) if args.connect else None),
+        ("listen", ",".join(args.listen) if args.listen else None),
+    ) if value]
+    return config_mod.load(BusConfig, table=file.get("bus", {}), env=env,
+                           env_prefix=f"{config_mod.ENV_PREFIX}_BUS", sets=sets)
+
+
+def service_config(spec: ServiceSpec, args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) -> Any:
+    """Defaults < file [<service>] < LRFSLAM_<SERVICE>_* < --set."""
+    return config_mod.load(spec.config_type, table=file.get(spec.name, {}), env=env,
+                           env_prefix=f"{config_mod.ENV_PREFIX}_{spec.name.upper()}", sets=args.sets)
+
+
+def setup_logging(service: str, level: str | None) -> None:
+    logging.basicConfig(level=(level or os.environ.get("LRFSLAM_LOG_LEVEL", "INFO")).upper(),
+                        format=LOG_FORMAT.format(service=service))
+
+
+def main(spec: ServiceSpec, argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog=f"lrfslam {spec.name}", description=spec.summary)
+    add_common_arguments(parser)
+    parser.add_argument("--replay", metavar="IN.mcap", help="run on a recording instead of the bus")
+    parser.add_argument("--out", metavar="OUT.mcap", help="with --replay: write the outputs here")
+    args = parser.parse_args(argv)
+    setup_logging(spec.name, args.log_level)
+    try:
+        file = config_mod.read_file(args.config)
+        bus = bus_config(args, file, os.environ)
+        cfg = service_config(spec, args, file, os.environ)
+        log.info("config %s", config_mod.to_json(cfg))
+        if args.replay:
+            counts = replay(spec, cfg, bus.robot, Path(args.replay), Path(args.out) if args.out else None)
+            log.info("replay done: %s", ", ".join(f"{k}={v}" for k, v in sorted(counts.items())))
+            return 0
+        if args.out:
+            raise ConfigError("--out needs --replay")
+        return run_live(spec, cfg, bus)
+    except LrfSlamError as exc:
+        log.error("%s", exc)
+        return 2
+
+
+# ---- replay ------------------------------------------------------------------------------
+
+
+def replay(spec: ServiceSpec, cfg: Any, robot: str, in_path: Path, out_path: Path | None) -> Counter:
+    """Run ``spec``'s step over the recording ``in_path``; write outputs to ``out_path``.
+
+    Deterministic: inputs come in log-time order, nothing reads the clock, and
+    the output file carries no wall-clock metadata, so two runs give the same bytes.
+    """
+    if not spec.inputs and not spec.raw_inputs:
+        raise ConfigError(f"{spec.name} is a source; it has no inputs to replay")
+    counts: Counter = Counter()
+    once = LogOnce(log)
+    step = spec.build(cfg, RunContext(robot, replay=True))
+    wanted = {tp.name: tp for tp in spec.inputs}
+    report = ReadReport()
+
+    def messages() -> Iterator[Message]:
+        for rec in read_recording(in_path, None if spec.raw_inputs else list(wanted), report):
+            if spec.raw_inputs:
+                counts["in.raw"] += 1
+                yield Message(None, rec.data, rec.publish_time_ns, rec.schema, rec.topic, rec.sequence)
+                continue
+            topic = wanted[rec.topic]
+            counts[f"in.{topic.name}"] += 1
+            try:
+                value = topic.codec.decode(rec.data, rec.schema)
+            except DecodeError as exc:
+                kind = "error.schema" if isinstance(exc, SchemaVersionError) else "error.decode"
+                counts[kind] += 1
+                once.warning(kind, rec.topic, "skipping a message on %s: %s", rec.topic, exc)
+                continue
+            yield Message(topic, value, value.stamp_ns, rec.schema, topic.name, value.seq)
+
+    writer = RecordingWriter(out_path, metadata={
+        "lrfslam": {"robot": robot, "service": spec.name, "replay_of": in_path.name,
+                    "config": config_mod.to_json(cfg)}}) if out_path else None
+    try:
+        def bad_input(msg: Message, exc: InputError) -> None:
+            once.warning("error.input", type(exc).__name__, "skipping bad input on %s: %s", msg.name, exc)
+
+        for out in run_offline(step, messages(), counts, bad_input):
+            counts[f"out.{out.topic.name}"] += 1
+            if writer is not None:
+                writer.write(out.topic.name, out.topic.schema, out.topic.codec.encode(out.value),
+                             out.value.stamp_ns, out.value.stamp_ns, out.value.seq)
+    finally:
+        step_close(step)
+        if writer is not None:
+            writer.close()
+    if report.truncated:
+        counts["input.truncated"] = 1
+    counts.update({f"step.{k}": v for k, v in getattr(step, "counts", {}).items()})
+    return counts
+
+
+def step_close(step: Any) -> None:
+    close = getattr(step, "close", None)
+    if close is not None:
+        close()
+
+
+# ---- live --------------------------------------------------------------------------------
+
+
+def install_signal_handlers(stop: threading.Event) -> None:
+    """SIGTERM and SIGINT set ``stop``; the loop finishes its message and exits cleanly."""
+    def handler(signum, _frame) -> None:
+        log.info("received %s, stopping", signal.Signals(signum).name)
+        stop.set()
+    signal.signal(signal.SIGTERM, handler)
+    signal.signal(signal.SIGINT, handler)
+
+
+def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Event | None = None) -> int:
+    """Run ``spec`` on Zenoh until ``stop`` is set (by a signal, unless given)."""
+    if stop is None:
+        stop = threading.Event()
+        install_signal_handlers(stop)
+    started = time.monotonic()
+    counts: Counter = Counter()
+    once = LogOnce(log)
+    zenoh.init_log_from_env_or("error")
+    robot = bus_cfg.robot
+    step = spec.build(cfg, RunContext(robot))
+    is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
+    last_data = [0]
+    health_topic = topics.health(spec.name)
+    with zenoh.open(zenoh_config(bus_cfg)) as session:
+        token = session.liveliness().declare_token(topics.alive(robot, spec.name))
+        status_q = session.declare_queryable(topics.status(robot, spec.name))
+        bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts)
+        log.info("%s up: robot=%s mode=%s connect=%s", spec.name, robot, bus_cfg.mode, ",".join(bus_cfg.connect))
+
+        def status() -> t.ServiceStatus:
+            level, message = step.health() if hasattr(step, "health") else (0, "ok")
+            merged = Counter(counts)
+            merged.update({f"step.{k}": v for k, v in getattr(step, "counts", {}).items()})
+            return t.ServiceStatus(
+                spec.name, robot, level, message, time.time_ns(), time.monotonic() - started,
+                dict(merged), last_data[0], config_mod.to_json(cfg),
+                tuple(tp.schema for tp in spec.inputs + spec.outputs), os.getpid(), socket.gethostname())
+
+        def publish(outs) -> None:
+            for out in outs:
+                bus.publish(out)
+                last_data[0] = max(last_data[0], int(out.value.stamp_ns))
+
+        next_health = 0.0
+        next_tick = 0.0
+        try:
+            while not stop.is_set():
+                if is_source:
+                    publish(step.poll(0.1))
+                else:
+                    msg = bus.get(0.1)
+                    if msg is not None:
+                        last_data[0] = max(last_data[0], int(msg.stamp_ns))
+                        try:
+                            publish(step.on_message(msg))
+                        except InputError as exc:
+                            counts["error.input"] += 1
+                            once.warning("error.input", type(exc).__name__, "skipping bad input on %s: %s",
+                                         msg.name, exc)
+                now = time.monotonic()
+                if now >= next_tick:
+                    next_tick = now + 0.1
+                    if hasattr(step, "tick"):
+                        step.tick()
+                    while (query := status_q.try_recv()) is not None:
+                        with query:
+                            st = status()
+                            query.reply(query.key_expr, health_topic.codec.encode(st),
+                                        encoding=zenoh.Encoding(health_topic.codec.encoding))
+                if now >= next_health:
+                    next_health = now + bus_cfg.health_period_s
+                    st = status()
+                    bus.put(health_topic, health_topic.codec.encode(st), st.wall_stamp_ns, counts["health"])
+                    counts["health"] += 1
+            publish(step.finish() if hasattr(step, "finish") else ())
+        finally:
+            step_close(step)
+            bus.close()
+            status_q.undeclare()
+            token.undeclare()
+    log.info("%s stopped cleanly", spec.name)
+    return 0
