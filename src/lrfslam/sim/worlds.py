@@ -1,0 +1,165 @@
+"""Built-in worlds: the hallway loop driven by ``lrfslam up``, and small test scenes.
+
+All maps are Manhattan-style, as the paper assumes (straight walls, right-angle
+corners, hallways at least 1.5 m wide). The small scenes put the robot at the
+origin facing +x unless stated otherwise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lrfslam.errors import ConfigError
+from lrfslam.sim.world import World, closed_polygon, polyline
+
+# Outer boundary of the hallway loop, free space inside. Corridors: bottom 2.0 m,
+# right 2.2 m, top 2.0 m, left 1.8 m, so widths vary but stay above the paper's 1.5 m.
+_HALLWAY_OUTER = (
+    (-1.8, -2.0),
+    # closed door, recessed 0.4 m
+    (3.0, -2.0), (3.0, -2.4), (3.9, -2.4), (3.9, -2.0),
+    # open 1 m doorway through a 0.15 m wall into a 5 m x 2.35 m room: jump edges at the jambs
+    (10.0, -2.0), (10.0, -2.15), (8.5, -2.15), (8.5, -4.5),
+    (13.5, -4.5), (13.5, -2.15), (11.0, -2.15), (11.0, -2.0),
+    (18.2, -2.0),
+    # side corridor, 1.8 m wide, deeper than the 8 m scanner limit: finite/no-return edges
+    (18.2, 4.0), (27.0, 4.0), (27.0, 5.8), (18.2, 5.8),
+    (18.2, 12.0),
+    # closed doors recessed 0.35 m and 0.5 m
+    (12.95, 12.0), (12.95, 12.35), (12.0, 12.35), (12.0, 12.0),
+    (5.9, 12.0), (5.9, 12.5), (5.0, 12.5), (5.0, 12.0),
+    (-1.8, 12.0),
+    # closed door recessed 0.3 m
+    (-1.8, 5.4), (-2.1, 5.4), (-2.1, 4.5), (-1.8, 4.5),
+)
+
+# The 16 m x 10 m block the corridor runs round, solid inside, with two door recesses.
+_HALLWAY_BLOCK = (
+    (0.0, 0.0),
+    (6.0, 0.0), (6.0, 0.4), (6.9, 0.4), (6.9, 0.0),
+    (16.0, 0.0),
+    (16.0, 2.0), (15.7, 2.0), (15.7, 2.95), (16.0, 2.95),
+    (16.0, 10.0),
+    (0.0, 10.0),
+)
+
+# Corridor centrelines, counter-clockwise round the block; starts mid-corridor so the
+# first scans are not taken in a turn.
+_HALLWAY_PATH = ((8.0, -1.0), (17.1, -1.0), (17.1, 11.0), (-0.9, 11.0), (-0.9, -1.0))
+
+
+def hallway_loop() -> World:
+    """Indoor floor: a corridor loop round a 16 m x 10 m block, with doors, a room and a side corridor.
+
+    Returns
+    -------
+    World
+        44 axis-aligned walls meeting in 44 right-angle corners (22 concave, 22 convex);
+        no free wall ends.
+    """
+    segments = np.vstack(
+        (closed_polygon(_HALLWAY_OUTER, free_inside=True), closed_polygon(_HALLWAY_BLOCK, free_inside=False))
+    )
+    return World(segments_m=segments, name="hallway_loop")
+
+
+def hallway_loop_path() -> np.ndarray:
+    """Closed loop through the corridor centrelines of :func:`hallway_loop`.
+
+    Returns
+    -------
+    ndarray, shape (5, 2)
+        Waypoints in metres, counter-clockwise; the loop closes from the last back to the first.
+    """
+    return np.array(_HALLWAY_PATH, dtype=float)
+
+
+_LOOP_WORLDS = {"hallway_loop": (hallway_loop, hallway_loop_path)}
+
+
+def world_names() -> tuple[str, ...]:
+    """Names accepted by :func:`build_world` and :func:`waypoints`."""
+    return tuple(_LOOP_WORLDS)
+
+
+def build_world(world_name: str) -> World:
+    """Build a registered world by name; raises ConfigError for an unknown name."""
+    return _lookup(world_name)[0]()
+
+
+def waypoints(world_name: str) -> np.ndarray:
+    """Closed-loop waypoints (P, 2), metres, of a registered world."""
+    return _lookup(world_name)[1]()
+
+
+def _lookup(world_name: str):
+    try:
+        return _LOOP_WORLDS[world_name]
+    except KeyError:
+        raise ConfigError(f"unknown world {world_name!r}; known: {', '.join(world_names())}") from None
+
+
+def l_corner(arm_m: float = 4.0, angle_deg: float = 90.0, corner_xy_m=(2.0, 0.0)) -> World:
+    """Two walls meeting at ``corner_xy_m``, opening towards the origin.
+
+    The walls leave the corner at bearings 180° ± angle_deg/2, so a robot at the origin
+    facing +x looks straight into a concave corner.
+
+    Parameters
+    ----------
+    arm_m : float
+        Length of each wall, metres.
+    angle_deg : float
+        Angle between the walls, degrees.
+    corner_xy_m : array_like, shape (2,)
+        Corner position, metres.
+    """
+    c = np.asarray(corner_xy_m, dtype=float)
+    half = np.radians(angle_deg) / 2.0
+    lower = c + arm_m * np.array([np.cos(np.pi + half), np.sin(np.pi + half)])
+    upper = c + arm_m * np.array([np.cos(np.pi - half), np.sin(np.pi - half)])
+    return World(segments_m=polyline([lower, c, upper]), name=f"l_corner_{angle_deg:g}deg")
+
+
+def straight_wall(length_m: float = 6.0, distance_m: float = 2.0) -> World:
+    """One wall across the view at x = ``distance_m``, centred on y = 0, facing the origin."""
+    half = length_m / 2.0
+    return World(segments_m=polyline([(distance_m, -half), (distance_m, half)]), name="straight_wall")
+
+
+def corridor_end(width_m: float = 1.6, length_m: float = 6.0, end_x_m: float = 3.0) -> World:
+    """A corridor along +x closed by a short end wall at x = ``end_x_m``: two concave corners.
+
+    Parameters
+    ----------
+    width_m : float
+        Corridor width, metres; the side walls are at y = ±width_m/2.
+    length_m : float
+        Length of the side walls, metres, ending at the end wall.
+    end_x_m : float
+        Position of the end wall, metres.
+    """
+    half = width_m / 2.0
+    start = end_x_m - length_m
+    chain = [(start, -half), (end_x_m, -half), (end_x_m, half), (start, half)]
+    return World(segments_m=polyline(chain), name="corridor_end")
+
+
+def doorway_room(
+    door_width_m: float = 1.0, wall_x_m: float = 1.0, room_depth_m: float = 2.5, half_width_m: float = 3.0
+) -> World:
+    """A thin wall ahead with a doorway centred on y = 0, and the room's far wall behind it.
+
+    The door jambs are free wall ends at (wall_x_m, ±door_width_m/2); the far wall is at
+    x = wall_x_m + room_depth_m. Walls span y = ±half_width_m.
+    """
+    h = door_width_m / 2.0
+    far_x = wall_x_m + room_depth_m
+    segments = np.vstack(
+        (
+            polyline([(wall_x_m, -half_width_m), (wall_x_m, -h)]),
+            polyline([(wall_x_m, h), (wall_x_m, half_width_m)]),
+            polyline([(far_x, -half_width_m), (far_x, half_width_m)]),
+        )
+    )
+    return World(segments_m=segments, name="doorway_room")
