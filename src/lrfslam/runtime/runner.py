@@ -65,9 +65,15 @@ def bus_config(args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) 
 
 
 def service_config(spec: ServiceSpec, args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) -> Any:
-    """Defaults < file [<service>] < LRFSLAM_<SERVICE>_* < --set."""
-    return config_mod.load(spec.config_type, table=file.get(spec.name, {}), env=env,
-                           env_prefix=f"{config_mod.ENV_PREFIX}_{spec.name.upper()}", sets=args.sets)
+    """Defaults (or the selected preset) < file [<service>] < LRFSLAM_<SERVICE>_* < --set and flags."""
+    sets = list(args.sets) + [f"{name}={getattr(args, name)}" for _, name, _ in spec.flags
+                              if getattr(args, name, None) is not None]
+    layers = dict(table=file.get(spec.name, {}), env=env,
+                  env_prefix=f"{config_mod.ENV_PREFIX}_{spec.name.upper()}", sets=sets)
+    cfg = config_mod.load(spec.config_type, **layers)
+    if spec.preset is not None:
+        cfg = config_mod.load(spec.config_type, base=spec.preset(cfg), **layers)
+    return cfg
 
 
 def setup_logging(service: str, level: str | None) -> None:
@@ -80,6 +86,8 @@ def main(spec: ServiceSpec, argv: list[str] | None = None) -> int:
     add_common_arguments(parser)
     parser.add_argument("--replay", metavar="IN.mcap", help="run on a recording instead of the bus")
     parser.add_argument("--out", metavar="OUT.mcap", help="with --replay: write the outputs here")
+    for flag, name, help_text in spec.flags:
+        parser.add_argument(flag, dest=name, help=f"{help_text} (same as --set {name}=...)")
     args = parser.parse_args(argv)
     setup_logging(spec.name, args.log_level)
     try:
@@ -207,6 +215,11 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                 bus.publish(out)
                 last_data[0] = max(last_data[0], int(out.value.stamp_ns))
 
+        def publish_health() -> None:
+            st = status()
+            bus.put(health_topic, health_topic.codec.encode(st), st.wall_stamp_ns, counts["health"])
+            counts["health"] += 1
+
         next_health = 0.0
         next_tick = 0.0
         try:
@@ -235,10 +248,9 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                                         encoding=zenoh.Encoding(health_topic.codec.encoding))
                 if now >= next_health:
                     next_health = now + bus_cfg.health_period_s
-                    st = status()
-                    bus.put(health_topic, health_topic.codec.encode(st), st.wall_stamp_ns, counts["health"])
-                    counts["health"] += 1
+                    publish_health()
             publish(step.finish() if hasattr(step, "finish") else ())
+            publish_health()  # the final counts, for supervisors and the recording
         finally:
             step_close(step)
             bus.close()

@@ -1,0 +1,63 @@
+"""feature: corner features by forward searching and jump edges by backward searching.
+
+in:  scan/filtered  FilteredScan
+out: features       Features (robot frame, 2x2 covariance, source beam, scan seq)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from lrfslam.algo.corners import CornerParams, extract_features
+from lrfslam.errors import ConfigError
+from lrfslam.msgs import topics
+from lrfslam.msgs import types as t
+from lrfslam.runtime.service import Message, Output, ServiceSpec, StepBase
+
+MODES = ("paper", "default")
+# algo.corners numbers kinds from 0 (forward, backward); the schema keeps 0 for "unknown".
+_KIND_TO_SCHEMA = (t.FEATURE_FORWARD, t.FEATURE_BACKWARD)
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    mode: str = "default"   # "paper" or "default"; presets corners.*
+    corners: CornerParams = field(default_factory=CornerParams.default)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"feature.mode must be one of {MODES}, got {self.mode!r}")
+
+
+def preset(cfg: FeatureConfig) -> FeatureConfig:
+    return dataclasses.replace(cfg, corners=getattr(CornerParams, cfg.mode)())
+
+
+class FeatureStep(StepBase):
+    def __init__(self, cfg: FeatureConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.seq = 0
+
+    def on_message(self, msg: Message):
+        fs: t.FilteredScan = msg.value
+        found = extract_features(fs.scan.ranges_m, fs.scan.angles_rad, fs.kept_mask, self.cfg.corners)
+        kinds = [_KIND_TO_SCHEMA[k] for k in found.kind.tolist()]
+        self.counts["scans"] += 1
+        self.counts["forward"] += kinds.count(t.FEATURE_FORWARD)
+        self.counts["backward"] += kinds.count(t.FEATURE_BACKWARD)
+        self.seq += 1
+        yield Output(topics.FEATURES, t.Features(fs.stamp_ns, self.seq, fs.scan.seq, kinds, found.xy_m,
+                                                 found.cov_m2, found.beam, found.angle_deg))
+
+
+SPEC = ServiceSpec(
+    name="feature",
+    summary="Forward (right-angle corner) and backward (depth-jump) searching on denoised scans.",
+    config_type=FeatureConfig,
+    inputs=(topics.SCAN_FILTERED,),
+    outputs=(topics.FEATURES,),
+    build=lambda cfg, ctx: FeatureStep(cfg),
+    preset=preset,
+)

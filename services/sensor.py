@@ -1,0 +1,117 @@
+"""sensor: laser scans and odometry, from the simulator or a real LMS200.
+
+out: scan   LaserScan (181 beams at 1°, 8 m sensor limit; the 4 m cut happens downstream)
+     odom   Odometry  (integrated wheel odometry, same stamp as its scan)
+     truth  GroundTruth (simulator only: true pose and visible corners)
+
+The sensor is the one stage that reads the clock: it stamps the data. Every
+later stage takes time from these stamps.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+from lrfslam.errors import ConfigError
+from lrfslam.msgs import topics
+from lrfslam.msgs import types as t
+from lrfslam.runtime.service import Output, RunContext, ServiceSpec, StepBase
+from lrfslam.sim.lidar import LidarModel
+from lrfslam.sim.odometry import OdometryNoise
+from lrfslam.sim.simulator import SimConfig, Simulator
+
+SOURCES = ("auto", "sim", "lms200")
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    source: str = "auto"                # "sim" (built-in world), "lms200" (serial), "auto": lms200 if device is set
+    # -- simulator
+    world: str = "hallway_loop"
+    seed: int = 1
+    rate_hz: float = 10.0               # scans per second of simulated time
+    speed_mps: float = 0.5
+    speedup: float = 1.0                # simulated seconds per wall second; 0 = as fast as possible
+    range_sigma_m: float = 0.01
+    mixed_pixel_prob: float = 0.3
+    odom_trans_sigma_per_m: float = 0.02
+    odom_rot_sigma_per_rad: float = 0.02
+    max_scans: int = 0                  # stop producing after this many (0 = endless)
+    # -- LMS200
+    device: str = ""                    # serial port, e.g. /dev/ttyUSB0 or an emulator's pty
+    baud: int = 38400                   # 9600, 19200, 38400 or 500000
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ConfigError(f"sensor.source must be one of {SOURCES}, got {self.source!r}")
+        if not self.rate_hz > 0 or self.speedup < 0:
+            raise ConfigError("sensor.rate_hz must be > 0 and sensor.speedup >= 0")
+
+
+class SimSource(StepBase):
+    """Publishes simulator frames paced at ``rate_hz × speedup`` of wall time."""
+
+    def __init__(self, cfg: SensorConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        lidar = LidarModel(range_sigma_m=cfg.range_sigma_m, mixed_pixel_prob=cfg.mixed_pixel_prob)
+        odom = OdometryNoise(trans_sigma_per_m=cfg.odom_trans_sigma_per_m,
+                             rot_sigma_per_rad=cfg.odom_rot_sigma_per_rad)
+        self.sim = Simulator(SimConfig(world_name=cfg.world, lidar=lidar, odometry=odom, speed_mps=cfg.speed_mps,
+                                       rate_hz=cfg.rate_hz, seed=cfg.seed))
+        self.frames = iter(self.sim)
+        self.corners_xy = self.sim.map_corners.xy_m
+        # Whole milliseconds keep stamps readable; the rest of each stamp is simulated time.
+        self.t0_ns = time.time_ns() // 1_000_000 * 1_000_000
+        self.t0_mono = time.monotonic()
+        self.produced = 0
+
+    def poll(self, timeout_s: float):
+        if self.cfg.max_scans and self.produced >= self.cfg.max_scans:
+            time.sleep(timeout_s)
+            return ()
+        if self.cfg.speedup > 0:
+            due = self.t0_mono + self.produced / self.cfg.rate_hz / self.cfg.speedup
+            wait = due - time.monotonic()
+            if wait > timeout_s:
+                time.sleep(timeout_s)
+                return ()
+            if wait > 0:
+                time.sleep(wait)
+        frame = next(self.frames)
+        self.produced += 1
+        seq = frame.index + 1
+        stamp = self.t0_ns + int(round(frame.t_s * 1e9))
+        lidar = self.sim.config.lidar
+        scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad,
+                                       lidar.angle_increment_rad, lidar.max_range_m,
+                                       scan_time_s=1.0 / self.cfg.rate_hz, source="sim")
+        ids = frame.visible_corner_ids
+        self.counts["scans"] += 1
+        return (
+            Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose)),
+            Output(topics.TRUTH, t.GroundTruth(stamp, seq, frame.true_pose, ids, self.corners_xy[ids],
+                                               self.cfg.world)),
+            Output(topics.SCAN, scan),
+        )
+
+
+def build(cfg: SensorConfig, ctx: RunContext):
+    if cfg.source == "sim" or (cfg.source == "auto" and not cfg.device):
+        return SimSource(cfg)
+    from lrfslam.services.sensor_lms200 import Lms200Source
+    return Lms200Source(cfg)
+
+
+SPEC = ServiceSpec(
+    name="sensor",
+    summary="Laser scans + odometry from the simulated hallway (default) or an LMS200 on a serial port.",
+    config_type=SensorConfig,
+    inputs=(),
+    outputs=(topics.SCAN, topics.ODOM, topics.TRUTH),
+    build=build,
+    flags=(("--source", "source", "sim or lms200"), ("--device", "device", "LMS200 serial port"),
+           ("--baud", "baud", "LMS200 baud rate"), ("--seed", "seed", "simulator seed"),
+           ("--speedup", "speedup", "simulated seconds per wall second, 0 = as fast as possible")),
+)

@@ -1,0 +1,60 @@
+"""``lrfslam``: the one command line of the project.
+
+    lrfslam up [--duration S]          the whole pipeline on the simulated hallway, with a summary
+    lrfslam <service> [...]            one service live, or on a recording with --replay IN --out OUT
+    lrfslam status                     live services and their statistics
+    lrfslam router                     a Zenoh router
+    lrfslam info FILE.mcap             topics, schemas, counts and duration of a recording
+    lrfslam eval features|slam|relations ...
+    lrfslam import carmen LOG -o FILE.mcap
+    lrfslam emulate-lms200             an LMS200 on a pseudo-terminal
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+from lrfslam import services
+
+# command -> (module, function, one-line help)
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    "up": ("lrfslam.tools.up", "main", "run the whole pipeline (router + five services) and summarise"),
+    "status": ("lrfslam.tools.status", "main", "list live services and their statistics"),
+    "router": ("lrfslam.tools.router", "main", "run a Zenoh router"),
+    "info": ("lrfslam.tools.info", "main", "describe an MCAP recording"),
+    "eval": ("lrfslam.tools.evaluate", "main", "accuracy evaluations (features, slam, relations)"),
+    "import": ("lrfslam.tools.importers", "main", "convert a log (CARMEN) into a recording"),
+    "emulate-lms200": ("lrfslam.drivers.lms200.emulator", "main", "emulate an LMS200 on a pseudo-terminal"),
+    "export": ("lrfslam.tools.export", "main", "export the map and trajectory of a recording (JSON, PNG)"),
+}
+
+
+def usage() -> str:
+    lines = ["usage: lrfslam <command> [options]   (lrfslam <command> --help for its options)", "",
+             "services (each a separate process; --replay IN.mcap --out OUT.mcap runs it on a recording):"]
+    for name in services.NAMES:
+        lines.append(f"  {name:15s} {services.spec(name).summary}")
+    lines += ["", "commands:"]
+    lines += [f"  {name:15s} {text}" for name, (_, _, text) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(usage())
+        return 0 if argv else 2
+    command, rest = argv[0], argv[1:]
+    if command in services.NAMES:
+        from lrfslam.runtime.runner import main as run_service
+        return run_service(services.spec(command), rest)
+    if command not in COMMANDS:
+        print(f"lrfslam: unknown command {command!r}\n\n{usage()}", file=sys.stderr)
+        return 2
+    module, func, _ = COMMANDS[command]
+    return int(getattr(importlib.import_module(module), func)(rest) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

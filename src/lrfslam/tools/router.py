@@ -1,0 +1,43 @@
+"""``lrfslam router``: a Zenoh router in a Python process.
+
+Stands in for ``zenohd`` where the official image or binary is not available
+(CI, ``lrfslam up``); deployments may use either, the services cannot tell.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import threading
+
+import zenoh
+
+from lrfslam.runtime.runner import install_signal_handlers, setup_logging
+
+log = logging.getLogger("lrfslam.router")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lrfslam router", description=__doc__.splitlines()[0])
+    parser.add_argument("-l", "--listen", action="append", metavar="ENDPOINT",
+                        help="endpoint to listen on (default tcp/127.0.0.1:7447; tcp/0.0.0.0:7447 for remote hosts)")
+    parser.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                        help="other routers to connect to")
+    parser.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config (TLS, ACL, ...) applied first")
+    parser.add_argument("--log-level", default=None)
+    args = parser.parse_args(argv)
+    setup_logging("router", args.log_level)
+    conf = zenoh.Config.from_file(args.zenoh_config) if args.zenoh_config else zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", json.dumps(args.listen or ["tcp/127.0.0.1:7447"]))
+    conf.insert_json5("connect/endpoints", json.dumps(args.connect))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    stop = threading.Event()
+    install_signal_handlers(stop)
+    zenoh.init_log_from_env_or("error")
+    with zenoh.open(conf):
+        log.info("router listening on %s", ", ".join(args.listen or ["tcp/127.0.0.1:7447"]))
+        stop.wait()
+    log.info("router stopped")
+    return 0

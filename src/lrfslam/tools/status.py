@@ -1,0 +1,88 @@
+"""``lrfslam status``: which services are alive, and what their status queryables say."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import zenoh
+
+from lrfslam.errors import DecodeError
+from lrfslam.msgs import codec, topics
+from lrfslam.msgs import types as t
+
+LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
+
+
+def client_config(connect: list[str]) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps(connect))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def query_status(session: zenoh.Session, robot: str, timeout_s: float) -> tuple[set[tuple[str, str]],
+                                                                               list[t.ServiceStatus]]:
+    """Live (robot, service) pairs from liveliness, and every status reply."""
+    alive: set[tuple[str, str]] = set()
+    for reply in session.liveliness().get(f"{topics.ROOT}/{robot}/alive/*", timeout=timeout_s):
+        if reply.ok is not None:
+            parts = str(reply.ok.key_expr).split("/")
+            alive.add((parts[1], parts[3]))
+    statuses = []
+    for reply in session.get(f"{topics.ROOT}/{robot}/svc/*/status", timeout=timeout_s):
+        if reply.ok is None:
+            continue
+        try:
+            statuses.append(codec.SERVICE_STATUS.decode(reply.ok.payload.to_bytes(),
+                                                        codec.parse_encoding(str(reply.ok.encoding))))
+        except DecodeError:
+            continue
+    return alive, sorted(statuses, key=lambda s: (s.robot, s.service))
+
+
+def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus]) -> str:
+    rows = [("robot", "service", "alive", "health", "uptime_s", "in", "out", "dropped", "errors", "pid@host")]
+    seen = set()
+    for s in statuses:
+        seen.add((s.robot, s.service))
+        c = s.counters
+        rows.append((s.robot, s.service, "yes" if (s.robot, s.service) in alive else "no",
+                     LEVELS.get(s.level, str(s.level)), f"{s.uptime_s:.0f}",
+                     str(sum(v for k, v in c.items() if k.startswith("in."))),
+                     str(sum(v for k, v in c.items() if k.startswith("out."))),
+                     str(c.get("drop.queue", 0)),
+                     str(sum(v for k, v in c.items() if k.startswith("error.") or k.startswith("step.error"))),
+                     f"{s.pid}@{s.host}"))
+    for robot, service in sorted(alive - seen):
+        rows.append((robot, service, "yes", "?", "", "", "", "", "", ""))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(v.ljust(w) for v, w in zip(r, widths)) for r in rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lrfslam status", description=__doc__)
+    parser.add_argument("-e", "--connect", action="append", metavar="ENDPOINT",
+                        help="router to ask (default tcp/127.0.0.1:7447); works from another host")
+    parser.add_argument("--robot", default="*", help="robot namespace (default: all)")
+    parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for replies")
+    parser.add_argument("--json", action="store_true", help="print the raw status records as JSON")
+    args = parser.parse_args(argv)
+    zenoh.init_log_from_env_or("error")
+    try:
+        session = zenoh.open(client_config(args.connect or ["tcp/127.0.0.1:7447"]))
+    except zenoh.ZError as exc:
+        print(f"lrfslam status: cannot reach {args.connect or 'tcp/127.0.0.1:7447'}: {exc}", file=sys.stderr)
+        return 2
+    with session:
+        alive, statuses = query_status(session, args.robot, args.timeout)
+    if args.json:
+        print(json.dumps([s.__dict__ for s in statuses], indent=2, default=list))
+    elif not alive and not statuses:
+        print("no lrfslam service answered")
+        return 1
+    else:
+        print(format_table(alive, statuses))
+    return 0

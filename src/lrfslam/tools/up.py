@@ -1,0 +1,287 @@
+"""``lrfslam up``: the whole pipeline as separate processes, supervised, with a summary.
+
+Starts a Zenoh router, then recorder, slam, feature and denoise, waits until each
+has declared its liveliness token, then starts the sensor. A service that dies
+is restarted (up to ``--max-restarts`` times). On Ctrl-C, SIGTERM or after
+``--duration`` seconds the sensor stops first, the pipeline drains, the rest stop
+in order, and a summary compares the SLAM estimate with the simulator's ground truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.errors import DecodeError
+from lrfslam.msgs import codec, topics
+from lrfslam.runtime.bus import parse_attachment
+from lrfslam.runtime.recording import read_recording
+from lrfslam.runtime.runner import install_signal_handlers, setup_logging
+from lrfslam.tools.status import client_config
+
+log = logging.getLogger("lrfslam.up")
+
+START_ORDER = ("recorder", "slam", "feature", "denoise", "sensor")
+
+
+@dataclass
+class Child:
+    """One supervised process."""
+
+    name: str
+    argv: list[str]
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    stopping: bool = False
+
+    def start(self) -> None:
+        self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL)
+
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def stop(self, timeout_s: float) -> int | None:
+        """SIGTERM, then SIGKILL after ``timeout_s``; the exit code."""
+        self.stopping = True
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                log.warning("%s did not stop in %.0f s; killing it", self.name, timeout_s)
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+
+@dataclass
+class Observer:
+    """What the supervisor hears on the bus: truth, SLAM states and each service's last health."""
+
+    truth: dict[int, bytes] = field(default_factory=dict)
+    states: deque = field(default_factory=lambda: deque(maxlen=100_000))
+    health: dict[str, bytes] = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def on_truth(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
+        att = sample.attachment
+        _, stamp = parse_attachment(att.to_bytes() if att is not None else None)
+        with self.lock:
+            self.truth[stamp] = data
+
+    def on_state(self, sample: zenoh.Sample) -> None:
+        with self.lock:
+            self.states.append(sample.payload.to_bytes())
+
+    def on_health(self, sample: zenoh.Sample) -> None:
+        with self.lock:
+            self.health[str(sample.key_expr).rsplit("/", 1)[-1]] = sample.payload.to_bytes()
+
+    def last_state_stamp(self) -> int:
+        with self.lock:
+            return codec.SLAM_STATE.decode(self.states[-1]).stamp_ns if self.states else 0
+
+
+def child_argv(name: str, args: argparse.Namespace, endpoint: str, extra: list[str]) -> list[str]:
+    argv = [sys.executable, "-m", "lrfslam.cli", name, "--robot", args.robot, "--mode", "client",
+            "--connect", endpoint, "--log-level", args.log_level]
+    if args.config:
+        argv += ["--config", args.config]
+    return argv + extra
+
+
+def wait_alive(session: zenoh.Session, robot: str, names: list[str], timeout_s: float) -> set[str]:
+    """Names among ``names`` whose liveliness token appeared within ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    seen: set[str] = set()
+    while time.monotonic() < deadline and not set(names) <= seen:
+        for reply in session.liveliness().get(f"{topics.ROOT}/{robot}/alive/*", timeout=1.0):
+            if reply.ok is not None:
+                seen.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+        time.sleep(0.1)
+    return seen & set(names)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lrfslam up", description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=0.0, help="seconds to run (default: until Ctrl-C)")
+    parser.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall second")
+    parser.add_argument("--seed", type=int, default=1, help="simulator seed")
+    parser.add_argument("--robot", default="robot1")
+    parser.add_argument("--port", type=int, default=7447, help="router port on 127.0.0.1")
+    parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                        help="extra router endpoint, e.g. tcp/0.0.0.0:7447 for remote monitoring")
+    parser.add_argument("--config", help="TOML config passed to every service")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="SERVICE.NAME=VALUE",
+                        help="override one service setting, e.g. --set feature.mode=paper")
+    parser.add_argument("--recordings", default="recordings", help="folder for the MCAP recording")
+    parser.add_argument("--max-restarts", type=int, default=3)
+    parser.add_argument("--log-level", default="WARNING", help="log level of the services")
+    args = parser.parse_args(argv)
+    setup_logging("up", "INFO")
+
+    extra: dict[str, list[str]] = {n: [] for n in START_ORDER}
+    for item in args.sets:
+        service, dot, rest = item.partition(".")
+        if not dot or service not in extra:
+            parser.error(f"--set expects SERVICE.NAME=VALUE with SERVICE in {', '.join(START_ORDER)}: {item!r}")
+        extra[service] += ["--set", rest]
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    recording = Path(args.recordings) / f"{stamp}_{args.robot}.mcap"
+    extra["recorder"] += ["--set", f"directory={recording.parent}", "--set", f"filename={recording.name}"]
+    extra["sensor"] += ["--set", f"speedup={args.speedup}", "--set", f"seed={args.seed}"]
+
+    endpoint = f"tcp/127.0.0.1:{args.port}"
+    stop = threading.Event()
+    install_signal_handlers(stop)
+    router = Child("router", [sys.executable, "-m", "lrfslam.cli", "router", "--log-level", args.log_level]
+                   + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)])
+    router.start()
+    children = {n: Child(n, child_argv(n, args, endpoint, extra[n])) for n in START_ORDER}
+    observer = Observer()
+    counts: Counter = Counter()
+    started = time.monotonic()
+    try:
+        session = _open_with_retry(endpoint, router, 10.0)
+    except RuntimeError as exc:
+        log.error("%s", exc)
+        router.stop(5)
+        return 2
+    with session:
+        subs = [session.declare_subscriber(topics.key(args.robot, topics.TRUTH.name), observer.on_truth),
+                session.declare_subscriber(topics.key(args.robot, topics.SLAM_STATE.name), observer.on_state),
+                session.declare_subscriber(topics.key(args.robot, "health/*"), observer.on_health)]
+        for name in START_ORDER[:-1]:
+            children[name].start()
+        ready = wait_alive(session, args.robot, list(START_ORDER[:-1]), 30.0)
+        missing = set(START_ORDER[:-1]) - ready
+        if missing:
+            log.warning("no liveliness token yet from %s; starting the sensor anyway", ", ".join(sorted(missing)))
+        children["sensor"].start()
+        log.info("pipeline up: robot %s, router %s, recording %s", args.robot, endpoint, recording)
+        deadline = started + args.duration if args.duration > 0 else None
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            for child in children.values():
+                if not child.alive() and not child.stopping:
+                    code = child.proc.returncode if child.proc else None
+                    if child.restarts >= args.max_restarts:
+                        log.error("%s exited (%s) %d times; giving up on it", child.name, code, child.restarts + 1)
+                        child.stopping = True
+                        continue
+                    child.restarts += 1
+                    counts[f"restart.{child.name}"] += 1
+                    log.warning("%s exited with %s; restarting (%d/%d)", child.name, code, child.restarts,
+                                args.max_restarts)
+                    child.start()
+            stop.wait(0.2)
+        log.info("stopping: sensor first, then draining the pipeline")
+        children["sensor"].stop(10)
+        _drain(observer, 5.0)
+        for name in ("denoise", "feature", "slam", "recorder"):
+            children[name].stop(15)
+        time.sleep(0.3)  # let the last health messages arrive
+        for sub in subs:
+            sub.undeclare()
+    router.stop(5)
+    print(summary(observer, children, recording, time.monotonic() - started))
+    return 0
+
+
+def _open_with_retry(endpoint: str, router: Child, timeout_s: float) -> zenoh.Session:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return zenoh.open(client_config([endpoint]))
+        except zenoh.ZError as exc:
+            if time.monotonic() > deadline or not router.alive():
+                raise RuntimeError(f"cannot reach the router at {endpoint}: {exc}") from exc
+            time.sleep(0.2)
+
+
+def _drain(observer: Observer, timeout_s: float) -> None:
+    """Wait until the SLAM state has caught up with the last ground truth (or ``timeout_s``)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with observer.lock:
+            last_truth = max(observer.truth) if observer.truth else 0
+        if observer.last_state_stamp() >= last_truth:
+            return
+        time.sleep(0.1)
+
+
+def pose_errors(observer: Observer) -> dict[str, float] | None:
+    """Final-pose and trajectory errors of SLAM against truth, both anchored at SLAM's first pose."""
+    with observer.lock:
+        states = [codec.SLAM_STATE.decode(b) for b in observer.states]
+        truth = {k: codec.GROUND_TRUTH.decode(v) for k, v in observer.truth.items()}
+    pairs = [(s, truth[s.stamp_ns]) for s in states if s.stamp_ns in truth]
+    if not pairs:
+        return None
+    # SLAM's map frame is its first pose; express its estimates in the world frame.
+    first_est, first_true = pairs[0]
+    anchor = compose(first_true.pose, relative(first_est.pose, np.zeros(3)))
+    est = np.array([compose(anchor, s.pose) for s, _ in pairs])
+    tru = np.array([g.pose for _, g in pairs])
+    d = np.linalg.norm(est[:, :2] - tru[:, :2], axis=1)
+    last = pairs[-1][0]
+    return {
+        "scans": float(len(pairs)),
+        "final_xy_m": float(d[-1]),
+        "final_heading_deg": float(np.degrees(abs(wrap_angle(est[-1, 2] - tru[-1, 2])))),
+        "ate_rmse_m": float(np.sqrt(np.mean(d ** 2))),
+        "landmarks": float(last.landmark_ids.size),
+        "confirmed": float(last.landmark_confirmed.sum()),
+    }
+
+
+def summary(observer: Observer, children: dict[str, Child], recording: Path, wall_s: float) -> str:
+    lines = ["", f"lrfslam up: ran {wall_s:.1f} s", "", "stage      in          out         dropped  errors  restarts  exit"]
+    with observer.lock:
+        health = dict(observer.health)
+    for name in START_ORDER:
+        c = {}
+        if name in health:
+            try:
+                c = codec.SERVICE_STATUS.decode(health[name]).counters
+            except DecodeError:
+                pass
+        ins = sum(v for k, v in c.items() if k.startswith("in."))
+        outs = sum(v for k, v in c.items() if k.startswith("out.") and not k.startswith("out.health"))
+        errs = sum(v for k, v in c.items() if k.startswith("error.") or ".error" in k)
+        child = children[name]
+        code = child.proc.returncode if child.proc else None
+        lines.append(f"{name:10s} {ins:<11d} {outs:<11d} {c.get('drop.queue', 0):<8d} {errs:<7d} "
+                     f"{child.restarts:<9d} {code}")
+    err = pose_errors(observer)
+    lines.append("")
+    if err is None:
+        lines.append("SLAM: no state matched to ground truth")
+    else:
+        lines.append(f"SLAM: {err['scans']:.0f} scans, {err['landmarks']:.0f} landmarks "
+                     f"({err['confirmed']:.0f} confirmed)")
+        lines.append(f"      final pose error {err['final_xy_m'] * 100:.1f} cm, {err['final_heading_deg']:.2f} deg; "
+                     f"trajectory RMSE {err['ate_rmse_m'] * 100:.1f} cm (first pose anchored)")
+    if recording.exists():
+        per_topic = Counter(m.topic for m in read_recording(recording))
+        lines.append(f"recording: {recording} ({recording.stat().st_size / 1e6:.1f} MB, "
+                     f"{sum(per_topic.values())} messages: "
+                     + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not k.startswith("health/"))
+                     + ")")
+    else:
+        lines.append(f"recording: {recording} was not written")
+    return "\n".join(lines)
