@@ -165,3 +165,9 @@ def test_same_seed_same_scan():
 def test_invalid_model_is_a_config_error(changes):
     with pytest.raises(ConfigError):
         LidarModel(**changes)
+
+
+def test_range_bias_shifts_every_return():
+    s = simulate_scan(straight_wall(100.0, 2.0), (0, 0, 0), _quiet(), np.random.default_rng(0), range_bias_m=0.05)
+    finite = np.isfinite(s.true_ranges_m)
+    np.testing.assert_allclose(s.ranges_m[finite], s.true_ranges_m[finite] + 0.05, rtol=1e-12)

@@ -84,3 +84,17 @@ def test_visible_corners_robot_xy_maps_back_to_the_map():
 def test_unknown_world_is_a_config_error():
     with pytest.raises(ConfigError):
         Simulator(dataclasses.replace(SimConfig(), world_name="atlantis"))
+
+
+def test_range_bias_is_drawn_once_per_run():
+    lidar = LidarModel(range_sigma_m=0.0, quantum_m=0.0, mixed_pixel_prob=0.0, range_bias_sigma_m=0.02)
+    frames = _frames(SimConfig(seed=11, lidar=lidar), 30)
+    offsets = []
+    for f in frames:
+        finite = np.isfinite(f.scan.true_ranges_m) & np.isfinite(f.scan.ranges_m)
+        offsets.append(f.scan.ranges_m[finite] - f.scan.true_ranges_m[finite])
+    offsets = np.concatenate(offsets)
+    assert offsets[0] != 0.0
+    np.testing.assert_allclose(offsets, offsets[0], atol=1e-12)
+    biases = [Simulator(SimConfig(seed=s, lidar=lidar)).range_bias_m for s in range(200)]
+    assert np.std(biases) == pytest.approx(0.02, rel=0.2)

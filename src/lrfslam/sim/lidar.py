@@ -46,6 +46,10 @@ class LidarModel:
         Smallest range difference between neighbours that counts as a depth edge.
     dropout_prob : float
         Probability that a beam with a return reports none.
+    range_bias_sigma_m : float
+        Standard deviation of the systematic range offset (LMS200: ±15 mm typ.). It
+        does not average out over scans, so the :class:`~lrfslam.sim.simulator.Simulator`
+        draws it once per run and passes it to :func:`simulate_scan`.
     """
 
     n_beams: int = 181
@@ -57,12 +61,13 @@ class LidarModel:
     mixed_pixel_prob: float = 0.3
     mixed_pixel_min_jump_m: float = 0.3
     dropout_prob: float = 0.0
+    range_bias_sigma_m: float = 0.0
 
     def __post_init__(self) -> None:
         if self.n_beams < 2:
             raise ConfigError(f"n_beams must be >= 2, got {self.n_beams}")
-        if not self.max_range_m > 0 or self.range_sigma_m < 0 or self.quantum_m < 0:
-            raise ConfigError("max_range_m must be > 0; range_sigma_m and quantum_m must be >= 0")
+        if not self.max_range_m > 0 or min(self.range_sigma_m, self.quantum_m, self.range_bias_sigma_m) < 0:
+            raise ConfigError("max_range_m must be > 0; range_sigma_m, quantum_m, range_bias_sigma_m must be >= 0")
         for name in ("mixed_pixel_prob", "dropout_prob"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -133,7 +138,9 @@ def raycast(segments_m: np.ndarray, pose, angles_rad: np.ndarray, max_range_m: f
     return ranges
 
 
-def simulate_scan(world: World, pose, model: LidarModel, rng: np.random.Generator) -> SimScan:
+def simulate_scan(
+    world: World, pose, model: LidarModel, rng: np.random.Generator, range_bias_m: float = 0.0
+) -> SimScan:
     """Simulate one scan of ``world`` from ``pose``.
 
     Every call draws the same number of variates from ``rng`` whatever the geometry,
@@ -146,6 +153,8 @@ def simulate_scan(world: World, pose, model: LidarModel, rng: np.random.Generato
         Sensor pose ``(x_m, y_m, theta_rad)`` in the world frame.
     model : LidarModel
     rng : numpy.random.Generator
+    range_bias_m : float
+        Systematic offset added to every return, metres (see ``LidarModel.range_bias_sigma_m``).
 
     Returns
     -------
@@ -161,12 +170,15 @@ def simulate_scan(world: World, pose, model: LidarModel, rng: np.random.Generato
     dropout_draw = rng.random(n)
 
     ranges, spurious = _mixed_pixels(true_ranges, model, edge_draw, weight)
-    finite = np.isfinite(ranges)
-    ranges[finite] = np.maximum(ranges[finite] + noise[finite], 0.0)
     ranges[dropout_draw < model.dropout_prob] = np.inf
+    finite = np.isfinite(ranges)
+    measured = np.maximum(ranges[finite] + range_bias_m + noise[finite], 0.0)
     if model.quantum_m > 0:
-        ranges[finite] = np.round(ranges[finite] / model.quantum_m) * model.quantum_m
+        measured = np.round(measured / model.quantum_m) * model.quantum_m
+    ranges[finite] = measured
     ranges[ranges > model.max_range_m] = np.inf
+    # A mixed pixel that dropped out is no longer a point in empty space.
+    spurious &= np.isfinite(ranges)
     return SimScan(ranges_m=ranges, true_ranges_m=true_ranges, spurious=spurious, angles_rad=angles)
 
 

@@ -93,6 +93,15 @@ class Simulator:
     ----------
     config : SimConfig
         Raises :class:`~lrfslam.errors.ConfigError` for an unknown world or bad values.
+
+    Attributes
+    ----------
+    world : World
+    map_corners : MapCorners
+        Ground-truth corners; ``SimFrame.visible_corner_ids`` index into them.
+    trajectory : LoopTrajectory
+    range_bias_m : float
+        The run's systematic range offset, drawn once from ``lidar.range_bias_sigma_m``.
     """
 
     def __init__(self, config: SimConfig) -> None:
@@ -103,6 +112,7 @@ class Simulator:
             loop_path(waypoints(config.world_name), config.corner_radius_m), config.speed_mps, config.rate_hz
         )
         self._scan_rng, self._odom_rng = np.random.default_rng(config.seed).spawn(2)
+        self.range_bias_m = float(self._scan_rng.standard_normal() * config.lidar.range_bias_sigma_m)
         self._index = 0
         self._true_pose = self.trajectory.pose(0)
         self._odom_pose = self._true_pose.copy()
@@ -128,7 +138,7 @@ class Simulator:
             true_pose=true_pose,
             odom_pose=self._odom_pose.copy(),
             odom_delta=odom_delta,
-            scan=simulate_scan(self.world, true_pose, cfg.lidar, self._scan_rng),
+            scan=simulate_scan(self.world, true_pose, cfg.lidar, self._scan_rng, self.range_bias_m),
             visible_corner_ids=ids,
             visible_corners_robot_xy=corners_in_robot_frame(self.world, true_pose, ids),
         )
