@@ -84,7 +84,10 @@ def test_noise_statistics_match_sigma():
     # With no range limit the wall returns beams 1..179; beams at exactly ±90° run parallel to it.
     model = _quiet(range_sigma_m=0.01, max_range_m=1e6)
     err = np.concatenate(
-        [s.ranges_m[1:-1] - s.true_ranges_m[1:-1] for s in (simulate_scan(world, (0, 0, 0), model, rng) for _ in range(50))]
+        [
+            s.ranges_m[1:-1] - s.true_ranges_m[1:-1]
+            for s in (simulate_scan(world, (0, 0, 0), model, rng) for _ in range(50))
+        ]
     )
     assert err.size == 179 * 50
     assert abs(np.std(err) - 0.01) < 0.2 * 0.01

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -107,7 +109,7 @@ def test_zero_noise_odometry_reproduces_the_trajectory():
     true = traj.pose(np.arange(600))
     rng = np.random.default_rng(0)
     zero = OdometryNoise(0.0, 0.0, 0.0)
-    deltas = [noisy_increment(relative(a, b), zero, rng) for a, b in zip(true[:-1], true[1:])]
+    deltas = [noisy_increment(relative(a, b), zero, rng) for a, b in itertools.pairwise(true)]
     odom = integrate_odometry(true[0], deltas)
     np.testing.assert_allclose(odom[:, :2], true[:, :2], atol=1e-9)
     np.testing.assert_allclose(wrap_angle(odom[:, 2] - true[:, 2]), 0.0, atol=1e-9)

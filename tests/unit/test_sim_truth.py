@@ -7,8 +7,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lrfslam.algo.geometry import from_frame
-from lrfslam.sim.world import World, closed_polygon
-from lrfslam.sim.worlds import corridor_end, doorway_room, hallway_loop, l_corner
 from lrfslam.sim.truth import (
     corners_in_robot_frame,
     eligible_corners,
@@ -16,6 +14,8 @@ from lrfslam.sim.truth import (
     visible_corners,
     visible_points,
 )
+from lrfslam.sim.world import World, closed_polygon
+from lrfslam.sim.worlds import corridor_end, doorway_room, hallway_loop, l_corner
 
 ORIGIN = (0.0, 0.0, 0.0)
 

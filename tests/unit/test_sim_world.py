@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -85,7 +87,9 @@ def test_inconsistent_orientation_is_a_config_error():
         World(seg, "bad").corners()
 
 
-@pytest.mark.parametrize("bad", [np.zeros((0, 4)), np.zeros((3, 3)), np.array([[0, 0, 0, 0.001]]), np.array([[0, 0, np.nan, 1]])])
+@pytest.mark.parametrize(
+    "bad", [np.zeros((0, 4)), np.zeros((3, 3)), np.array([[0, 0, 0, 0.001]]), np.array([[0, 0, np.nan, 1]])]
+)
 def test_malformed_segments_are_rejected(bad):
     with pytest.raises(ConfigError):
         World(bad, "bad")
@@ -137,7 +141,7 @@ def test_hallway_path_closes_and_keeps_the_corridor_width():
     closed = np.vstack((path, path[:1]))
     # Sample the straight legs densely: every point is at least half a 1.5 m hallway from any wall.
     s = np.linspace(0.0, 1.0, 400)[:, None]
-    samples = np.vstack([a + s * (b - a) for a, b in zip(closed[:-1], closed[1:])])
+    samples = np.vstack([a + s * (b - a) for a, b in itertools.pairwise(closed)])
     clearance = _point_segment_distance(samples, w.segments_m).min(axis=1)
     assert clearance.min() >= 0.75
     legs = np.diff(closed, axis=0)

@@ -193,7 +193,9 @@ def _mixed_pixels(true_ranges, model: LidarModel, edge_draw, weight):
     with np.errstate(invalid="ignore"):
         jump = np.abs(right - left)
     # A beam with no return has no far surface to blend with, so only finite pairs count.
-    edges = np.flatnonzero(np.isfinite(jump) & (jump > model.mixed_pixel_min_jump_m) & (edge_draw < model.mixed_pixel_prob))
+    edges = np.flatnonzero(
+        np.isfinite(jump) & (jump > model.mixed_pixel_min_jump_m) & (edge_draw < model.mixed_pixel_prob)
+    )
     for i in edges:
         near, far = (i, i + 1) if left[i] < right[i] else (i + 1, i)
         if spurious[far]:

@@ -12,6 +12,7 @@ import numpy as np
 from lrfslam.errors import ConfigError
 from lrfslam.sim.world import World, closed_polygon, polyline
 
+# fmt: off
 # Outer boundary of the hallway loop, free space inside. Corridors: bottom 2.0 m,
 # right 2.2 m, top 2.0 m, left 1.8 m, so widths vary but stay above the paper's 1.5 m.
 _HALLWAY_OUTER = (
@@ -42,6 +43,7 @@ _HALLWAY_BLOCK = (
     (16.0, 10.0),
     (0.0, 10.0),
 )
+# fmt: on
 
 # Corridor centrelines, counter-clockwise round the block; starts mid-corridor so the
 # first scans are not taken in a turn.
