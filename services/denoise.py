@@ -30,8 +30,10 @@ class DenoiseConfig:
             raise ConfigError(f"denoise.mode must be one of {MODES}, got {self.mode!r}")
 
 
-def preset(cfg: DenoiseConfig) -> DenoiseConfig:
-    return dataclasses.replace(cfg, histogram=getattr(DenoiseParams, cfg.mode)())
+def preset(mode: str) -> DenoiseConfig:
+    if mode not in MODES:
+        raise ConfigError(f"mode must be one of {MODES}, got {mode!r}")
+    return DenoiseConfig(mode=mode, histogram=getattr(DenoiseParams, mode)())
 
 
 class DenoiseStep(StepBase):

@@ -6,7 +6,6 @@ out: features       Features (robot frame, 2x2 covariance, source beam, scan seq
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 from lrfslam.algo.corners import CornerParams, extract_features
@@ -30,8 +29,10 @@ class FeatureConfig:
             raise ConfigError(f"feature.mode must be one of {MODES}, got {self.mode!r}")
 
 
-def preset(cfg: FeatureConfig) -> FeatureConfig:
-    return dataclasses.replace(cfg, corners=getattr(CornerParams, cfg.mode)())
+def preset(mode: str) -> FeatureConfig:
+    if mode not in MODES:
+        raise ConfigError(f"mode must be one of {MODES}, got {mode!r}")
+    return FeatureConfig(mode=mode, corners=getattr(CornerParams, mode)())
 
 
 class FeatureStep(StepBase):

@@ -150,6 +150,25 @@ def load(cls: type[C], *, table: Mapping | None = None, env: Mapping[str, str] |
     return _build(cls, values, base=base)
 
 
+def peek(cls: type, name: str, *, table: Mapping | None = None, env: Mapping[str, str] | None = None,
+         env_prefix: str = "", sets: typing.Iterable[str] = ()) -> Any:
+    """The layered value of top-level field ``name`` alone, without building the whole config.
+
+    Used to pick a preset (e.g. ``mode``) before the other values, which may only
+    be valid on top of that preset, are applied.
+    """
+    hint, value = _fields(cls)[name]
+    if table and name in table:
+        value = coerce(table[name], hint, name)
+    var = f"{env_prefix}_{name.upper()}"
+    if env is not None and env_prefix and var in env:
+        value = coerce(env[var], hint, var)
+    for key, raw in _parse_sets(sets):
+        if key == name:
+            value = coerce(raw, hint, name)
+    return value
+
+
 def _parse_sets(sets: typing.Iterable[str]) -> list[tuple[str, str]]:
     out = []
     for item in sets:

@@ -70,10 +70,8 @@ def service_config(spec: ServiceSpec, args: argparse.Namespace, file: Mapping, e
                               if getattr(args, name, None) is not None]
     layers = dict(table=file.get(spec.name, {}), env=env,
                   env_prefix=f"{config_mod.ENV_PREFIX}_{spec.name.upper()}", sets=sets)
-    cfg = config_mod.load(spec.config_type, **layers)
-    if spec.preset is not None:
-        cfg = config_mod.load(spec.config_type, base=spec.preset(cfg), **layers)
-    return cfg
+    base = spec.preset(config_mod.peek(spec.config_type, "mode", **layers)) if spec.preset else None
+    return config_mod.load(spec.config_type, base=base, **layers)
 
 
 def setup_logging(service: str, level: str | None) -> None:

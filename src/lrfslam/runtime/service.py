@@ -82,9 +82,9 @@ class ServiceSpec:
     outputs: tuple[Topic, ...]
     build: Callable[[Any, "RunContext"], Any]
     raw_inputs: bool = False   # receive every key under the robot undecoded (the recorder)
-    #: Given a first-pass config, the config whose values the layers then override
-    #: (e.g. the "paper" or "default" parameter preset selected by ``mode``).
-    preset: Callable[[Any], Any] | None = None
+    #: Given the configured ``mode``, the config whose values the layers then override
+    #: (the "paper" or "default" parameter preset).
+    preset: Callable[[str], Any] | None = None
     #: Service-specific flags: (flag, config field, help), e.g. ("--device", "device", "serial port").
     flags: tuple[tuple[str, str, str], ...] = ()
 
