@@ -1,0 +1,206 @@
+"""EkfSlam's sparse O(n)/O(n²) steps against dense reference computations.
+
+The update is checked against filterpy's dense ``ExtendedKalmanFilter.update``
+(Joseph form); prediction and augmentation against dense linearisations built
+from finite-difference Jacobians, so the analytic Jacobians are checked too.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from filterpy.kalman import ExtendedKalmanFilter
+
+from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
+from lrfslam.algo.geometry import compose, wrap_angle
+
+TOL = 1e-9
+
+
+def random_filter(rng, n_lm, params=None, confirmed=True):
+    """A filter holding a random state and a random well-conditioned covariance."""
+    n = 3 + 2 * n_lm
+    pose = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)])
+    # Landmarks 1-5 m from the robot so ranges and bearings are well defined.
+    ang = rng.uniform(-np.pi, np.pi, n_lm)
+    rad = rng.uniform(1.0, 5.0, n_lm)
+    lms = pose[:2] + np.column_stack((rad * np.cos(ang), rad * np.sin(ang)))
+    a = rng.normal(size=(n, n)) * 0.1
+    cov = a @ a.T / n + 0.01 * np.eye(n)
+    snap = {
+        "format": 1,
+        "state_mean": np.concatenate((pose, lms.ravel())),
+        "state_cov": cov,
+        "landmark_ids": np.arange(n_lm, dtype=np.int64) + 10,
+        "landmark_kinds": np.zeros(n_lm, dtype=np.int8),
+        "landmark_sightings": np.full(n_lm, 5),
+        "landmark_confirmed": np.full(n_lm, confirmed),
+        "landmark_born": np.zeros(n_lm, dtype=np.int64),
+        "landmark_view_ref_rad": np.zeros(n_lm),
+        "landmark_view_spread_rad": np.zeros(n_lm),
+        "next_id": 10 + n_lm,
+        "n_observe": 0,
+    }
+    return EkfSlam.restore(params or EkfParams(), snap)
+
+
+def measure(x, i):
+    """Dense range-bearing model of landmark index ``i``: returns h (2,1), H (2, n)."""
+    dx, dy = x[3 + 2 * i] - x[0], x[4 + 2 * i] - x[1]
+    q = dx * dx + dy * dy
+    r = np.sqrt(q)
+    h = np.array([[r], [wrap_angle(np.arctan2(dy, dx) - x[2])]])
+    H = np.zeros((2, x.size))
+    H[:, :3] = [[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]]
+    H[:, 3 + 2 * i: 5 + 2 * i] = [[dx / r, dy / r], [-dy / q, dx / q]]
+    return h, H
+
+
+def filterpy_update(x, P, z, R, i):
+    """One update through filterpy's dense EKF (notes §3.3: (2,1) z, wrapped residual)."""
+    ekf = ExtendedKalmanFilter(dim_x=x.size, dim_z=2)
+    ekf.x = x.reshape(-1, 1).copy()
+    ekf.P = P.copy()
+
+    def residual(a, b):
+        y = a - b
+        y[1, 0] = wrap_angle(y[1, 0])
+        return y
+
+    ekf.update(
+        z.reshape(2, 1),
+        lambda xc, j: measure(xc.ravel(), j)[1],
+        lambda xc, j: measure(xc.ravel(), j)[0],
+        R=R, args=(i,), hx_args=(i,), residual=residual,
+    )
+    xo = ekf.x.ravel().copy()
+    xo[2] = wrap_angle(xo[2])
+    return xo, ekf.P
+
+
+def num_jacobian(f, v, eps=1e-6):
+    """Central-difference Jacobian of ``f`` at ``v``."""
+    cols = []
+    for k in range(v.size):
+        d = np.zeros_like(v)
+        d[k] = eps
+        cols.append((f(v + d) - f(v - d)) / (2 * eps))
+    return np.column_stack(cols)
+
+
+@pytest.mark.parametrize("n_lm", [1, 2, 3, 4, 5, 6])
+@pytest.mark.parametrize("seed", range(4))
+def test_known_update_matches_filterpy(n_lm, seed):
+    rng = np.random.default_rng(100 * n_lm + seed)
+    f = random_filter(rng, n_lm)
+    x, P = f.state_mean, f.state_cov
+    i = int(rng.integers(n_lm))
+    h, _ = measure(x, i)
+    z = h.ravel() + rng.normal(scale=[0.05, 0.03])
+    b = rng.normal(size=(2, 2)) * 0.05
+    R = b @ b.T + np.diag([1e-4, 1e-4])
+    x_ref, P_ref = filterpy_update(x, P, z, R, i)
+    f.update_known(10 + i, z, R)
+    np.testing.assert_allclose(f.state_mean, x_ref, atol=TOL, rtol=0)
+    np.testing.assert_allclose(f.state_cov, P_ref, atol=TOL, rtol=0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_observe_of_confirmed_landmark_matches_filterpy(seed):
+    """The whole observe() path: cartesian input → polar z and R → full update."""
+    rng = np.random.default_rng(seed)
+    params = EkfParams(corner_range_sigma_m=0.02, corner_bearing_sigma_rad=0.01, backward_sigma_scale=1.5)
+    f = random_filter(rng, 3, params)
+    x, P = f.state_mean, f.state_cov
+    i = int(rng.integers(3))
+    kind = int(rng.integers(2))
+    h, _ = measure(x, i)
+    z = h.ravel() + rng.normal(scale=[0.01, 0.005])
+    point = z[0] * np.array([np.cos(z[1]), np.sin(z[1])])
+    cov_xy = np.diag([4e-4, 1e-4])
+    jac = np.array([[np.cos(z[1]), np.sin(z[1])], [-np.sin(z[1]) / z[0], np.cos(z[1]) / z[0]]])
+    R = jac @ cov_xy @ jac.T + np.diag([0.02**2, 0.01**2])
+    R *= 1.5**2 if kind else 1.0
+    x_ref, P_ref = filterpy_update(x, P, z, R, i)
+    rep = f.observe(point[None], cov_xy[None], np.array([kind]))
+    assert rep.status[0] == ObsStatus.MATCHED and rep.landmark_ids[0] == 10 + i
+    assert rep.pose_corrected[0]
+    np.testing.assert_allclose(f.state_mean, x_ref, atol=TOL, rtol=0)
+    np.testing.assert_allclose(f.state_cov, P_ref, atol=TOL, rtol=0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_tentative_update_is_dense_joseph_with_landmark_only_gain(seed):
+    rng = np.random.default_rng(50 + seed)
+    params = EkfParams(corner_range_sigma_m=0.02, corner_bearing_sigma_rad=0.01, min_sightings_to_confirm=99)
+    f = random_filter(rng, 4, params, confirmed=False)
+    x, P = f.state_mean, f.state_cov
+    i = int(rng.integers(4))
+    h, H = measure(x, i)
+    z = h.ravel() + rng.normal(scale=[0.01, 0.005])
+    R = np.diag([0.02**2, 0.01**2])
+    S = H @ P @ H.T + R
+    K = np.zeros((x.size, 2))
+    rows = slice(3 + 2 * i, 5 + 2 * i)
+    K[rows] = (P @ H.T @ np.linalg.inv(S))[rows]
+    nu = z - h.ravel()
+    nu[1] = wrap_angle(nu[1])
+    IKH = np.eye(x.size) - K @ H
+    P_ref = IKH @ P @ IKH.T + K @ R @ K.T
+    rep = f.observe((z[0] * np.array([np.cos(z[1]), np.sin(z[1])]))[None])
+    assert rep.status[0] == ObsStatus.MATCHED and not rep.pose_corrected[0]
+    np.testing.assert_allclose(f.state_mean, x + K @ nu, atol=TOL, rtol=0)
+    np.testing.assert_allclose(f.state_cov, P_ref, atol=TOL, rtol=0)
+    # The pose block and every other landmark are untouched by a tentative.
+    np.testing.assert_array_equal(f.state_cov[:3, :3], P[:3, :3])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_predict_matches_dense_linearisation(seed):
+    rng = np.random.default_rng(seed)
+    params = EkfParams(odom_trans_sigma_floor_m=0.01, odom_rot_sigma_floor_rad=0.02)
+    f = random_filter(rng, 4, params)
+    x, P = f.state_mean, f.state_cov
+    u = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.2), rng.uniform(-0.5, 0.5)])
+    d = np.hypot(u[0], u[1])
+    var_t = 0.01**2 + (params.odom_trans_sigma_per_m * d) ** 2
+    var_r = 0.02**2 + (params.odom_rot_sigma_per_rad * u[2]) ** 2 + (params.odom_rot_sigma_per_m * d) ** 2
+
+    def motion(v):  # full state and increment → new full state, heading unwrapped
+        out = v[:-3].copy()
+        out[:3] = compose(v[:3], v[-3:])
+        out[2] = v[2] + v[-1]
+        return out
+
+    J = num_jacobian(motion, np.concatenate((x, u)))
+    F, G = J[:, : x.size], J[:, x.size:]
+    P_ref = F @ P @ F.T + G @ np.diag([var_t, var_t, var_r]) @ G.T
+    f.predict(u)
+    np.testing.assert_allclose(f.state_cov, P_ref, atol=1e-8, rtol=0)
+    np.testing.assert_allclose(f.pose, compose(x[:3], u), atol=1e-12)
+    np.testing.assert_array_equal(f.state_mean[3:], x[3:])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_augmentation_has_full_cross_covariance(seed):
+    rng = np.random.default_rng(seed)
+    params = EkfParams(corner_range_sigma_m=0.03, corner_bearing_sigma_rad=0.02)
+    f = random_filter(rng, 3, params)
+    x, P = f.state_mean, f.state_cov
+    # A point far from every landmark (well beyond the new-landmark gate).
+    far = x[3:].reshape(-1, 2).max(axis=0) + 20.0
+    rb = np.array([np.hypot(*(far - x[:2])), wrap_angle(np.arctan2(*(far - x[:2])[::-1]) - x[2])])
+    point = rb[0] * np.array([np.cos(rb[1]), np.sin(rb[1])])
+    rep = f.observe(point[None])
+    assert rep.status[0] == ObsStatus.NEW and rep.landmark_ids[0] == 13
+
+    def augment(v):
+        st, (r, b) = v[:-2], v[-2:]
+        return np.concatenate((st, st[:2] + r * np.array([np.cos(st[2] + b), np.sin(st[2] + b)])))
+
+    J = num_jacobian(augment, np.concatenate((x, rb)))
+    big = np.zeros((x.size + 2, x.size + 2))
+    big[: x.size, : x.size] = P
+    big[x.size:, x.size:] = np.diag([0.03**2, 0.02**2])
+    np.testing.assert_allclose(f.state_mean, augment(np.concatenate((x, rb))), atol=1e-9)
+    np.testing.assert_allclose(f.state_cov, J @ big @ J.T, atol=1e-7, rtol=0)
