@@ -129,9 +129,9 @@ def test_hallway_walls_are_axis_aligned_and_every_vertex_a_right_angle_corner():
     dx, dy = seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]
     assert np.all((dx == 0) ^ (dy == 0))
     c = w.corners()
-    assert len(c) == len(seg) == 44
+    assert len(c) == len(seg) == 52
     np.testing.assert_allclose(c.angle_deg, 90.0)
-    assert (c.kind == "concave").sum() == 22 and (c.kind == "convex").sum() == 22
+    assert (c.kind == "concave").sum() == 26 and (c.kind == "convex").sum() == 26
     assert len(w.free_endpoints()) == 0
 
 

@@ -26,12 +26,17 @@ _HALLWAY_OUTER = (
     # side corridor, 1.8 m wide, deeper than the 8 m scanner limit: finite/no-return edges
     (18.2, 4.0), (27.0, 4.0), (27.0, 5.8), (18.2, 5.8),
     (18.2, 12.0),
-    # closed doors recessed 0.35 m and 0.5 m
+    # closed door recessed 0.35 m
     (12.95, 12.0), (12.95, 12.35), (12.0, 12.35), (12.0, 12.0),
+    # alcove 2 m wide, 1.4 m deep: its walls are long enough for the 1.2 m search arms
+    (10.0, 12.0), (10.0, 13.4), (8.0, 13.4), (8.0, 12.0),
+    # closed door recessed 0.5 m
     (5.9, 12.0), (5.9, 12.5), (5.0, 12.5), (5.0, 12.0),
     (-1.8, 12.0),
     # closed door recessed 0.3 m
     (-1.8, 5.4), (-2.1, 5.4), (-2.1, 4.5), (-1.8, 4.5),
+    # alcove 2.2 m wide, 1.3 m deep
+    (-1.8, 3.2), (-3.1, 3.2), (-3.1, 1.0), (-1.8, 1.0),
 )
 
 # The 16 m x 10 m block the corridor runs round, solid inside, with two door recesses.
@@ -51,12 +56,12 @@ _HALLWAY_PATH = ((8.0, -1.0), (17.1, -1.0), (17.1, 11.0), (-0.9, 11.0), (-0.9, -
 
 
 def hallway_loop() -> World:
-    """Indoor floor: a corridor loop round a 16 m x 10 m block, with doors, a room and a side corridor.
+    """Indoor floor: a corridor loop round a 16 m x 10 m block, with doors, alcoves, a room and a side corridor.
 
     Returns
     -------
     World
-        44 axis-aligned walls meeting in 44 right-angle corners (22 concave, 22 convex);
+        52 axis-aligned walls meeting in 52 right-angle corners (26 concave, 26 convex);
         no free wall ends.
     """
     segments = np.vstack(
