@@ -77,7 +77,7 @@ class LidarModel:
         return beam_angles(self.n_beams, self.angle_min_rad, self.angle_increment_rad)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SimScan:
     """One simulated scan.
 
@@ -185,7 +185,10 @@ def simulate_scan(
 def _mixed_pixels(true_ranges, model: LidarModel, edge_draw, weight):
     """Blend the far-side beam of selected depth edges towards the near side.
 
-    Returns the new ranges (N,) and the mask of blended beams (N,).
+    Edges are found on the true ranges: the footprint straddles two real surfaces,
+    whatever the noise on either. ``edge_draw`` and ``weight`` (N - 1,) are the
+    per-neighbour-pair uniform draws. Returns the new ranges (N,) and the mask of
+    blended beams (N,).
     """
     ranges = true_ranges.copy()
     spurious = np.zeros(len(ranges), dtype=bool)

@@ -52,7 +52,7 @@ class SimConfig:
     seed: int = 0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SimFrame:
     """One simulation step.
 

@@ -22,7 +22,7 @@ SNAP_TOLERANCE_M = 0.01
 CORNER_ANGLE_TOL_DEG = 20.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MapCorners:
     """Ground-truth corners of a segment map.
 
