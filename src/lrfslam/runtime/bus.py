@@ -12,6 +12,7 @@ import json
 import logging
 import queue
 import struct
+import threading
 from collections import Counter
 from dataclasses import dataclass
 from typing import Any
@@ -60,6 +61,24 @@ def zenoh_config(cfg: BusConfig) -> zenoh.Config:
     # Multicast does not cross container networks and must not leave loopback in CI.
     conf.insert_json5("scouting/multicast/enabled", "false")
     return conf
+
+
+def open_session(conf: zenoh.Config, stop: threading.Event, endpoints: tuple[str, ...]) -> zenoh.Session | None:
+    """Open a Zenoh session, retrying while the router is not up yet; None if ``stop`` is set first.
+
+    A client's ``open`` fails at once when its router is unreachable; services may
+    start before their router (compose, restarts), so they wait for it instead.
+    """
+    delay = 0.2
+    while True:
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError as exc:
+            if delay == 0.2:
+                log.warning("cannot reach %s yet (%s); retrying", ", ".join(endpoints), str(exc).split(" at ")[0])
+            if stop.wait(delay):
+                return None
+            delay = min(delay * 2, 2.0)
 
 
 class LogOnce:

@@ -29,7 +29,7 @@ from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
 
 
-from lrfslam.runtime.bus import BusConfig, LogOnce, ZenohBus, zenoh_config
+from lrfslam.runtime.bus import BusConfig, LogOnce, ZenohBus, open_session, zenoh_config
 from lrfslam.runtime.recording import ReadReport, RecordingWriter, read_recording
 from lrfslam.runtime.service import Message, RunContext, ServiceSpec, Source, run_offline
 
@@ -193,7 +193,11 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
     is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
     last_data = [0]
     health_topic = topics.health(spec.name)
-    with zenoh.open(zenoh_config(bus_cfg)) as session:
+    session = open_session(zenoh_config(bus_cfg), stop, bus_cfg.connect)
+    if session is None:
+        step_close(step)
+        return 0
+    with session:
         token = session.liveliness().declare_token(topics.alive(robot, spec.name))
         status_q = session.declare_queryable(topics.status(robot, spec.name))
         bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts)

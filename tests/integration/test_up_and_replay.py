@@ -1,0 +1,66 @@
+"""The user's two paths: ``lrfslam up`` end to end, and one stage re-run on its recording."""
+
+from __future__ import annotations
+
+import re
+import socket
+import subprocess
+import sys
+
+import pytest
+
+from lrfslam.msgs import codec
+from lrfslam.runtime.recording import read_recording
+
+pytestmark = pytest.mark.integration
+
+
+def lrfslam(*args: str, cwd, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "lrfslam.cli", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def up_run(tmp_path_factory):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cwd = tmp_path_factory.mktemp("up")
+    res = lrfslam("up", "--duration", "12", "--speedup", "4", "--port", str(port), "--robot", "r7", cwd=cwd)
+    assert res.returncode == 0, res.stderr[-3000:]
+    (recording,) = (cwd / "recordings").glob("*_r7.mcap")
+    return res.stdout, recording, cwd
+
+
+def test_up_summarises_every_stage_and_the_pose_error(up_run):
+    stdout, recording, _ = up_run
+    rows = {m.group(1): (int(m.group(2)), int(m.group(3))) for m in
+            re.finditer(r"^(sensor|denoise|feature|slam|recorder)\s+(\d+)\s+(\d+)", stdout, re.M)}
+    assert set(rows) == {"sensor", "denoise", "feature", "slam", "recorder"}, stdout
+    scans = rows["sensor"][1] // 3            # scan + odom + truth per step
+    assert scans >= 50
+    assert rows["denoise"] == (scans, scans)
+    assert rows["feature"][0] == scans and rows["slam"][1] == scans
+    err = re.search(r"final pose error ([\d.]+) cm", stdout)
+    assert err and float(err.group(1)) < 50, stdout
+    assert str(recording.name) in stdout
+
+
+def test_a_stage_replays_its_recording_deterministically(up_run):
+    _, recording, cwd = up_run
+    outs = []
+    for name in ("a.mcap", "b.mcap"):
+        res = lrfslam("slam", "--replay", str(recording), "--out", name, "--log-level", "WARNING", cwd=cwd)
+        assert res.returncode == 0, res.stderr
+        outs.append(cwd / name)
+    assert outs[0].read_bytes() == outs[1].read_bytes()
+    states = [codec.SLAM_STATE.decode(m.data) for m in read_recording(outs[0])]
+    recorded = [m for m in read_recording(recording, ["features"])]
+    assert len(states) == len(recorded) > 0
+    assert [s.stamp_ns for s in states] == sorted(s.stamp_ns for s in states)
+
+
+def test_a_source_cannot_be_replayed(up_run):
+    _, recording, cwd = up_run
+    res = lrfslam("sensor", "--replay", str(recording), cwd=cwd)
+    assert res.returncode == 2 and "source" in res.stderr
