@@ -1,0 +1,50 @@
+"""``lrfslam info FILE.mcap``: topics, schemas, message counts, rates and duration of a recording."""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+from pathlib import Path
+
+from lrfslam.errors import RecordingError
+from lrfslam.runtime.recording import ReadReport, read_recording
+
+
+def describe(path: Path) -> str:
+    report = ReadReport()
+    stats: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 2**63, 0])
+    for m in read_recording(path, report=report):
+        s = stats[(m.topic, m.schema)]
+        s[0] += 1
+        s[1] = min(s[1], m.log_time_ns)
+        s[2] = max(s[2], m.log_time_ns)
+    if not stats:
+        return f"{path}: no messages" + (f" ({report.reason})" if report.truncated else "")
+    start = min(s[1] for s in stats.values())
+    end = max(s[2] for s in stats.values())
+    duration = (end - start) / 1e9
+    lines = [f"file:      {path} ({path.stat().st_size / 1e6:.2f} MB)",
+             f"duration:  {duration:.2f} s", f"messages:  {sum(s[0] for s in stats.values())}"]
+    if report.truncated:
+        lines.append(f"WARNING:   not finished cleanly ({report.reason}); complete chunks were read")
+    lines.append("")
+    width = max(len(t) for t, _ in stats)
+    lines.append(f"{'topic'.ljust(width)}  {'count':>7}  {'rate_hz':>8}  schema")
+    for (topic, schema), (n, _, _) in sorted(stats.items()):
+        rate = n / duration if duration > 0 else 0.0
+        lines.append(f"{topic.ljust(width)}  {n:>7}  {rate:>8.2f}  {schema or '<none>'}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lrfslam info", description=__doc__)
+    parser.add_argument("files", nargs="+", type=Path, metavar="FILE.mcap")
+    args = parser.parse_args(argv)
+    code = 0
+    for path in args.files:
+        try:
+            print(describe(path))
+        except RecordingError as exc:
+            print(f"lrfslam info: {exc}")
+            code = 1
+    return code
