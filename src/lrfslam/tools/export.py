@@ -1,0 +1,129 @@
+"""``lrfslam export FILE.mcap -o DIR``: the final map and the trajectory as JSON and a PNG plot.
+
+The plot shows landmarks with their 95 % covariance ellipses, the estimated
+trajectory, raw odometry, and — when the recording has it — the ground truth
+(trajectory and map corners), all in the frame of the first SLAM pose anchored
+to the first true pose so they can be compared by eye.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from lrfslam.algo.geometry import compose, relative
+from lrfslam.msgs import codec, topics
+from lrfslam.runtime.recording import read_recording
+
+CHI2_2D_95 = 5.991
+
+
+def collect(path: Path) -> dict:
+    """Trajectory, odometry, truth and the last SLAM state of a recording."""
+    states, odom, truth = [], {}, {}
+    last = None
+    for m in read_recording(path, [topics.SLAM_STATE.name, topics.ODOM.name, topics.TRUTH.name]):
+        if m.topic == topics.SLAM_STATE.name:
+            last = codec.SLAM_STATE.decode(m.data, m.schema)
+            states.append((last.stamp_ns, last.pose))
+        elif m.topic == topics.ODOM.name:
+            o = codec.ODOMETRY.decode(m.data, m.schema)
+            odom[o.stamp_ns] = o.pose
+        else:
+            g = codec.GROUND_TRUTH.decode(m.data, m.schema)
+            truth[g.stamp_ns] = g
+    if last is None:
+        raise SystemExit(f"lrfslam export: {path} has no {topics.SLAM_STATE.name} messages")
+    return {"states": states, "odom": odom, "truth": truth, "last": last}
+
+
+def anchor_of(states, frames: dict) -> np.ndarray:
+    """Transform from the SLAM map frame to the frame of ``frames`` (truth or odometry), by the first pose."""
+    for stamp, pose in states:
+        if stamp in frames:
+            ref = frames[stamp].pose if hasattr(frames[stamp], "pose") else frames[stamp]
+            return compose(ref, relative(pose, np.zeros(3)))
+    return np.zeros(3)
+
+
+def to_json(data: dict) -> dict:
+    last = data["last"]
+    return {
+        "frame": "map (the first SLAM pose)",
+        "landmarks": [
+            {"id": int(i), "x_m": float(xy[0]), "y_m": float(xy[1]), "covariance_m2": c.tolist(),
+             "kind": "forward" if k == 1 else "backward", "sightings": int(n), "confirmed": bool(ok)}
+            for i, xy, c, k, n, ok in zip(last.landmark_ids, last.landmark_xy_m, last.landmark_cov_m2,
+                                          last.landmark_kind, last.landmark_sightings, last.landmark_confirmed)
+        ],
+        "trajectory": [{"stamp_ns": int(s), "x_m": float(p[0]), "y_m": float(p[1]), "theta_rad": float(p[2])}
+                       for s, p in data["states"]],
+        "final_pose_covariance": last.pose_cov.tolist(),
+    }
+
+
+def ellipse(mean: np.ndarray, cov: np.ndarray, n: int = 48) -> np.ndarray:
+    """Points (n, 2) of the 95 % ellipse of a 2-D Gaussian."""
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    radii = np.sqrt(np.maximum(vals, 0.0) * CHI2_2D_95)
+    a = np.linspace(0, 2 * np.pi, n)
+    return mean + (vecs @ (radii[:, None] * np.vstack((np.cos(a), np.sin(a))))).T
+
+
+def plot(data: dict, png: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    have_truth = bool(data["truth"])
+    anchor = anchor_of(data["states"], data["truth"]) if have_truth else np.zeros(3)
+    fig, ax = plt.subplots(figsize=(9, 7))
+    est = np.array([compose(anchor, p) for _, p in data["states"]])
+    if have_truth:
+        tru = np.array([g.pose for _, g in sorted(data["truth"].items())])
+        ax.plot(tru[:, 0], tru[:, 1], color="0.6", lw=2, label="ground truth")
+        corners = {}
+        for g in data["truth"].values():
+            corners.update({int(i): xy for i, xy in zip(g.corner_ids, g.corners_xy_m)})
+        if corners:
+            c = np.array(list(corners.values()))
+            ax.scatter(c[:, 0], c[:, 1], marker="s", s=18, facecolors="none", edgecolors="0.4",
+                       label="true corners")
+    if data["odom"]:
+        odom_anchor = compose(anchor, relative(anchor_of(data["states"], data["odom"]), np.zeros(3)))
+        od = np.array([compose(odom_anchor, p) for _, p in sorted(data["odom"].items())])
+        ax.plot(od[:, 0], od[:, 1], color="tab:orange", lw=1, ls="--", label="odometry")
+    ax.plot(est[:, 0], est[:, 1], color="tab:blue", lw=1.2, label="EKF estimate")
+    last = data["last"]
+    c, s = np.cos(anchor[2]), np.sin(anchor[2])
+    rot = np.array([[c, -s], [s, c]])
+    for xy, cov, ok in zip(last.landmark_xy_m, last.landmark_cov_m2, last.landmark_confirmed):
+        m = anchor[:2] + rot @ xy
+        e = ellipse(m, rot @ cov @ rot.T)
+        ax.plot(e[:, 0], e[:, 1], color="tab:red" if ok else "tab:pink", lw=0.8)
+        ax.plot(*m, "+", color="tab:red" if ok else "tab:pink", ms=6)
+    ax.plot([], [], "+", color="tab:red", label="landmarks (95 % ellipses)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"{len(last.landmark_ids)} landmarks, {len(data['states'])} poses")
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lrfslam export", description=__doc__.splitlines()[0])
+    parser.add_argument("recording", type=Path, help="recording (or --replay output) with slam/state")
+    parser.add_argument("-o", "--out-dir", type=Path, default=Path("."), help="folder for map.json and map.png")
+    args = parser.parse_args(argv)
+    data = collect(args.recording)
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    (args.out_dir / "map.json").write_text(json.dumps(to_json(data), indent=1))
+    plot(data, args.out_dir / "map.png")
+    print(f"wrote {args.out_dir / 'map.json'} and {args.out_dir / 'map.png'}")
+    return 0
