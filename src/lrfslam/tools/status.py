@@ -8,6 +8,7 @@ import sys
 
 import zenoh
 
+from lrfslam import services
 from lrfslam.errors import DecodeError
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
@@ -32,7 +33,10 @@ def query_status(session: zenoh.Session, robot: str, timeout_s: float) -> tuple[
             parts = str(reply.ok.key_expr).split("/")
             alive.add((parts[1], parts[3]))
     statuses = []
-    for reply in session.get(f"{topics.ROOT}/{robot}/svc/*/status", timeout=timeout_s):
+    # Services reply on the query's own (wildcard) key, so the default consolidation would keep
+    # one reply of the five; every queryable must be asked and every reply kept.
+    for reply in session.get(f"{topics.ROOT}/{robot}/svc/*/status", timeout=timeout_s,
+                             target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE):
         if reply.ok is None:
             continue
         try:
@@ -54,12 +58,30 @@ def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus]) -
                      str(sum(v for k, v in c.items() if k.startswith("in."))),
                      str(sum(v for k, v in c.items() if k.startswith("out."))),
                      str(c.get("drop.queue", 0)),
-                     str(sum(v for k, v in c.items() if k.startswith("error.") or k.startswith("step.error"))),
+                     str(sum(v for k, v in c.items() if k.startswith(("error.", "step.error")))),
                      f"{s.pid}@{s.host}"))
     for robot, service in sorted(alive - seen):
         rows.append((robot, service, "yes", "?", "", "", "", "", "", ""))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return "\n".join("  ".join(v.ljust(w) for v, w in zip(r, widths)) for r in rows)
+
+
+def check(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus], wanted: list[str]) -> list[str]:
+    """Why the services in ``wanted`` are not healthy (empty when they are).
+
+    Healthy means a liveliness token is present and the status reply, if one came, is not
+    ERROR. WARN and STALE pass: a stage waiting for its first input is still up, and a
+    container healthcheck must not fail a pipeline whose sensor has not started yet.
+    """
+    problems = []
+    alive_names = {service for _, service in alive}
+    for name in wanted:
+        if name not in alive_names:
+            problems.append(f"{name}: no liveliness token")
+        for s in statuses:
+            if s.service == name and s.level == t.HEALTH_ERROR:
+                problems.append(f"{name}@{s.robot}: ERROR {s.message}")
+    return problems
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,15 +91,32 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robot", default="*", help="robot namespace (default: all)")
     parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for replies")
     parser.add_argument("--json", action="store_true", help="print the raw status records as JSON")
+    parser.add_argument("-s", "--service", action="append", default=[], choices=services.NAMES,
+                        help="only this service (repeatable)")
+    parser.add_argument("--check", action="store_true",
+                        help="exit 0 if the router answers and every --service is alive and not in ERROR, "
+                             "else 1 (for container healthchecks; without --service: the router only)")
     args = parser.parse_args(argv)
     zenoh.init_log_from_env_or("error")
+    endpoints = args.connect or ["tcp/127.0.0.1:7447"]
     try:
-        session = zenoh.open(client_config(args.connect or ["tcp/127.0.0.1:7447"]))
+        session = zenoh.open(client_config(endpoints))
     except zenoh.ZError as exc:
-        print(f"lrfslam status: cannot reach {args.connect or 'tcp/127.0.0.1:7447'}: {exc}", file=sys.stderr)
+        print(f"lrfslam status: cannot reach {','.join(endpoints)}: {exc}", file=sys.stderr)
         return 2
     with session:
+        if args.check and not args.service:
+            # A client session opens only once its endpoint answered, so this is the router check.
+            print(f"ok: router at {','.join(endpoints)}")
+            return 0
         alive, statuses = query_status(session, args.robot, args.timeout)
+    if args.service:
+        alive = {(r, s) for r, s in alive if s in args.service}
+        statuses = [s for s in statuses if s.service in args.service]
+    if args.check:
+        problems = check(alive, statuses, args.service)
+        print("; ".join(problems) if problems else f"ok: {', '.join(args.service)}")
+        return 1 if problems else 0
     if args.json:
         print(json.dumps([s.__dict__ for s in statuses], indent=2, default=list))
     elif not alive and not statuses:

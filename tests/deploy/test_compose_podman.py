@@ -1,0 +1,164 @@
+"""deploy/compose.yaml brought up for real with podman + podman-compose.
+
+Builds the image (deploy/podman-build.sh), starts the router and the five services as
+containers, asks the published router port from the host which services are alive (as a
+remote monitor would), runs every container's healthcheck, stops the sensor first and then
+the rest, and reads the recording back. Needs podman, podman-compose and a base image
+(deploy/setup-podman.sh prepares a Debian machine); skips when podman is missing.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import time
+from collections import Counter
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from lrfslam import services
+from lrfslam.msgs import codec
+from lrfslam.runtime.recording import ReadReport, read_recording
+from lrfslam.tools.status import check, client_config, query_status
+
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).resolve().parents[2]
+COMPOSE = ROOT / "deploy" / "compose.yaml"
+RUN_S = 40.0            # wall time with all five up; at speedup 1 that is ~400 scans at 10 Hz
+STARTUP_TIMEOUT_S = 90.0
+CONTAINERS = ("zenohd", *services.NAMES)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def podman_compose() -> list[str] | None:
+    exe = shutil.which("podman-compose")
+    return [exe] if exe else None
+
+
+@pytest.fixture(scope="module")
+def engine():
+    if shutil.which("podman") is None:
+        pytest.skip("podman is not installed (Debian: sudo deploy/setup-podman.sh)")
+    compose = podman_compose()
+    if compose is None:
+        pytest.skip("podman-compose is not installed (sudo deploy/setup-podman.sh, or pip install podman-compose)")
+    return compose
+
+
+def run(argv: list[str], timeout: float, env: dict | None = None, check: bool = True) -> subprocess.CompletedProcess:
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env=env, check=False)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"{' '.join(argv)} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return proc
+
+
+class Deployment:
+    """One compose project with its own name, router port and recordings folder."""
+
+    def __init__(self, compose: list[str], tmp: Path) -> None:
+        self.project = f"lrfslam-test-{os.getpid()}"
+        self.port = free_port()
+        self.recordings = tmp / "recordings"
+        self.recordings.mkdir()
+        self.env = dict(os.environ, LRFSLAM_IMAGE="lrfslam:test", LRFSLAM_ROUTER_PORT=str(self.port),
+                        LRFSLAM_RECORDINGS=str(self.recordings))
+        self.compose = [*compose, "-p", self.project, "-f", str(COMPOSE)]
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+
+    def __call__(self, *args: str, timeout: float = 120, check: bool = True) -> subprocess.CompletedProcess:
+        return run([*self.compose, *args], timeout, self.env, check)
+
+    def container(self, service: str) -> str:
+        return f"{self.project}_{service}_1"
+
+    def inspect(self, service: str, fmt: str) -> str:
+        return run(["podman", "inspect", "--format", fmt, self.container(service)], 30).stdout.strip()
+
+    def logs(self) -> str:
+        out = []
+        for service in CONTAINERS:
+            proc = run(["podman", "logs", "--tail", "15", self.container(service)], 30, check=False)
+            out.append(f"--- {service}\n{proc.stdout}{proc.stderr}")
+        return "\n".join(out)
+
+
+def ask(endpoint: str) -> tuple[set, list]:
+    with zenoh.open(client_config([endpoint])) as session:
+        return query_status(session, "*", 3.0)
+
+
+def test_compose_up_status_down_recording(engine, tmp_path):
+    t0 = time.monotonic()
+    # The build is part of the test: the Dockerfile must install the repo on the base image.
+    run([str(ROOT / "deploy" / "podman-build.sh")], 1200, dict(os.environ, LRFSLAM_IMAGE="lrfslam:test"))
+    build_s = time.monotonic() - t0
+
+    dep = Deployment(engine, tmp_path)
+    try:
+        dep("up", "-d", "--no-build", timeout=180)
+
+        # From the host through the published port, like `lrfslam status -e tcp/<robot>:7447`.
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        problems = ["not asked yet"]
+        while time.monotonic() < deadline:
+            try:
+                alive, statuses = ask(dep.endpoint)
+                problems = check(alive, statuses, list(services.NAMES))
+            except zenoh.ZError as exc:
+                problems = [f"router unreachable: {exc}"]
+            if not problems:
+                break
+            time.sleep(2)
+        assert not problems, f"{problems}\n{dep.logs()}"
+        up_s = time.monotonic() - t0 - build_s
+
+        # Every healthcheck command, run by the engine inside its container. Here podman has no
+        # systemd to schedule them, so this is also the only place they run at all.
+        for service in CONTAINERS:
+            proc = run(["podman", "healthcheck", "run", dep.container(service)], 60, check=False)
+            assert proc.returncode == 0, f"{service} healthcheck: {proc.stdout}{proc.stderr}"
+
+        time.sleep(RUN_S)
+        alive, statuses = ask(dep.endpoint)
+        assert not check(alive, statuses, list(services.NAMES)), dep.logs()
+        by_name = {s.service: s.counters for s in statuses}
+        assert set(by_name) == set(services.NAMES), sorted(by_name)
+        assert by_name["sensor"].get("out.scan", 0) > 100, by_name["sensor"]
+        assert by_name["slam"].get("out.slam/state", 0) > 100, by_name["slam"]
+        for service in CONTAINERS:
+            assert dep.inspect(service, "{{.RestartCount}}") == "0", f"{service} restarted\n{dep.logs()}"
+
+        # Sensor first, so the pipeline drains; then the rest. Exit code 0 means each process
+        # got SIGTERM through tini and stopped through its own handler, not a SIGKILL (137).
+        dep("stop", "sensor", timeout=60)
+        time.sleep(3)
+        dep("stop", timeout=120)
+        codes = {s: dep.inspect(s, "{{.State.ExitCode}}") for s in CONTAINERS}
+        assert set(codes.values()) == {"0"}, f"{codes}\n{dep.logs()}"
+    finally:
+        dep("down", timeout=180, check=False)
+    total_s = time.monotonic() - t0
+
+    files = sorted(dep.recordings.glob("*.mcap"))
+    assert len(files) == 1, files
+    report = ReadReport()
+    messages = list(read_recording(files[0], report=report))
+    assert not report.truncated, f"the recorder did not finish its file: {report.reason}"
+    per_topic = Counter(m.topic for m in messages)
+    for topic in ("scan", "odom", "scan/filtered", "features", "slam/state"):
+        assert per_topic[topic] > 100, per_topic
+    assert {f"health/{s}" for s in services.NAMES} <= set(per_topic), per_topic
+    last = codec.SLAM_STATE.decode(next(m.data for m in reversed(messages) if m.topic == "slam/state"))
+    assert last.landmark_ids.size > 0, "SLAM built no map"
+    print(f"\nbuild {build_s:.0f} s, up to all alive {up_s:.0f} s, total {total_s:.0f} s; "
+          f"{files[0].name}: {dict(per_topic)}")

@@ -1,0 +1,260 @@
+"""deploy/: the compose file, image recipe and config checked without a container engine.
+
+Catches what a schema cannot: a depends_on naming no service, a command no `lrfslam`
+understands, a config key a service would refuse at start-up, a healthcheck whose flags
+`lrfslam status` does not have, two services publishing one host port.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import tomllib
+import yaml
+
+from lrfslam import cli, services
+from lrfslam.runtime import config as config_mod
+from lrfslam.runtime.runner import add_common_arguments, bus_config, service_config
+from lrfslam.tools import status
+
+ROOT = Path(__file__).resolve().parents[2]
+DEPLOY = ROOT / "deploy"
+COMPOSE = DEPLOY / "compose.yaml"
+CONFIG = DEPLOY / "config.toml"
+ROUTER = "zenohd"
+
+_VAR = re.compile(r"\$\{(\w+)(?::?-([^}]*))?\}")
+
+
+def interpolate(value: str, env: dict[str, str] | None = None) -> str:
+    """Compose's ${NAME}, ${NAME:-default} with an empty environment (the defaults users get)."""
+    return _VAR.sub(lambda m: (env or {}).get(m.group(1)) or (m.group(2) or ""), value)
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict:
+    return yaml.safe_load(COMPOSE.read_text())
+
+
+@pytest.fixture(scope="module")
+def svcs(compose) -> dict:
+    return compose["services"]
+
+
+def workdir() -> str:
+    lines = [ln.split(None, 1)[1].strip() for ln in (DEPLOY / "Dockerfile").read_text().splitlines()
+             if ln.startswith("WORKDIR ")]
+    assert lines, "the Dockerfile sets no WORKDIR"
+    return lines[-1]
+
+
+def mounts(svc: dict) -> dict[str, Path]:
+    """Container path -> host path of a service's bind mounts (relative to the compose file)."""
+    out = {}
+    for vol in svc.get("volumes", []):
+        host, container, *_ = interpolate(vol).split(":")
+        out[container] = (COMPOSE.parent / host).resolve()
+    return out
+
+
+def service_parser(spec) -> argparse.ArgumentParser:
+    """The argument parser `lrfslam <service>` builds (runner.main)."""
+    parser = argparse.ArgumentParser(prog=f"lrfslam {spec.name}")
+    add_common_arguments(parser)
+    parser.add_argument("--replay")
+    parser.add_argument("--out")
+    for flag, name, _ in spec.flags:
+        parser.add_argument(flag, dest=name)
+    return parser
+
+
+def test_services_are_the_router_and_the_five_stages(svcs):
+    assert set(svcs) == {ROUTER, *services.NAMES}
+
+
+def test_depends_on_targets_exist_and_form_no_cycle(svcs):
+    graph = {}
+    for name, svc in svcs.items():
+        deps = svc.get("depends_on", {})
+        deps = {d: {} for d in deps} if isinstance(deps, list) else deps
+        for target, how in deps.items():
+            assert target in svcs, f"{name} depends on unknown service {target!r}"
+            assert target != name
+            assert how.get("condition", "service_started") in (
+                "service_started", "service_healthy", "service_completed_successfully")
+        graph[name] = set(deps)
+    order = []
+    while graph:
+        ready = sorted(n for n, deps in graph.items() if deps <= set(order))
+        assert ready, f"depends_on cycle among {sorted(graph)}"
+        order += ready
+        for n in ready:
+            del graph[n]
+    assert order[0] == ROUTER
+
+
+def test_every_stage_waits_for_a_healthy_router_and_the_sensor_starts_last(svcs):
+    for name in services.NAMES:
+        assert svcs[name]["depends_on"][ROUTER]["condition"] == "service_healthy", name
+    sensor_deps = set(svcs["sensor"]["depends_on"])
+    assert sensor_deps == {ROUTER, *services.NAMES} - {"sensor"}
+
+
+def test_commands_are_lrfslam_commands(svcs):
+    known = set(services.NAMES) | set(cli.COMMANDS)
+    for name, svc in svcs.items():
+        command = svc["command"]
+        assert isinstance(command, list), f"{name}: use the exec (list) form, no shell in between"
+        assert command[0] in known, f"{name}: {command[0]!r} is no lrfslam command"
+    assert svcs[ROUTER]["command"][0] == "router"
+    for name in services.NAMES:
+        assert svcs[name]["command"][0] == name
+
+
+def test_service_commands_parse_and_their_config_loads(svcs):
+    """Each command line plus the mounted config.toml gives the config the service would run."""
+    for name in services.NAMES:
+        spec = services.spec(name)
+        args = service_parser(spec).parse_args(svcs[name]["command"][1:])
+        host_config = mounts(svcs[name]).get(args.config)
+        assert host_config is not None, f"{name}: --config {args.config} is not mounted"
+        assert host_config.is_file(), host_config
+        file = config_mod.read_file(host_config)
+        bus = bus_config(args, file, {})
+        assert bus.mode == "client"
+        assert bus.connect == ("tcp/zenohd:7447",)
+        cfg = service_config(spec, args, file, {})
+        assert isinstance(cfg, spec.config_type)
+
+
+def test_router_listens_on_its_published_port(svcs):
+    router = svcs[ROUTER]
+    command = router["command"]
+    listen = [command[i + 1] for i, a in enumerate(command) if a in ("--listen", "-l")]
+    assert "tcp/0.0.0.0:7447" in listen, "the router must listen on all interfaces of its container"
+    published = [interpolate(p).rsplit(":", 1)[-1] for p in router["ports"]]
+    assert "7447" in published
+
+
+def test_host_ports_are_unique_and_only_the_router_publishes(svcs):
+    seen = {}
+    for name, svc in svcs.items():
+        for port in svc.get("ports", []):
+            host = interpolate(str(port)).split(":")[-2]
+            assert host not in seen, f"host port {host} published by {seen.get(host)} and {name}"
+            seen[host] = name
+    assert set(seen.values()) == {ROUTER}
+
+
+def test_one_image_with_init_and_restart_on_failure(svcs):
+    images = {interpolate(svc["image"]) for svc in svcs.values()}
+    assert len(images) == 1, images
+    for name, svc in svcs.items():
+        assert svc.get("init") is True, f"{name}: Python as PID 1 would ignore SIGTERM's default action"
+        assert svc.get("restart") == "on-failure", name
+        assert svc["build"]["dockerfile"] == "deploy/Dockerfile"
+        assert (COMPOSE.parent / svc["build"]["context"] / svc["build"]["dockerfile"]).is_file()
+
+
+def test_healthchecks_ask_the_router_about_their_own_service(svcs):
+    """Each healthcheck is `lrfslam status --check` for its own service, and its flags parse."""
+    closed = socket.socket()
+    closed.bind(("127.0.0.1", 0))
+    port = closed.getsockname()[1]
+    closed.close()
+    for name, svc in svcs.items():
+        test = svc["healthcheck"]["test"]
+        assert test[:3] == ["CMD", "lrfslam", "status"], name
+        argv = test[3:]
+        assert "--check" in argv
+        endpoint = argv[argv.index("-e") + 1]
+        wanted = [argv[i + 1] for i, a in enumerate(argv) if a in ("--service", "-s")]
+        if name == ROUTER:
+            assert endpoint == "tcp/127.0.0.1:7447" and wanted == []
+        else:
+            assert endpoint == "tcp/zenohd:7447" and wanted == [name]
+        # Same flags against a closed port: argparse accepts them (no SystemExit) and the
+        # router is reported unreachable (2), as a failing healthcheck would see it.
+        assert status.main([a if a != endpoint else f"tcp/127.0.0.1:{port}" for a in argv]) == 2
+
+
+def test_recorder_writes_into_the_bind_mounted_recordings(svcs):
+    recorder = svcs["recorder"]
+    file = config_mod.read_file(CONFIG)
+    directory = Path(workdir()) / file["recorder"]["directory"]
+    targets = mounts(recorder)
+    assert str(directory) in targets, f"{directory} is not a bind mount: {sorted(targets)}"
+    assert targets[str(directory)] == (ROOT / "recordings").resolve()
+    # Long enough for the recorder to write the MCAP summary after SIGTERM (compose's default is 10 s).
+    grace = recorder["stop_grace_period"]
+    assert grace.endswith("s") and int(grace[:-1]) >= 20
+
+
+def test_sensor_shows_how_to_map_a_serial_device():
+    text = COMPOSE.read_text()
+    assert '# devices: ["/dev/ttyUSB0:/dev/ttyUSB0"]' in text
+    assert '"--device", "/dev/ttyUSB0"' in text
+
+
+def test_config_toml_loads_for_every_service():
+    """Through the runner's own layering (mode presets included), as `lrfslam <service> --config`."""
+    file = config_mod.read_file(CONFIG)
+    assert set(file) == {"bus", *services.NAMES}
+    for name in services.NAMES:
+        spec = services.spec(name)
+        args = service_parser(spec).parse_args(["--config", str(CONFIG)])
+        bus = bus_config(args, file, {})
+        assert bus.robot == file["bus"]["robot"]
+        cfg = service_config(spec, args, file, {})
+        for key, value in file[name].items():
+            assert getattr(cfg, key) == value, f"{name}.{key}"
+
+
+def test_commented_knobs_in_config_toml_are_real_settings():
+    """`# name = value` lines are documentation users uncomment: each must still load."""
+    table = None
+    knobs: dict[str, list[str]] = {}
+    for line in CONFIG.read_text().splitlines():
+        if m := re.match(r"^\[(\w+)\]", line):
+            table = m.group(1)
+        elif m := re.match(r"^#\s*([a-z_][a-z0-9_.]*)\s*=\s*(.+?)\s*(#.*)?$", line):
+            knobs.setdefault(table, []).append(f"{m.group(1)} = {m.group(2)}")
+    assert sum(len(v) for v in knobs.values()) >= 10
+    for table, lines in knobs.items():
+        if table == "bus":
+            continue  # zenoh_config names a file that exists only in the TLS setup
+        spec = services.spec(table)
+        service_config(spec, service_parser(spec).parse_args([]), {table: tomllib.loads("\n".join(lines))}, {})
+
+
+def test_dockerfile_base_and_entrypoint():
+    text = (DEPLOY / "Dockerfile").read_text()
+    assert re.search(r"^FROM python:3\.11-slim-bookworm$", text, re.MULTILINE)
+    assert re.search(r'^ENTRYPOINT \["lrfslam"\]$', text, re.MULTILINE)
+
+
+def test_dockerignore_keeps_the_context_small():
+    ignored = {ln.strip() for ln in (ROOT / ".dockerignore").read_text().splitlines()}
+    assert {".git", ".venv", "recordings"} <= ignored
+    assert "README.md" not in ignored and "pyproject.toml" not in ignored  # pip install . needs both
+
+
+@pytest.mark.parametrize("script", ["setup-podman.sh", "podman-build.sh"])
+def test_shell_scripts_parse(script):
+    subprocess.run(["bash", "-n", str(DEPLOY / script)], check=True)
+
+
+def test_compose_spec_schema():
+    exe = shutil.which("check-jsonschema") or shutil.which("check-jsonschema", path=str(Path(sys.executable).parent))
+    if exe is None:
+        pytest.skip("check-jsonschema not installed (pip install check-jsonschema)")
+    run = subprocess.run([exe, "--builtin-schema", "vendor.compose-spec", str(COMPOSE)],
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert run.returncode == 0, run.stdout + run.stderr
