@@ -11,7 +11,7 @@ set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 image=${LRFSLAM_IMAGE:-lrfslam:latest}
-args=(build --pull=never -f "$root/deploy/Dockerfile" -t "$image")
+args=(build -f "$root/deploy/Dockerfile" -t "$image")
 
 # /etc/ssl/certs holds the bundle PIP_CERT and /etc/pip.conf point at on Debian-like hosts.
 [[ -d /etc/ssl/certs ]] && args+=(-v /etc/ssl/certs:/etc/ssl/certs:ro)

@@ -16,8 +16,9 @@ from lrfslam.msgs import types as t
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
 
 
-def client_config(connect: list[str]) -> zenoh.Config:
-    conf = zenoh.Config()
+def client_config(connect: list[str], zenoh_config: str | None = None) -> zenoh.Config:
+    """A client of ``connect``; ``zenoh_config`` (JSON5, e.g. TLS certificates) is applied first."""
+    conf = zenoh.Config.from_file(zenoh_config) if zenoh_config else zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps(connect))
     conf.insert_json5("scouting/multicast/enabled", "false")
@@ -91,6 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robot", default="*", help="robot namespace (default: all)")
     parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for replies")
     parser.add_argument("--json", action="store_true", help="print the raw status records as JSON")
+    parser.add_argument("--zenoh-config", metavar="FILE",
+                        help="Zenoh JSON5 config applied first, e.g. TLS certificates (deploy/zenoh/)")
     parser.add_argument("-s", "--service", action="append", default=[], choices=services.NAMES,
                         help="only this service (repeatable)")
     parser.add_argument("--check", action="store_true",
@@ -100,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     zenoh.init_log_from_env_or("error")
     endpoints = args.connect or ["tcp/127.0.0.1:7447"]
     try:
-        session = zenoh.open(client_config(endpoints))
+        session = zenoh.open(client_config(endpoints, args.zenoh_config))
     except zenoh.ZError as exc:
         print(f"lrfslam status: cannot reach {','.join(endpoints)}: {exc}", file=sys.stderr)
         return 2

@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# A private CA plus the router's and one monitor's certificates for deploy/zenoh/*-tls.json5.
+#
+#   deploy/zenoh/make-certs.sh OUT_DIR ROBOT_HOST [MORE_NAMES_OR_IPS...]
+#
+# ROBOT_HOST is the name or address monitors will dial (tls/<ROBOT_HOST>:7448); the router's
+# certificate must carry it, or a monitor that verifies names refuses the connection. An existing
+# CA in OUT_DIR is reused, so certificates issued earlier stay valid. Keep ca-key.pem off the robot.
+set -euo pipefail
+
+if (($# < 2)); then
+    sed -n '2,8p' "$0" >&2
+    exit 2
+fi
+out=$1
+shift
+mkdir -p "$out"
+cd "$out"
+umask 077
+
+san="DNS:zenohd,DNS:localhost,IP:127.0.0.1"
+for name in "$@"; do
+    if [[ $name =~ ^[0-9.]+$ || $name == *:* ]]; then san+=",IP:$name"; else san+=",DNS:$name"; fi
+done
+
+if [[ ! -e ca.pem ]]; then
+    openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -days 3650 \
+        -subj "/CN=lrfslam CA" -keyout ca-key.pem -out ca.pem 2>/dev/null
+fi
+
+issue() {  # name, extensions
+    openssl req -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -subj "/CN=$1" \
+        -keyout "$1-key.pem" -out "$1.csr" 2>/dev/null
+    printf '%b' "$2" >"$1.ext"
+    openssl x509 -req -in "$1.csr" -CA ca.pem -CAkey ca-key.pem -CAcreateserial -days 825 \
+        -extfile "$1.ext" -out "$1.pem" 2>/dev/null
+    rm -f "$1.csr" "$1.ext"
+}
+issue router "subjectAltName=$san\nextendedKeyUsage=serverAuth,clientAuth\n"
+issue monitor "extendedKeyUsage=clientAuth\n"
+chmod 644 ca.pem router.pem monitor.pem
+echo "wrote $(pwd)/{ca,router,monitor}.pem and keys; router names: $san"

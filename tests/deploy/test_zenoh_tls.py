@@ -1,0 +1,79 @@
+"""deploy/zenoh/: mutual TLS for remote monitoring, with real processes on loopback.
+
+The committed JSON5 files and make-certs.sh are used as shipped (only the certificate folder is
+moved into a temporary directory): a monitor with the issued certificate sees the services, one
+without a certificate or with a certificate from another CA is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from lrfslam.tools.status import main as status
+
+pytestmark = pytest.mark.integration
+
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def tls(tmp_path):
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl not installed")
+    certs = tmp_path / "tls"
+    subprocess.run([str(DEPLOY / "zenoh" / "make-certs.sh"), str(certs), "robot.test"], check=True,
+                   capture_output=True, timeout=60)
+    router_conf = tmp_path / "router.json5"
+    router_conf.write_text((DEPLOY / "zenoh" / "router-tls.json5").read_text()
+                           .replace("/etc/lrfslam/tls/", f"{certs}/"))
+    monitor_conf = tmp_path / "monitor.json5"
+    monitor_conf.write_text((DEPLOY / "zenoh" / "monitor-tls.json5").read_text().replace('"tls/', f'"{certs}/'))
+    # Both impostors trust the robot's CA, so only the router's demand for a client
+    # certificate can turn them away: one presents none, one presents another CA's.
+    no_cert_conf = tmp_path / "no-cert.json5"
+    no_cert_conf.write_text(json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": f"{certs}/ca.pem"}}}}))
+    rogue = tmp_path / "rogue"
+    subprocess.run([str(DEPLOY / "zenoh" / "make-certs.sh"), str(rogue), "robot.test"], check=True,
+                   capture_output=True, timeout=60)
+    rogue_conf = tmp_path / "rogue.json5"
+    rogue_conf.write_text(monitor_conf.read_text().replace(f"{certs}/monitor", f"{rogue}/monitor"))
+    return router_conf, monitor_conf, no_cert_conf, rogue_conf
+
+
+def test_monitor_needs_a_certificate_from_the_robots_ca(tls):
+    router_conf, monitor_conf, no_cert_conf, rogue_conf = tls
+    tcp, tls_port = free_port(), free_port()
+    cli = [sys.executable, "-m", "lrfslam.cli"]
+    procs = [subprocess.Popen([*cli, "router", "--zenoh-config", str(router_conf), "--log-level", "WARNING",
+                               "--listen", f"tcp/127.0.0.1:{tcp}", "--listen", f"tls/127.0.0.1:{tls_port}"])]
+    try:
+        procs.append(subprocess.Popen([*cli, "denoise", "--mode", "client", "--connect", f"tcp/127.0.0.1:{tcp}",
+                                       "--log-level", "WARNING"]))
+        endpoint = f"tls/127.0.0.1:{tls_port}"
+        deadline = time.monotonic() + 30
+        while status(["--zenoh-config", str(monitor_conf), "-e", endpoint, "--check", "-s", "denoise"]) != 0:
+            assert time.monotonic() < deadline, "the monitor never saw denoise over TLS"
+            time.sleep(0.5)
+        assert status(["--zenoh-config", str(no_cert_conf), "-e", endpoint, "--check"]) == 2
+        assert status(["--zenoh-config", str(rogue_conf), "-e", endpoint, "--check"]) == 2
+        assert status(["-e", endpoint, "--check"]) == 2  # does not even trust the router
+        assert status(["-e", f"tcp/127.0.0.1:{tls_port}", "--check"]) == 2             # plain TCP
+    finally:
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            proc.wait(10)
