@@ -21,9 +21,10 @@ from lrfslam.sim.worlds import corridor_end, doorway_room, l_corner, straight_wa
 
 ANGLES = np.radians(np.arange(-90.0, 91.0))
 PAPER, DEFAULT = CornerParams.paper(), CornerParams.default()
+DENOISE = DenoiseParams.default()
 
 
-def features(world, params=DEFAULT, pose=(0.0, 0.0, 0.0), den=DenoiseParams.default()):
+def features(world, params=DEFAULT, pose=(0.0, 0.0, 0.0), den=DENOISE):
     r = raycast(world.segments_m, pose, ANGLES, 8.0)
     return extract_features(r, ANGLES, denoise(r, ANGLES, den).kept, params)
 
@@ -41,10 +42,10 @@ def test_presets():
 
 @pytest.mark.parametrize(
     "change",
-    [dict(arm_dists_m=(0.6, 0.3)), dict(arm_dists_m=(0.3,)), dict(arm_metric="manhattan"), dict(jump_m=5.0),
-     dict(arm_break_gap_m=2.0), dict(corner_tol_deg=90.0), dict(arm_max_resid_m=0.0), dict(nms_radius_m=-1.0),
-     dict(refine_rmin_m=0.8), dict(refine_min_points=1), dict(inf_edge_rule="all"), dict(edge_max_removed=-1),
-     dict(range_sigma_m=0.0)],
+    [{"arm_dists_m": (0.6, 0.3)}, {"arm_dists_m": (0.3,)}, {"arm_metric": "manhattan"}, {"jump_m": 5.0},
+     {"arm_break_gap_m": 2.0}, {"corner_tol_deg": 90.0}, {"arm_max_resid_m": 0.0}, {"nms_radius_m": -1.0},
+     {"refine_rmin_m": 0.8}, {"refine_min_points": 1}, {"inf_edge_rule": "all"}, {"edge_max_removed": -1},
+     {"range_sigma_m": 0.0}],
 )
 def test_bad_parameters_are_config_errors(change):
     with pytest.raises(ConfigError):

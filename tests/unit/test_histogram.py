@@ -40,8 +40,8 @@ def test_presets_differ_where_the_paper_is_silent():
 
 @pytest.mark.parametrize(
     "change",
-    [dict(bin_deg=20.0), dict(period_deg=120.0), dict(keep_frac=1.0), dict(stride=0), dict(bin_mode="wide"),
-     dict(keep_rule="xor"), dict(jump_m=0.0), dict(shadow_min_angle_deg=95.0), dict(mixed_tol_m=-1.0)],
+    [{"bin_deg": 20.0}, {"period_deg": 120.0}, {"keep_frac": 1.0}, {"stride": 0}, {"bin_mode": "wide"},
+     {"keep_rule": "xor"}, {"jump_m": 0.0}, {"shadow_min_angle_deg": 95.0}, {"mixed_tol_m": -1.0}],
 )
 def test_bad_parameters_are_config_errors(change):
     with pytest.raises(ConfigError):

@@ -196,48 +196,46 @@ class FeatureSet:
         return len(self.kind)
 
 
-def _tls(pts: np.ndarray, w: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def _tls(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None, axis: int = -1) -> dict[str, np.ndarray]:
     """Total-least-squares lines, batched, optionally over a subset of the points.
 
     Parameters
     ----------
-    pts : ndarray, shape (..., m, 2)
-        Points in metres.
-    w : ndarray of float, shape (..., m), optional
-        0/1 membership weights (all points when omitted). A line needs two members
-        to be defined; callers reject smaller groups by ``n``.
+    x, y : ndarray, same shape
+        Point coordinates in metres; ``axis`` runs over the points of one line.
+    w : ndarray of float, optional
+        0/1 membership weights, broadcastable to ``x`` (all points when omitted). A
+        line needs two members to be defined; callers reject smaller groups by ``n``.
+    axis : int
+        The points axis. Keep the long batch axis innermost: numpy loops over short
+        inner axes slowly.
 
     Returns
     -------
-    dict of ndarray
-        ``centroid`` (..., 2); ``theta`` (...) direction in radians; ``normal`` (..., 2);
-        ``n`` (...) member count; ``rms`` and ``max_resid`` (...) perpendicular
-        residuals in m; ``spread2`` (...) along-line variance in m².
+    dict of ndarray, shapes of ``x`` without ``axis``
+        ``cx``, ``cy`` centroid; ``theta`` direction in radians; ``nx``, ``ny`` unit
+        normal; ``n`` member count; ``rms`` and ``max_resid`` perpendicular residuals
+        in m; ``spread2`` along-line variance in m².
     """
     if w is None:
-        w = np.ones(pts.shape[:-1])
-    n = w.sum(axis=-1)
+        w = np.ones(x.shape)
+    n = w.sum(axis=axis)
     # Empty groups get a harmless denominator; callers reject them by ``n``.
     nz = np.maximum(n, 1.0)
-    c = (w[..., None] * pts).sum(axis=-2) / nz[..., None]
-    qx = pts[..., 0] - c[..., None, 0]
-    qy = pts[..., 1] - c[..., None, 1]
-    sxx = (w * qx * qx).sum(axis=-1)
-    syy = (w * qy * qy).sum(axis=-1)
-    sxy = (w * qx * qy).sum(axis=-1)
+    cx, cy = (w * x).sum(axis=axis) / nz, (w * y).sum(axis=axis) / nz
+    qx, qy = x - np.expand_dims(cx, axis), y - np.expand_dims(cy, axis)
+    wqx, wqy = w * qx, w * qy
+    sxx, syy, sxy = (wqx * qx).sum(axis=axis), (wqy * qy).sum(axis=axis), (wqx * qy).sum(axis=axis)
     # Principal axis of the 2x2 scatter matrix in closed form.
     theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     ct, st = np.cos(theta), np.sin(theta)
-    resid = w * (qy * ct[..., None] - qx * st[..., None])
-    along2 = (sxx + syy) - (resid * resid).sum(axis=-1)
+    resid = wqy * np.expand_dims(ct, axis) - wqx * np.expand_dims(st, axis)
+    ss_resid = (resid * resid).sum(axis=axis)
     return {
-        "centroid": c,
-        "theta": theta,
-        "normal": np.stack((-st, ct), axis=-1),
-        "n": n,
-        "rms": np.sqrt((resid * resid).sum(axis=-1) / nz),
-        "max_resid": np.abs(resid).max(axis=-1),
-        "spread2": along2 / nz,
+        "cx": cx, "cy": cy, "theta": theta, "nx": -st, "ny": ct, "n": n,
+        "rms": np.sqrt(ss_resid / nz),
+        "max_resid": np.abs(resid).max(axis=axis),
+        "spread2": (sxx + syy - ss_resid) / nz,
     }
 
 
@@ -272,29 +270,31 @@ def _first_hits(p: np.ndarray, last: np.ndarray, dists_m: np.ndarray, euclidean:
         Column of each pick, -1 where the stretch ends first.
     """
     m, n_arm = len(p), len(dists_m)
-    step = p[1:] - p[:-1]
-    arc = np.concatenate(([0.0], np.cumsum(np.sqrt((step * step).sum(axis=1)))))
-    hits = np.searchsorted(arc, (arc[:, None] + dists_m).ravel())
+    x, y = p[:, 0].copy(), p[:, 1].copy()
+    dx, dy = x[1:] - x[:-1], y[1:] - y[:-1]
+    arc = np.concatenate(([0.0], np.cumsum(np.sqrt(dx * dx + dy * dy))))
+    # Pairs are laid out distance-major, (A, M), so the long axis is the inner one
+    # throughout: numpy loops over short inner axes slowly.
+    hits = np.searchsorted(arc, (arc + dists_m[:, None]).ravel())
     if euclidean:
-        base = np.repeat(np.arange(m), n_arm)
-        d2 = np.tile(dists_m * dists_m, m)
+        base = np.tile(np.arange(m), n_arm)
+        d2 = np.repeat(dists_m * dists_m, m)
         start = hits
         hits = np.full(m * n_arm, -1, dtype=np.intp)
         todo = np.flatnonzero(start <= last[base])
         width = _FIRST_WINDOW
         while len(todo):
-            cand = np.minimum(start[todo, None] + np.arange(width), m - 1)
+            cand = np.minimum(start[todo] + np.arange(width)[:, None], m - 1)  # (W, P)
             b = base[todo]
-            dx = p[cand, 0] - p[b, 0, None]
-            dy = p[cand, 1] - p[b, 1, None]
-            past = dx * dx + dy * dy >= d2[todo, None]
-            t = past.argmax(axis=1)
-            got = past[np.arange(len(todo)), t]
-            hits[todo[got]] = cand[got, t[got]]
+            ex, ey = x[cand] - x[b], y[cand] - y[b]
+            past = ex * ex + ey * ey >= d2[todo]
+            t = past.argmax(axis=0)
+            got = past[t, np.arange(len(todo))]
+            hits[todo[got]] = cand[t[got], np.flatnonzero(got)]
             start[todo] += width
             todo = todo[~got & (start[todo] <= last[b])]
             width *= 2
-    hits = hits.reshape(m, n_arm)
+    hits = hits.reshape(n_arm, m).T.copy()
     hits[hits > last[:, None]] = -1
     return hits
 
@@ -341,25 +341,30 @@ def _suppress(xy: np.ndarray, score: np.ndarray, radius_m: float) -> np.ndarray:
     return np.asarray(chosen, dtype=np.intp)
 
 
-def _wall_members(p: np.ndarray, last: np.ndarray, base: np.ndarray, params: CornerParams) -> np.ndarray:
-    """Points of the wall leaving each base towards higher columns, for the refit.
+def _wall_members(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray, params: CornerParams):
+    """Points of the two walls leaving each corner candidate, for the refit.
 
-    Walks from the base within its stretch, stops at the first point farther than
-    ``refine_rmax_m`` (so the wall is never followed round a second corner) and keeps
-    the points at least ``refine_rmin_m`` away.
+    Walks from the base on each side within its stretch, stops at the first point
+    farther than ``refine_rmax_m`` (so a wall is never followed round a second
+    corner) and keeps the points at least ``refine_rmin_m`` away.
 
     Returns
     -------
-    ndarray of float, shape (C, M)
-        0/1 membership weights.
+    ndarray of float, shape (2, C, M)
+        0/1 membership weights; side 0 = lower beams.
     """
-    col = np.arange(len(p))
-    d2 = ((p[None, :, :] - p[base, None, :]) ** 2).sum(axis=2)
-    ahead = (col[None, :] > base[:, None]) & (col[None, :] <= last[base, None])
+    m, c = len(p), len(base)
+    # Lower side = higher side of the reversed scan; both halves in one pass.
+    both = np.concatenate((p, p[::-1]))
+    both_last = np.concatenate((last, 2 * m - 1 - first[::-1]))
+    start = np.concatenate((base, 2 * m - 1 - base))
+    col = np.arange(2 * m)
+    d2 = ((both[None, :, :] - both[start, None, :]) ** 2).sum(axis=2)
+    ahead = (col[None, :] > start[:, None]) & (col[None, :] <= both_last[start, None])
     beyond = ahead & (d2 > params.refine_rmax_m**2)
-    stop = np.where(beyond.any(axis=1), beyond.argmax(axis=1), len(p))
-    inside = ahead & (col[None, :] < stop[:, None]) & (d2 >= params.refine_rmin_m**2)
-    return inside.astype(float)
+    stop = np.where(beyond.any(axis=1), beyond.argmax(axis=1), 2 * m)
+    inside = (ahead & (col[None, :] < stop[:, None]) & (d2 >= params.refine_rmin_m**2)).astype(float)
+    return np.stack((inside[c:, m:][:, ::-1], inside[:c, :m]))
 
 
 def _refine(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray, params: CornerParams):
@@ -384,35 +389,27 @@ def _refine(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray
     ok : ndarray of bool, shape (C,)
         Enough points on both walls and the intersection within ``refine_accept_m``.
     """
-    m = len(p)
-    w_hi = _wall_members(p, last, base, params)
-    w_lo = _wall_members(p[::-1], m - 1 - first[::-1], m - 1 - base, params)[:, ::-1]
-    pts = np.broadcast_to(p, (len(base), m, 2))
-    a, b = _tls(pts, w_lo), _tls(pts, w_hi)
-    enough = (a["n"] >= params.refine_min_points) & (b["n"] >= params.refine_min_points)
-    n1, n2 = a["normal"], b["normal"]
-    c1 = (n1 * a["centroid"]).sum(axis=1)
-    c2 = (n2 * b["centroid"]).sum(axis=1)
-    det = n1[:, 0] * n2[:, 1] - n1[:, 1] * n2[:, 0]
+    w = _wall_members(p, first, last, base, params)
+    f = _tls(p[:, 0], p[:, 1], w)  # every field is (2 walls, C)
+    (nx1, nx2), (ny1, ny2) = f["nx"], f["ny"]
+    c1, c2 = f["nx"] * f["cx"] + f["ny"] * f["cy"]
+    det = nx1 * ny2 - ny1 * nx2
     with np.errstate(invalid="ignore", divide="ignore"):
-        xy = np.column_stack(((c1 * n2[:, 1] - c2 * n1[:, 1]) / det, (n1[:, 0] * c2 - n2[:, 0] * c1) / det))
-        ok = enough & np.all(np.isfinite(xy), axis=1)
-        ok &= ((xy - p[base]) ** 2).sum(axis=1) <= params.refine_accept_m**2
-        var = []
-        for f in (a, b):
-            sig2 = np.maximum(params.range_sigma_m**2, f["rms"] ** 2)
-            t = (xy[:, 0] - f["centroid"][:, 0]) * np.cos(f["theta"]) + (xy[:, 1] - f["centroid"][:, 1]) * np.sin(
-                f["theta"]
-            )
-            var.append(sig2 / f["n"] * (1.0 + t**2 / f["spread2"]))
-        # A⁻¹ for A = [n1; n2] (rows), then cov = A⁻¹ diag(var) A⁻ᵀ.
-        ainv = np.stack(
-            (np.stack((n2[:, 1], -n1[:, 1]), axis=1), np.stack((-n2[:, 0], n1[:, 0]), axis=1)), axis=1
-        ) / det[:, None, None]
-        cov = np.einsum("kij,kj,klj->kil", ainv, np.stack(var, axis=1), ainv)
-        # Round-off leaves the two off-diagonal terms a few ulps apart.
-        cov = 0.5 * (cov + cov.transpose(0, 2, 1))
-    return xy, cov, _line_angle_deg(a["theta"], b["theta"]), ok
+        # Intersection of the walls n_k · p = c_k (Cramer's rule).
+        x, y = (c1 * ny2 - c2 * ny1) / det, (nx1 * c2 - nx2 * c1) / det
+        ok = np.all(f["n"] >= params.refine_min_points, axis=0) & np.isfinite(x) & np.isfinite(y)
+        ok &= (x - p[base, 0]) ** 2 + (y - p[base, 1]) ** 2 <= params.refine_accept_m**2
+        sig2 = np.maximum(params.range_sigma_m**2, f["rms"] ** 2)
+        # Distance along each wall from its fit centroid to the corner: the lever arm
+        # of the wall's direction error.
+        t = (x - f["cx"]) * f["ny"] - (y - f["cy"]) * f["nx"]
+        v1, v2 = sig2 / f["n"] * (1.0 + t**2 / f["spread2"])
+        # cov = A⁻¹ diag(v1, v2) A⁻ᵀ with A = [n1; n2] and A⁻¹ = [[ny2, -ny1], [-nx2, nx1]] / det.
+        cov = np.empty((len(base), 2, 2))
+        cov[:, 0, 0] = (ny2 * ny2 * v1 + ny1 * ny1 * v2) / det**2
+        cov[:, 1, 1] = (nx2 * nx2 * v1 + nx1 * nx1 * v2) / det**2
+        cov[:, 0, 1] = cov[:, 1, 0] = -(ny2 * nx2 * v1 + ny1 * nx1 * v2) / det**2
+    return np.column_stack((x, y)), cov, _line_angle_deg(f["theta"][0], f["theta"][1]), ok
 
 
 def _forward(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerParams):
@@ -432,14 +429,15 @@ def _forward(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerP
     if len(p) >= 2 * len(params.arm_dists_m) + 1:
         picks, ok = _arm_picks(p, first, last, params)
         base = np.flatnonzero(ok)
-        # Each arm is the base point followed by its picks: shape (B, 2, A + 1, 2).
-        arm_cols = np.concatenate((np.broadcast_to(base[:, None, None], (len(base), 2, 1)), picks[base]), axis=2)
-        fit = _tls(p[arm_cols])
-        angle = _line_angle_deg(fit["theta"][:, 0], fit["theta"][:, 1])
+        # Each arm is the base point followed by its picks: shape (A + 1, 2 sides, B),
+        # the long base axis innermost.
+        arm_cols = np.concatenate((np.broadcast_to(base, (1, 2, len(base))), picks[base].transpose(2, 1, 0)))
+        fit = _tls(p[arm_cols, 0], p[arm_cols, 1], axis=0)
+        angle = _line_angle_deg(fit["theta"][0], fit["theta"][1])
         dev = 90.0 - angle
         cand = dev <= params.corner_tol_deg
         if params.arm_max_resid_m is not None:
-            cand &= np.all(fit["max_resid"] <= params.arm_max_resid_m, axis=1)
+            cand &= np.all(fit["max_resid"] <= params.arm_max_resid_m, axis=0)
         keep = np.sort(_suppress(p[base[cand]], dev[cand], params.nms_radius_m))
         cols, angle = base[cand][keep], angle[cand][keep]
     xy = p[cols]

@@ -119,7 +119,7 @@ class DenoiseParams:
     @property
     def n_bins(self) -> int:
         """Number of fixed bins covering one period."""
-        return int(round(self.period_deg / self.bin_deg))
+        return round(self.period_deg / self.bin_deg)
 
     @classmethod
     def paper(cls) -> DenoiseParams:
