@@ -10,9 +10,16 @@ later stage takes time from these stamps.
 
 from __future__ import annotations
 
+import math
+import queue
+import threading
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
+from lrfslam.drivers.lms200.port import Lms200
+from lrfslam.drivers.lms200.protocol import RangeStatus
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -97,10 +104,75 @@ class SimSource(StepBase):
         )
 
 
+# LMS200 per-value status -> the scan schema's BeamStatus.
+_BEAM_STATUS = {
+    RangeStatus.OK: t.BEAM_VALID, RangeStatus.NO_ECHO: t.BEAM_NO_RETURN, RangeStatus.BEYOND_MAX: t.BEAM_NO_RETURN,
+    RangeStatus.DAZZLE: t.BEAM_DAZZLE, RangeStatus.OVERFLOW: t.BEAM_OVERFLOW,
+}
+_STATUS_LUT = np.array([_BEAM_STATUS.get(RangeStatus(i), t.BEAM_INVALID) for i in range(len(RangeStatus))],
+                       dtype=np.uint8)
+
+
+class Lms200Source(StepBase):
+    """Scans from an LMS200 on a serial port (or the emulator's pseudo-terminal).
+
+    The driver blocks on the port, so it runs in a thread that hands scans over a
+    queue; the runner's loop stays responsive to SIGTERM and status queries. The
+    driver never raises for device trouble: it reconnects, and its fault counters
+    show in this service's status.
+    """
+
+    def __init__(self, cfg: SensorConfig) -> None:
+        super().__init__()
+        self.driver = Lms200(cfg.device, cfg.baud)
+        self.stop = threading.Event()
+        self.scans: queue.Queue = queue.Queue(maxsize=64)
+        self.seq = 0
+        self.thread = threading.Thread(target=self._read, name="lms200", daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        for telegram in self.driver.scans(self.stop):
+            try:
+                self.scans.put_nowait((self.driver.last_stamp_ns, telegram))
+            except queue.Full:
+                self.counts["dropped_scans"] += 1
+
+    def poll(self, timeout_s: float):
+        try:
+            read_ns, tg = self.scans.get(timeout=timeout_s)
+        except queue.Empty:
+            return ()
+        if tg.partial or tg.resolution_deg is None or tg.start_angle_deg is None:
+            self.counts["unsupported_scans"] += 1  # interlaced or non-standard counts: not a full sweep
+            return ()
+        # Stamp the first beam: the telegram's last byte arrived after its transmission time.
+        wire_s = (tg.ranges_m.size * 2 + 10) * 10 / self.driver.baud
+        self.seq += 1
+        self.counts["scans"] += 1
+        scan = t.LaserScan(read_ns - int(wire_s * 1e9), self.seq, tg.ranges_m, _STATUS_LUT[tg.status],
+                           math.radians(tg.start_angle_deg - 90.0), math.radians(tg.resolution_deg),
+                           range_max_m=8.183, source="lms200")
+        return (Output(topics.SCAN, scan),)
+
+    def health(self) -> tuple[int, str]:
+        c = self.driver.counters
+        self.counts.update({f"lms200.{k}": v for k, v in c.items() if v})
+        if not self.driver.device_type:
+            return t.HEALTH_WARN, f"waiting for an LMS200 on {self.driver.device}"
+        return t.HEALTH_OK, f"{self.driver.device_type} on {self.driver.device} at {self.driver.baud} Bd"
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=5)
+        self.driver.close()
+
+
 def build(cfg: SensorConfig, ctx: RunContext):
     if cfg.source == "sim" or (cfg.source == "auto" and not cfg.device):
         return SimSource(cfg)
-    from lrfslam.services.sensor_lms200 import Lms200Source
+    if not cfg.device:
+        raise ConfigError("sensor.source=lms200 needs sensor.device (e.g. --device /dev/ttyUSB0)")
     return Lms200Source(cfg)
 
 

@@ -38,6 +38,7 @@ _KIND_FROM_SCHEMA = {t.FEATURE_FORWARD: 0, t.FEATURE_BACKWARD: 1}
 class SlamConfig:
     ekf: EkfParams = field(default_factory=EkfParams)
     use_backward_features: bool = True   # jump edges as (tentative, viewpoint-checked) landmarks
+    wait_for_odometry: bool = True       # false for a laser without odometry (e.g. a bare LMS200)
     max_odom_wait_scans: int = 20        # process features without newer odometry after this many pile up
     checkpoint_path: str = ""            # e.g. checkpoints/slam.npz; empty = no checkpoints
     checkpoint_every_scans: int = 50
@@ -97,7 +98,7 @@ class SlamStep(StepBase):
         while self.pending:
             feats = self.pending[0]
             newest = self.odom[-1][0] if self.odom else None
-            ready = (newest is not None and newest >= feats.stamp_ns) or final \
+            ready = (newest is not None and newest >= feats.stamp_ns) or final or not self.cfg.wait_for_odometry \
                 or len(self.pending) > self.cfg.max_odom_wait_scans
             if not ready:
                 return
