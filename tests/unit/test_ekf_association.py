@@ -131,19 +131,50 @@ def test_easy_scene_is_paired_correctly_by_both(method, seed):
     np.testing.assert_array_equal(rep.landmark_ids, seen)
 
 
-@pytest.mark.parametrize("method, expect_right", [("nn", False), ("jcbb", True)])
-def test_corridor_ambiguity_nn_fails_jcbb_resolves(method, expect_right):
+@pytest.mark.parametrize(
+    "method, unique, outcome",
+    [("nn", False, "wrong"), ("nn", True, "discarded"), ("jcbb", False, "right"), ("jcbb", True, "right")],
+)
+def test_corridor_ambiguity_nn_fails_jcbb_resolves(method, unique, outcome):
     """Door frames every metre along a wall; odometry has put the robot 0.55 m ahead.
 
-    Each observation is individually closest to the *next* frame, so NN shifts the
-    whole set by one and drags the pose a metre forward. JCBB finds that pairing
-    all four frames with their own landmarks is jointly compatible (the innovations
-    are explained by one pose error) and prefers it because it pairs more.
+    Each observation is individually closest to the *next* frame, so plain NN
+    shifts the whole set by one and drags the pose a metre forward; with the
+    uniqueness rule NN discards the three frames that have two landmarks in gate.
+    JCBB finds that pairing all four frames with their own landmarks is jointly
+    compatible (one pose error explains the innovations) and prefers it because
+    it pairs more; no single swap keeps that hypothesis compatible, so the
+    uniqueness rule keeps it.
     """
     lms = np.column_stack((np.arange(3.0, 7.0), np.full(4, 1.5)))
-    params = EkfParams(association=method, corner_range_sigma_m=0.01, corner_bearing_sigma_rad=0.005)
+    params = EkfParams(
+        association=method, unique_match_required=unique, corner_range_sigma_m=0.01, corner_bearing_sigma_rad=0.005
+    )
     f = filter_with_map(lms, [0.55, 0.0, 0.0], [0.6, 0.02, 0.005], 0.01, params)
     rep = f.observe(to_frame(lms, [0.0, 0.0, 0.0]))
-    right = bool(np.all(rep.landmark_ids == np.arange(4)))
-    assert right == expect_right
-    assert abs(f.pose[0]) < 0.05 if expect_right else abs(f.pose[0] - 1.0) < 0.05
+    if outcome == "right":
+        np.testing.assert_array_equal(rep.landmark_ids, np.arange(4))
+        assert abs(f.pose[0]) < 0.05
+    elif outcome == "wrong":
+        np.testing.assert_array_equal(rep.landmark_ids[:3], [1, 2, 3])
+        assert abs(f.pose[0] - 1.0) < 0.05
+    else:  # only the last frame has a single landmark in its gate: the right one
+        np.testing.assert_array_equal(rep.status[:3], [ObsStatus.AMBIGUOUS] * 3)
+        assert rep.landmark_ids[3] == 3 and abs(f.pose[0]) < 0.1
+
+
+def test_nearest_neighbour_can_require_a_unique_candidate():
+    nis = np.array([[1.0, 5.0], [0.5, 30.0]])
+    np.testing.assert_array_equal(association.nearest_neighbour(nis, np.zeros_like(nis), 9.21, True), [-1, 0])
+
+
+def test_jcbb_unpairs_an_observation_that_could_swap_landmarks():
+    # Observation 0 fits landmarks 0 and 1 about equally; observation 1 only fits 2.
+    cand_obs, cand_lm = np.array([0, 0, 1]), np.array([0, 1, 2])
+    innov = np.array([[0.5, 0.0], [-0.6, 0.0], [0.1, 0.1]])
+    joint = np.eye(6)
+    plain = association.jcbb(2, cand_obs, cand_lm, innov, joint, 0.99)
+    strict = association.jcbb(2, cand_obs, cand_lm, innov, joint, 0.99, require_unique=True)
+    np.testing.assert_array_equal(plain.pairing, [0, 2])
+    np.testing.assert_array_equal(strict.pairing, [-1, 2])
+    assert strict.joint_nis == pytest.approx(0.02)

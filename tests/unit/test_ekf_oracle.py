@@ -163,8 +163,10 @@ def test_predict_matches_dense_linearisation(seed):
     x, P = f.state_mean, f.state_cov
     u = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.2), rng.uniform(-0.5, 0.5)])
     d = np.hypot(u[0], u[1])
-    var_t = 0.01**2 + (params.odom_trans_sigma_per_m * d) ** 2
-    var_r = 0.02**2 + (params.odom_rot_sigma_per_rad * u[2]) ** 2 + (params.odom_rot_sigma_per_m * d) ** 2
+    # Random-walk noise: wheel-scale error along the motion, isotropic floor.
+    q_u = np.zeros((3, 3))
+    q_u[:2, :2] = params.odom_trans_sigma_per_m**2 * np.outer(u[:2], u[:2]) / d + 0.01**2 * np.eye(2)
+    q_u[2, 2] = 0.02**2 + params.odom_rot_sigma_per_rad**2 * abs(u[2]) + params.odom_rot_sigma_per_m**2 * d
 
     def motion(v):  # full state and increment → new full state, heading unwrapped
         out = v[:-3].copy()
@@ -174,7 +176,7 @@ def test_predict_matches_dense_linearisation(seed):
 
     J = num_jacobian(motion, np.concatenate((x, u)))
     F, G = J[:, : x.size], J[:, x.size:]
-    P_ref = F @ P @ F.T + G @ np.diag([var_t, var_t, var_r]) @ G.T
+    P_ref = F @ P @ F.T + G @ q_u @ G.T
     f.predict(u)
     np.testing.assert_allclose(f.state_cov, P_ref, atol=1e-8, rtol=0)
     np.testing.assert_allclose(f.pose, compose(x[:3], u), atol=1e-12)
@@ -204,3 +206,14 @@ def test_augmentation_has_full_cross_covariance(seed):
     big[x.size:, x.size:] = np.diag([0.03**2, 0.02**2])
     np.testing.assert_allclose(f.state_mean, augment(np.concatenate((x, rb))), atol=1e-9)
     np.testing.assert_allclose(f.state_cov, J @ big @ J.T, atol=1e-7, rtol=0)
+
+
+def test_predict_noise_does_not_depend_on_the_step_size():
+    """Random-walk odometry noise: one 0.4 m step and four 0.1 m steps agree."""
+    params = EkfParams(odom_trans_sigma_floor_m=0.0, odom_rot_sigma_floor_rad=0.0, odom_rot_sigma_per_m=0.0)
+    one, four = EkfSlam(params), EkfSlam(params)
+    one.predict([0.4, 0.0, 0.0])
+    for _ in range(4):
+        four.predict([0.1, 0.0, 0.0])
+    np.testing.assert_allclose(four.pose_cov, one.pose_cov, atol=1e-15)
+    assert one.pose_cov[0, 0] == pytest.approx(params.odom_trans_sigma_per_m**2 * 0.4)

@@ -55,7 +55,9 @@ def nis_2d(innovations: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.nd
     return nis, np.log(det)
 
 
-def nearest_neighbour(nis: np.ndarray, log_det: np.ndarray, gate_assoc_chi2: float) -> np.ndarray:
+def nearest_neighbour(
+    nis: np.ndarray, log_det: np.ndarray, gate_assoc_chi2: float, require_unique: bool = False
+) -> np.ndarray:
     """Gated nearest-neighbour pairing, one landmark per observation at most.
 
     Each observation picks the gated landmark (``nis < gate_assoc_chi2``) with
@@ -71,6 +73,9 @@ def nearest_neighbour(nis: np.ndarray, log_det: np.ndarray, gate_assoc_chi2: flo
         From :func:`nis_2d` for every (observation, landmark) pair.
     gate_assoc_chi2 : float
         χ²₂ gate on the NIS (9.21 = 99 %).
+    require_unique : bool
+        Leave an observation unpaired when more than one landmark is inside
+        its gate: picking the nearer of two plausible landmarks is a guess.
 
     Returns
     -------
@@ -81,7 +86,10 @@ def nearest_neighbour(nis: np.ndarray, log_det: np.ndarray, gate_assoc_chi2: flo
     pairing = np.full(n_obs, UNPAIRED, dtype=np.int64)
     if n_lm == 0:
         return pairing
-    dist = np.where(nis < gate_assoc_chi2, nis + log_det, np.inf)
+    gated = nis < gate_assoc_chi2
+    dist = np.where(gated, nis + log_det, np.inf)
+    if require_unique:
+        dist[gated.sum(axis=1) > 1] = np.inf
     best = np.argmin(dist, axis=1)
     best_dist = dist[np.arange(n_obs), best]
     # Visit observations from the most to the least certain match so that a
@@ -123,6 +131,7 @@ def jcbb(
     cand_joint_cov: np.ndarray,
     confidence: float,
     max_nodes: int = 100_000,
+    require_unique: bool = False,
 ) -> JcbbResult:
     """Joint Compatibility Branch and Bound over pre-gated candidate pairings.
 
@@ -150,6 +159,10 @@ def jcbb(
         Probability of the joint gate, in (0, 1).
     max_nodes : int
         Search budget; see ``JcbbResult.exhausted``.
+    require_unique : bool
+        After the search, unpair every observation that could swap to another
+        free candidate landmark with the hypothesis still jointly compatible:
+        the data do not tell those two landmarks apart.
 
     Returns
     -------
@@ -201,10 +214,23 @@ def jcbb(
             search(k + 1, chosen, d2)
 
     search(0, [], 0.0)
+    chosen, d2 = best["chosen"], float(best["d2"])
+    if require_unique and chosen:
+        used = {int(cand_lm[c]) for c in chosen}
+        swappable = [
+            c for c in chosen
+            if any(
+                int(cand_lm[alt]) not in used
+                and joint_d2([alt if x == c else x for x in chosen]) < gates[len(chosen)]
+                for alt in options[cand_obs[c]]
+            )
+        ]
+        chosen = [c for c in chosen if c not in swappable]
+        d2 = joint_d2(chosen) if chosen else 0.0
     pairing = np.full(n_obs, UNPAIRED, dtype=np.int64)
-    for c in best["chosen"]:
+    for c in chosen:
         pairing[cand_obs[c]] = cand_lm[c]
-    return JcbbResult(pairing, float(best["d2"]), nodes, nodes >= max_nodes)
+    return JcbbResult(pairing, d2, nodes, nodes >= max_nodes)
 
 
 def _diag_blocks(joint_cov: np.ndarray) -> np.ndarray:

@@ -79,17 +79,22 @@ class ObsStatus(enum.IntEnum):
 class EkfParams:
     """Parameters of :class:`EkfSlam`; every noise is a standard deviation.
 
+    Odometry errors are random walks (as in ``lrfslam.sim.odometry``): their
+    variance grows linearly with the distance travelled and the angle turned,
+    so a sigma "per metre" is the standard deviation accumulated over one metre
+    and the filter's uncertainty does not depend on how often ``predict`` runs.
+
     Attributes
     ----------
     odom_trans_sigma_per_m : float
-        Translation noise per metre travelled (m/m), on each of dx and dy.
+        Along-track distance error accumulated over 1 m travelled (m).
     odom_rot_sigma_per_rad : float
-        Heading noise per radian turned (rad/rad).
+        Heading error accumulated over 1 rad turned (rad).
     odom_rot_sigma_per_m : float
-        Heading noise per metre travelled (rad/m).
+        Heading error accumulated over 1 m travelled (rad).
     odom_trans_sigma_floor_m, odom_rot_sigma_floor_rad : float
-        Noise added at every :meth:`EkfSlam.predict` call, even without motion
-        (m, rad). Variances add: ``σ² = floor² + (k·d)² (+ ...)``.
+        Isotropic translation and heading noise added at every
+        :meth:`EkfSlam.predict` call, even without motion (m, rad).
     corner_range_sigma_m, corner_bearing_sigma_rad : float
         Model error of a feature in range (m) and bearing (rad), added to the
         extractor's covariance; > 0.
@@ -102,6 +107,13 @@ class EkfParams:
         same probability for its joint χ²_{2k} gate.
     gate_new_chi2 : float
         Minimum NIS against every landmark to start a new one (≥ gate_assoc_chi2).
+    unique_match_required : bool
+        Discard an observation as ambiguous when another landmark would fit it
+        as well: a second landmark inside its gate (NN), or a swap that keeps
+        the hypothesis jointly compatible (JCBB). Door jambs 1 m apart make a
+        nearest-neighbour guess at loop closure a coin toss, and one wrong
+        pairing corrupts an EKF for good; the price is fewer pairings in
+        repetitive scenes until the pose uncertainty shrinks.
     min_sightings_to_confirm : int
         Gated sightings, the creating one included, to confirm a landmark.
     backward_min_view_change_rad : float
@@ -121,7 +133,7 @@ class EkfParams:
 
     odom_trans_sigma_per_m: float = 0.05
     odom_rot_sigma_per_rad: float = 0.05
-    odom_rot_sigma_per_m: float = 0.02
+    odom_rot_sigma_per_m: float = 0.01
     odom_trans_sigma_floor_m: float = 1e-4
     odom_rot_sigma_floor_rad: float = 1e-4
     corner_range_sigma_m: float = 0.015
@@ -130,6 +142,7 @@ class EkfParams:
     association: str = "nn"
     gate_assoc_chi2: float = 9.21
     gate_new_chi2: float = 25.0
+    unique_match_required: bool = True
     min_sightings_to_confirm: int = 2
     backward_min_view_change_rad: float = 0.2
     tentative_max_age_updates: int = 30
@@ -320,11 +333,16 @@ class EkfSlam:
             raise InputError(f"delta must be 3 finite numbers, got {delta!r}")
         p = self.params
         dist = float(np.hypot(u[0], u[1]))
-        var_t = p.odom_trans_sigma_floor_m**2 + (p.odom_trans_sigma_per_m * dist) ** 2
-        var_r = (
+        # Covariance of u in its own frame: a wheel-scale error along the
+        # direction of travel, heading random walks, and the isotropic floor.
+        q_u = np.diag([p.odom_trans_sigma_floor_m**2, p.odom_trans_sigma_floor_m**2, 0.0])
+        if dist > 0:
+            along = u[:2] / dist
+            q_u[:2, :2] += p.odom_trans_sigma_per_m**2 * dist * np.outer(along, along)
+        q_u[2, 2] = (
             p.odom_rot_sigma_floor_rad**2
-            + (p.odom_rot_sigma_per_rad * u[2]) ** 2
-            + (p.odom_rot_sigma_per_m * dist) ** 2
+            + p.odom_rot_sigma_per_rad**2 * abs(u[2])
+            + p.odom_rot_sigma_per_m**2 * dist
         )
         c, s = np.cos(self._x[2]), np.sin(self._x[2])
         # Jacobians of pose ⊕ u with respect to the pose (Gv) and to u (Gu).
@@ -333,7 +351,7 @@ class EkfSlam:
         self._x[:3] = compose(self._x[:3], u)
         # Only the pose rows and columns change (Bailey's predict.m): O(n).
         P = self._P
-        P[:3, :3] = gv @ P[:3, :3] @ gv.T + gu @ np.diag([var_t, var_t, var_r]) @ gu.T
+        P[:3, :3] = gv @ P[:3, :3] @ gv.T + gu @ q_u @ gu.T
         P[:3, 3:] = gv @ P[:3, 3:]
         P[3:, :3] = P[:3, 3:].T
 
@@ -391,7 +409,7 @@ class EkfSlam:
         nis[~valid] = np.inf
         joint_nis, nodes = np.nan, 0
         if p.association == "nn":
-            pairing = association.nearest_neighbour(nis, log_det, p.gate_assoc_chi2)
+            pairing = association.nearest_neighbour(nis, log_det, p.gate_assoc_chi2, p.unique_match_required)
         else:
             result = self._jcbb(nu, r_obs, nis)
             pairing, joint_nis, nodes = result.pairing, result.joint_nis, result.nodes
@@ -584,7 +602,7 @@ class EkfSlam:
         confidence = float(chi2.cdf(self.params.gate_assoc_chi2, 2))
         return association.jcbb(
             nu.shape[0], cand_obs, cand_lm, nu[cand_obs, cand_lm], joint, confidence,
-            self.params.jcbb_max_nodes,
+            self.params.jcbb_max_nodes, self.params.unique_match_required,
         )
 
     def _correct(self, i: int, z: np.ndarray, r_obs: np.ndarray, full: bool) -> float:
