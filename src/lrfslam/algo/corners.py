@@ -425,7 +425,7 @@ def _forward(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerP
     angle_deg : ndarray, shape (C,)
     refined : ndarray of bool, shape (C,)
     """
-    cols = np.zeros(0, dtype=np.intp)
+    cols, angle = np.zeros(0, dtype=np.intp), np.zeros(0)
     if len(p) >= 2 * len(params.arm_dists_m) + 1:
         picks, ok = _arm_picks(p, first, last, params)
         base = np.flatnonzero(ok)
@@ -446,7 +446,7 @@ def _forward(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerP
     if params.refine_corner and len(cols):
         rxy, rcov, rangle, refined = _refine(p, first, last, cols, params)
         xy[refined], cov[refined], angle[refined] = rxy[refined], rcov[refined], rangle[refined]
-    return cols, xy, cov, angle if len(cols) else np.zeros(0), refined
+    return cols, xy, cov, angle, refined
 
 
 def _backward(ranges_m: np.ndarray, valid: np.ndarray, use: np.ndarray, xy: np.ndarray, params: CornerParams):
