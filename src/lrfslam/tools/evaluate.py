@@ -1,0 +1,153 @@
+"""``lrfslam eval``: accuracy evaluations of recordings.
+
+    lrfslam eval relations FILE.mcap RELATIONS [--max-gap-s S]
+        Kümmerle et al. (2009) relation metric of the SLAM estimate (``slam/state``)
+        and of the raw odometry (``odom``) of a recording, as a table.
+    lrfslam eval features ...    corner-feature accuracy (lrfslam.evaluation.features)
+    lrfslam eval slam ...        SLAM Monte-Carlo evaluation (lrfslam.evaluation.slam_mc)
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Mapping
+from decimal import Decimal
+from pathlib import Path
+
+import numpy as np
+
+from lrfslam.errors import DecodeError, LrfSlamError
+from lrfslam.evaluation.relations import DEFAULT_MAX_STAMP_GAP_S, RelationStats, load_relations, relation_errors
+from lrfslam.io.textfile import open_log
+from lrfslam.msgs import topics
+from lrfslam.runtime.recording import read_recording
+
+#: Subcommands implemented elsewhere: name -> module whose ``main(argv)`` runs it.
+DELEGATED = {"features": "lrfslam.evaluation.features", "slam": "lrfslam.evaluation.slam_mc"}
+
+#: Trajectories scored by ``relations``: row label -> topic whose poses form it.
+TRAJECTORIES = {"slam estimate": topics.SLAM_STATE, "raw odometry": topics.ODOM}
+
+
+def stamp_s(stamp_ns: int) -> float:
+    """Seconds of a stamp in ns, correctly rounded.
+
+    ``stamp_ns / 1e9`` rounds twice at Unix-epoch stamps (1e18 ns is beyond double
+    precision); the Decimal route gives the float nearest to the exact value,
+    which for a stamp imported from a log is the very float its text parses to,
+    so relation stamps match with zero gap.
+    """
+    return float(Decimal(int(stamp_ns)).scaleb(-9))
+
+
+def read_trajectories(path: str | Path, wanted: Mapping[str, topics.Topic] = TRAJECTORIES
+                      ) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], int]:
+    """Stamps (s, shape (T,)) and poses (x_m, y_m, theta_rad; shape (T, 3)) per label of ``wanted``.
+
+    Returns the trajectories, in log-time order, and the number of messages that
+    could not be decoded (skipped). A label whose topic is absent gets T = 0.
+    """
+    by_topic = {topic.name: (label, topic) for label, topic in wanted.items()}
+    rows: dict[str, tuple[list[float], list[np.ndarray]]] = {label: ([], []) for label in wanted}
+    undecodable = 0
+    for rec in read_recording(path, list(by_topic)):
+        label, topic = by_topic[rec.topic]
+        try:
+            value = topic.codec.decode(rec.data, rec.schema)
+        except DecodeError:
+            undecodable += 1
+            continue
+        rows[label][0].append(stamp_s(value.stamp_ns))
+        rows[label][1].append(value.pose)
+    return ({label: (np.array(s, dtype=float), np.array(p, dtype=float).reshape(-1, 3))
+             for label, (s, p) in rows.items()}, undecodable)
+
+
+def evaluate_relations(path: str | Path, relations_path: str | Path,
+                       max_gap_s: float = DEFAULT_MAX_STAMP_GAP_S) -> tuple[dict[str, RelationStats], int]:
+    """Relation metric of each trajectory of the recording ``path`` present in it.
+
+    Parameters
+    ----------
+    path : path-like
+        Recording with ``slam/state`` and/or ``odom``; stamps on the relations' clock.
+    relations_path : path-like
+        Freiburg relations file (plain, .bz2 or .gz).
+    max_gap_s : float
+        Stamp-matching tolerance (s).
+
+    Returns
+    -------
+    dict of str to RelationStats, int
+        Per trajectory label with at least one pose; messages that did not decode.
+    """
+    with open_log(relations_path) as f:
+        relations = load_relations(f)
+    trajectories, undecodable = read_trajectories(path)
+    return ({label: relation_errors(stamps, poses, relations, max_gap_s)
+             for label, (stamps, poses) in trajectories.items() if stamps.size},
+            undecodable)
+
+
+def format_table(results: Mapping[str, RelationStats]) -> str:
+    """Mean ± std of the absolute and squared translational (m, m²) and rotational (deg, deg²) errors."""
+    head = (f"{'trajectory':15s} {'used':>6s} {'unmatched':>9s} {'trans abs (m)':>17s} {'trans sqr (m^2)':>17s} "
+            f"{'rot abs (deg)':>15s} {'rot sqr (deg^2)':>17s} {'max trans (m)':>13s}")
+    lines = [head, "-" * len(head)]
+    for label, s in results.items():
+        lines.append(
+            f"{label:15s} {s.n_used:6d} {s.n_unmatched:9d} "
+            f"{s.trans_abs_m.mean:8.3f} ± {s.trans_abs_m.std:6.3f} {s.trans_sqr_m2.mean:8.3f} ± {s.trans_sqr_m2.std:6.3f} "
+            f"{s.rot_abs_deg.mean:6.2f} ± {s.rot_abs_deg.std:6.2f} {s.rot_sqr_deg2.mean:7.1f} ± {s.rot_sqr_deg2.std:7.1f} "
+            f"{s.trans_abs_m.max:13.3f}")
+    return "\n".join(lines)
+
+
+def _delegate(name: str, argv: list[str]) -> int:
+    module = DELEGATED[name]
+    try:
+        target = importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        # Only the module itself being absent means "not available"; a missing
+        # dependency inside it is a real error and must surface.
+        if exc.name != module:
+            raise
+        print(f"lrfslam eval {name}: not available in this installation ({module} is missing)", file=sys.stderr)
+        return 2
+    return int(target.main(argv) or 0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in DELEGATED:
+        return _delegate(argv[0], argv[1:])
+    parser = argparse.ArgumentParser(prog="lrfslam eval", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{relations,features,slam}")
+    rel = sub.add_parser("relations", help="relation metric of the SLAM estimate and of raw odometry")
+    rel.add_argument("recording", metavar="FILE.mcap", help="recording with slam/state and odom")
+    rel.add_argument("relations", metavar="RELATIONS", help="ground-truth relations file (t1 t2 x y z roll pitch yaw)")
+    rel.add_argument("--max-gap-s", type=float, default=DEFAULT_MAX_STAMP_GAP_S, dest="max_gap_s",
+                     help=f"stamp-matching tolerance in s (default {DEFAULT_MAX_STAMP_GAP_S})")
+    args = parser.parse_args(argv)
+    try:
+        results, undecodable = evaluate_relations(args.recording, args.relations, args.max_gap_s)
+    except (LrfSlamError, OSError) as exc:
+        print(f"lrfslam eval relations: {exc}", file=sys.stderr)
+        return 2
+    if undecodable:
+        print(f"lrfslam eval relations: skipped {undecodable} undecodable messages", file=sys.stderr)
+    if not results:
+        print(f"lrfslam eval relations: {args.recording} has neither {topics.SLAM_STATE.name} nor "
+              f"{topics.ODOM.name} messages", file=sys.stderr)
+        return 2
+    first = next(iter(results.values()))
+    print(f"{args.recording} vs {args.relations}: {first.n_relations} relations, "
+          f"stamps matched within {args.max_gap_s} s")
+    print(format_table(results))
+    missing = [label for label in TRAJECTORIES if label not in results]
+    if missing:
+        print(f"(no {', '.join(missing)} in the recording)")
+    return 0
