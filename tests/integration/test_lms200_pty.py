@@ -177,6 +177,34 @@ def test_power_cycled_lms_is_reinitialised(tmp_path, baud, detected_by):
     assert lms.counters[detected_by] >= 1, lms.counters
 
 
+def run_for(lms: Lms200, seconds: float) -> list[p.ScanTelegram]:
+    stop = threading.Event()
+    timer = threading.Timer(seconds, stop.set)
+    timer.start()
+    try:
+        return list(lms.scans(stop))
+    finally:
+        timer.cancel()
+
+
+def test_missing_port_is_retried_not_raised(tmp_path):
+    with Lms200(str(tmp_path / "ttyNone"), timeouts=FAST) as lms:
+        assert run_for(lms, 0.5) == []
+    assert lms.counters["open_failures"] >= 2  # retried with backoff until stopped
+
+
+def test_silent_device_fails_init_and_is_retried():
+    master, slave = os.openpty()  # a port with nothing behind it: every byte goes unanswered
+    try:
+        quick = Lms200Timeouts(probe_s=0.05, probe_tries=1, baud_settle_s=0.0, reconnect_max_s=0.2)
+        with Lms200(os.ttyname(slave), timeouts=quick) as lms:
+            assert run_for(lms, 1.0) == []
+        assert lms.counters["init_failures"] >= 1 and lms.counters["inits"] == 0
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
 def read_reply(port: serial.Serial, parser: p.TelegramParser, want: int, wait_s: float = 3.0) -> list:
     """Items read until ``want`` telegrams or a NAK arrived, or ``wait_s`` passed."""
     items: list = []

@@ -9,7 +9,7 @@ tests/fuzz/fuzz_lms200.py is the coverage-guided (atheris) version of the same c
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from lrfslam.drivers.lms200 import protocol as p
@@ -63,6 +63,7 @@ def check_scan(t: p.Telegram) -> None:
 
 @FUZZ
 @given(data=st.binary(max_size=3000), cuts=st.lists(st.integers(0, 3000), max_size=30))
+@example(data=bytes.fromhex("42 ff 10 02 ff"), cuts=[])  # found by atheris: a header cut before LEN
 def test_arbitrary_bytes(data, cuts):
     parser = p.TelegramParser()
     items = run_parser(parser, data, cuts)

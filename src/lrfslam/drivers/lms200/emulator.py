@@ -195,7 +195,7 @@ class Emulator:
     announce : callable
         Called with the slave path whenever a pty appears.
     dump : text file or None
-        Receives one line per streamed scan (see the module docstring).
+        Receives one line per scan sent (see the module docstring).
     """
 
     def __init__(self, options: EmulatorOptions, source: ScanSource, announce: Callable[[str], None],

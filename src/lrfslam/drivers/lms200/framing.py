@@ -189,32 +189,47 @@ class TelegramParser:
         inter-byte limit (14 ms for the LMS, 6 ms for the host; TL p.24). If a
         valid telegram starts inside the waiting frame, the frame was cut short
         (a truncated B0 followed by ACK and the reply to a request): it counts
-        as truncated and the telegrams found are returned (handshake bytes inside
-        the cut frame are indistinguishable from its data and are dropped). Otherwise the frame is kept,
-        since the sender may only have paused, unless ``discard`` is set (the
-        LMS's own rule for host telegrams), which drops it as truncated. A
-        failed frame still unclassified is settled as a CRC error here.
+        as truncated and the telegrams found are returned (ACK/NAK bytes inside
+        the cut frame look like its data and are dropped). Otherwise the frame
+        is kept, since the sender may only have paused, unless ``discard`` is
+        set (the LMS's own rule for host telegrams): then every buffered byte is
+        dropped, the frame counted as truncated. A failed frame still
+        unclassified is settled as a CRC error here.
         """
         out: list[Telegram | Handshake] = []
+        while self._waiting():
+            if self._search_waiting_frame(out):
+                continue  # what followed may end in another waiting frame
+            if discard:
+                self._classify_failure(self._pos, len(self._buf), stalled=True)
+                self._discard(len(self._buf), out)
+            break
         if not self._waiting():
             self._resolve_suspect(None)  # every byte after a failed frame has been searched
-            return out
+            if discard:
+                self._discard(len(self._buf), out)  # a header cut before its length field
+        self._compact()
+        return out
+
+    def _search_waiting_frame(self, out: list[Telegram | Handshake]) -> bool:
+        """Look for telegrams inside the waiting frame; on success it is settled as truncated.
+
+        Returns False, with the parser state untouched, when there is none.
+        """
         saved = (self._pos, self._suspect, dict(self.counters))
         start = self._pos
         length = self._buf[start + 2] | (self._buf[start + 3] << 8)
         # As a suspect, the frame counts as truncated once a telegram is found inside it.
         self._classify_failure(start, start + length + FRAME_OVERHEAD, stalled=False)
-        self._discard(start + 1, out)
-        self._parse(out)
-        if not any(isinstance(item, Telegram) for item in out):
-            out.clear()
-            self._pos, self._suspect, self.counters = saved
-            if discard:
-                self._classify_failure(start, len(self._buf), stalled=True)
-                self._discard(len(self._buf), out)
-                self._resolve_suspect(None)
-        self._compact()
-        return out
+        found: list[Telegram | Handshake] = []
+        self._discard(start + 1, found)
+        self._parse(found)
+        if any(isinstance(item, Telegram) for item in found):
+            out += found
+            return True
+        self._pos, self._suspect = saved[0], saved[1]
+        self.counters.update(saved[2])
+        return False
 
     def _waiting(self) -> bool:
         """True when a frame with a plausible header waits for more bytes."""
@@ -280,8 +295,6 @@ class TelegramParser:
         if self._suspect is None:
             return
         if next_start is not None and next_start < self._suspect[1]:
-            if next_start == self._suspect[0]:
-                return  # still looking at the failed frame itself
             self.counters["truncated"] += 1
         else:
             self.counters["crc_errors"] += 1

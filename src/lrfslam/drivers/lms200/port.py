@@ -137,7 +137,7 @@ class Lms200:
             except (serial.SerialException, OSError):
                 self._counts["disconnects" if self._serial is not None else "open_failures"] += 1
                 self.close()
-            except DeviceError:
+            except (DeviceError, TelegramError):  # silent, refusing or garbled init replies
                 if not stop.is_set():
                     self._counts["init_failures"] += 1
                 self.close()  # reopening also clears whatever state the port was in
@@ -180,7 +180,8 @@ class Lms200:
 
         A bare ACK byte is not proof: at the wrong rate line noise can contain 06h.
         """
-        candidates = [9600, self.baud] + [b for b in p.BAUD_RATES if b not in (9600, self.baud)]
+        # Power-on rate first, then ours (a restarted driver finds the LMS where it left it).
+        candidates = list(dict.fromkeys((9600, self.baud, *p.BAUD_RATES)))
         for _ in range(self.timeouts.probe_tries):
             for baud in candidates:
                 if stop.is_set():
