@@ -1,23 +1,39 @@
-"""Monte-Carlo consistency check of EkfSlam on the simulated hallway loop.
+"""Monte-Carlo accuracy and consistency of the EKF-SLAM on the simulated hallway loop.
 
-Each run drives the simulator's loop with its drifting odometry and feeds the
-filter the *true* visible corners, corrupted with Gaussian range and bearing
-noise of exactly the filter's assumed size. The filter's odometry model is set
-to the simulator's, so the run tests the estimator itself (linearisation,
-association, landmark management), not the front end. A variant fed by the
-feature extractor can reuse :func:`summarise`.
+Each run drives the simulator's loop with its drifting odometry. Two feature
+sources (``McConfig.features``):
+
+* ``"truth"``: the filter is fed the *true* visible corners, corrupted with
+  Gaussian range and bearing noise of exactly the filter's assumed size, so the
+  run tests the estimator itself (linearisation, association, landmark
+  management), not the front end.
+* ``"extractor"``: the real pipeline. Each simulated scan goes through the
+  denoise, feature and slam *service steps* (built from their default configs,
+  as ``lrfslam up`` runs them), so what is measured is what runs live. Only the
+  filter's start pose is set to the true one, so no alignment is needed.
+
+Every observation is labelled with the map point it came from: its true corner
+("truth"), or the nearest map corner or free wall end within
+``label_radius_m`` of where the feature lies in the world (extractor); a
+feature near neither is a *phantom* (label -1). A landmark takes the label of
+the observation that created it.
 
 Metrics, over ``n_runs`` seeded runs:
 
-* ATE RMSE of the position (m), against the same for raw odometry. The filter's
-  map frame is anchored at the true start pose, so no alignment is needed.
-* Landmark position error at the end of each run (m) and its 2-dof NEES. The
-  landmarks of one run are correlated, so the χ² band printed for their mean
-  NEES (which assumes independence) is only indicative.
+* ATE RMSE of the position (m), against the same for raw odometry, over all
+  frames and over the last ``final_lap_frac`` of each run.
+* Confirmed landmarks with a real label: position error at the end of the run
+  (m) and 2-dof NEES. The landmarks of one run are correlated, so the χ² band
+  printed for their mean NEES (which assumes independence) is only indicative.
+  Confirmed phantoms are counted apart; there should be none.
 * Pose NEES per step averaged over runs, against the two-sided 95 % band of the
   mean of N χ²₃ variables, ``[χ²_{3N}(0.025)/N, χ²_{3N}(0.975)/N]``.
-* Mean NIS of the matched observations (2 for a consistent filter) and the
-  number of observations paired with the wrong true corner.
+* Mean NIS of the matched observations (2 for a consistent filter), and wrong
+  pairings: matched observations whose label differs from their landmark's
+  (a phantom paired with a real landmark or the reverse counts), split by
+  whether the landmark was confirmed (the update moved the robot) or not.
+* Extractor only: the features' own 2-dof NEES against the covariance the
+  extractor reports (2 if calibrated) and their RMS position error.
 
 Run ``python -m lrfslam.evaluation.slam_mc --help``.
 """
@@ -25,14 +41,22 @@ Run ``python -m lrfslam.evaluation.slam_mc --help``.
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, field
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.stats import chi2
 
-from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
-from lrfslam.algo.geometry import wrap_angle
-from lrfslam.sim import OdometryNoise, SimConfig, Simulator
+from lrfslam import services
+from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus, UpdateReport
+from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
+from lrfslam.msgs import topics
+from lrfslam.msgs import types as t
+from lrfslam.runtime.service import Message, Output, RunContext
+from lrfslam.sim import OdometryNoise, SimConfig, SimFrame, Simulator
+
+FEATURE_SOURCES = ("truth", "extractor")
+PHANTOM = -1
 
 
 @dataclass(frozen=True)
@@ -47,53 +71,85 @@ class McConfig:
         Frames per run; 1200 is about one lap of the hallway loop at 0.5 m/s, 10 Hz.
     world_name : str
         Simulator world.
+    features : {"truth", "extractor"}
+        Feature source; see the module docstring.
     range_sigma_m, bearing_sigma_rad : float
-        Noise added to the true corners, and assumed by the filter.
+        "truth" only: noise added to the true corners, and assumed by the filter.
     association : {"nn", "jcbb"}
     odometry : lrfslam.sim.OdometryNoise
         Simulated odometry noise, and the filter's odometry model.
+    label_radius_m : float
+        A feature farther than this from every map corner and free wall end is a phantom.
+    final_lap_frac : float
+        Fraction of each run, at its end, over which the second ATE is taken.
     seed : int
     """
 
     n_runs: int = 30
     n_steps: int = 1200
     world_name: str = "hallway_loop"
+    features: str = "truth"
     range_sigma_m: float = 0.015
     bearing_sigma_rad: float = 0.005
     association: str = "nn"
     odometry: OdometryNoise = field(default_factory=OdometryNoise)
+    label_radius_m: float = 0.15
+    final_lap_frac: float = 0.25
     seed: int = 0
 
     def ekf_params(self) -> EkfParams:
-        """Filter parameters matched to the simulation (tiny floors keep P invertible)."""
+        """Filter parameters.
+
+        "truth": the measurement noise is the one added, and tiny odometry floors
+        keep P invertible. "extractor": the slam service's defaults. In both the
+        odometry model is set to the simulated one (the service's defaults already
+        are at the simulator's default noise) and the association as configured.
+        """
+        odometry = {
+            "odom_trans_sigma_per_m": self.odometry.trans_sigma_per_m,
+            "odom_rot_sigma_per_rad": self.odometry.rot_sigma_per_rad,
+            "odom_rot_sigma_per_m": self.odometry.rot_sigma_per_m_rad,
+            "association": self.association,
+        }
+        if self.features == "extractor":
+            return replace(services.spec("slam").config_type().ekf, **odometry)
         return EkfParams(
-            odom_trans_sigma_per_m=self.odometry.trans_sigma_per_m,
-            odom_rot_sigma_per_rad=self.odometry.rot_sigma_per_rad,
-            odom_rot_sigma_per_m=self.odometry.rot_sigma_per_m_rad,
             odom_trans_sigma_floor_m=1e-5,
             odom_rot_sigma_floor_rad=1e-6,
             corner_range_sigma_m=self.range_sigma_m,
             corner_bearing_sigma_rad=self.bearing_sigma_rad,
-            association=self.association,
+            **odometry,
         )
 
 
 @dataclass(frozen=True, eq=False)
 class RunResult:
-    """Trace of one run (T frames, L landmarks at the end).
+    """Trace of one run (T frames, L confirmed and labelled landmarks at the end).
 
     Attributes
     ----------
     true_poses, est_poses, odom_poses : ndarray, shape (T, 3)
     pose_covs : ndarray, shape (T, 3, 3)
     landmark_err_m : ndarray, shape (L,)
-        Distance from each final landmark to the true corner that created it.
+        Distance from each landmark to the map point that created it.
     landmark_nees : ndarray, shape (L,)
-        2-dof NEES of each final landmark.
+        2-dof NEES of each landmark.
+    n_phantom_confirmed : int
+        Confirmed landmarks created by a phantom.
     nis_matched : ndarray, shape (M,)
         NIS of every matched observation.
     n_wrong : int
-        Matched observations whose landmark was created by another true corner.
+        Matched observations with another label than their landmark's.
+    n_wrong_confirmed : int
+        Of those, the ones paired with a confirmed landmark (a full update).
+    n_observations : int
+        Observations given to the filter.
+    n_phantom_obs : int
+        Of those, phantoms.
+    feature_err_m : ndarray, shape (F,)
+        Extractor: position error of every labelled observation, robot frame; empty for "truth".
+    feature_nees : ndarray, shape (F,)
+        Their 2-dof NEES against the extractor's own covariance.
     """
 
     true_poses: np.ndarray
@@ -102,8 +158,14 @@ class RunResult:
     pose_covs: np.ndarray
     landmark_err_m: np.ndarray
     landmark_nees: np.ndarray
+    n_phantom_confirmed: int
     nis_matched: np.ndarray
     n_wrong: int
+    n_wrong_confirmed: int
+    n_observations: int
+    n_phantom_obs: int
+    feature_err_m: np.ndarray
+    feature_nees: np.ndarray
 
 
 def pose_nees(true_poses: np.ndarray, est_poses: np.ndarray, covs: np.ndarray) -> np.ndarray:
@@ -136,42 +198,137 @@ def nees_band(n_runs: int, dof: int, prob: float = 0.95) -> tuple[float, float]:
     return float(lo / n_runs), float(hi / n_runs)
 
 
+def label_points(world_xy: np.ndarray, truth_xy: np.ndarray, radius_m: float) -> np.ndarray:
+    """Index of the nearest truth point within ``radius_m`` of each point, else ``PHANTOM``.
+
+    Parameters
+    ----------
+    world_xy : ndarray, shape (K, 2)
+    truth_xy : ndarray, shape (V, 2)
+    radius_m : float
+
+    Returns
+    -------
+    ndarray, shape (K,), int64
+    """
+    if len(world_xy) == 0 or len(truth_xy) == 0:
+        return np.full(len(world_xy), PHANTOM, dtype=np.int64)
+    d2 = ((world_xy[:, None, :] - truth_xy[None, :, :]) ** 2).sum(axis=2)
+    best = d2.argmin(axis=1)
+    return np.where(d2[np.arange(len(best)), best] <= radius_m**2, best, PHANTOM).astype(np.int64)
+
+
+class _RecordingEkf(EkfSlam):
+    """EkfSlam that keeps what its last :meth:`observe` call was given and returned."""
+
+    def observe(self, points_xy, covs=None, kinds=None) -> UpdateReport:
+        report = super().observe(points_xy, covs, kinds)
+        self.last = (np.asarray(points_xy, dtype=float).reshape(-1, 2),
+                     np.zeros((0, 2, 2)) if covs is None else np.asarray(covs, dtype=float), report)
+        return report
+
+
+def _message(out: Output) -> Message:
+    return Message(out.topic, out.value, out.value.stamp_ns, out.topic.schema, out.topic.name, out.value.seq)
+
+
+class _Pipeline:
+    """The denoise, feature and slam service steps, driven in memory frame by frame.
+
+    The frames are turned into the sensor service's messages (an odometry pose
+    and a scan with the same stamp); the slam step's filter is replaced by a
+    recording one anchored at the true start pose.
+    """
+
+    def __init__(self, sim: Simulator, params: EkfParams, pose0: np.ndarray) -> None:
+        ctx = RunContext("slam_mc", replay=True)
+        build = {name: services.spec(name) for name in ("denoise", "feature", "slam")}
+        self.denoise = build["denoise"].build(build["denoise"].config_type(), ctx)
+        self.feature = build["feature"].build(build["feature"].config_type(), ctx)
+        self.slam = build["slam"].build(build["slam"].config_type(ekf=params), ctx)
+        self.slam.ekf = _RecordingEkf(params, pose0=pose0)
+        self.lidar = sim.config.lidar
+        self.scan_time_s = 1.0 / sim.config.rate_hz
+
+    def step(self, frame: SimFrame):
+        """Feed one frame; returns (pose, pose_cov, features xy (K, 2), covs (K, 2, 2), report)."""
+        stamp, seq = round(frame.t_s * 1e9), frame.index + 1
+        scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, self.lidar.angle_min_rad,
+                                       self.lidar.angle_increment_rad, self.lidar.max_range_m,
+                                       scan_time_s=self.scan_time_s, source="sim")
+        states = list(self.slam.on_message(_message(Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose)))))
+        for filtered in self.denoise.on_message(_message(Output(topics.SCAN, scan))):
+            for feats in self.feature.on_message(_message(filtered)):
+                states += self.slam.on_message(_message(feats))
+        (state,) = (o.value for o in states)
+        xy, covs, report = self.slam.ekf.last
+        return state.pose, state.pose_cov, xy, covs, report
+
+
 def run_once(cfg: McConfig, run_index: int) -> RunResult:
     """One seeded run of the filter on the simulator; see the module docstring."""
+    if cfg.features not in FEATURE_SOURCES:
+        raise ValueError(f"features must be one of {FEATURE_SOURCES}, got {cfg.features!r}")
     sim = Simulator(SimConfig(world_name=cfg.world_name, odometry=cfg.odometry, seed=cfg.seed + run_index))
+    truth_xy = np.vstack((sim.map_corners.xy_m, sim.world.free_endpoints()))
     # Measurement noise from its own stream, so it is independent of the simulator's.
     rng = np.random.default_rng([cfg.seed, run_index, 1])
+    params = cfg.ekf_params()
+    pipeline: _Pipeline | None = None
     filt: EkfSlam | None = None
-    corner_of: dict[int, int] = {}  # landmark id -> true corner index that created it
+    label_of: dict[int, int] = {}  # landmark id -> label of the observation that created it
     trace: list[tuple] = []
     nis_matched: list[float] = []
-    n_wrong = 0
+    feat_err: list[np.ndarray] = []
+    feat_nees: list[np.ndarray] = []
+    n_wrong = n_wrong_confirmed = n_obs = n_phantom = 0
     for frame in (next(sim) for _ in range(cfg.n_steps)):
-        if filt is None:
-            filt = EkfSlam(cfg.ekf_params(), pose0=frame.true_pose)
+        if cfg.features == "extractor":
+            if pipeline is None:
+                pipeline = _Pipeline(sim, params, frame.true_pose)
+            pose, pose_cov, xy, covs, rep = pipeline.step(frame)
+            labels = label_points(from_frame(xy, frame.true_pose), truth_xy, cfg.label_radius_m)
+            real = labels >= 0
+            err = xy[real] - to_frame(truth_xy[labels[real]], frame.true_pose)
+            feat_err.append(np.hypot(err[:, 0], err[:, 1]))
+            feat_nees.append(np.einsum("ki,ki->k", err, np.linalg.solve(covs[real], err[..., None])[..., 0]))
         else:
-            filt.predict(frame.odom_delta)
-        rel = frame.visible_corners_robot_xy
-        rng_m = np.hypot(rel[:, 0], rel[:, 1]) + rng.normal(scale=cfg.range_sigma_m, size=len(rel))
-        brg = np.arctan2(rel[:, 1], rel[:, 0]) + rng.normal(scale=cfg.bearing_sigma_rad, size=len(rel))
-        rep = filt.observe(rng_m[:, None] * np.column_stack((np.cos(brg), np.sin(brg))))
-        for k, corner in enumerate(frame.visible_corner_ids):
+            if filt is None:
+                filt = EkfSlam(params, pose0=frame.true_pose)
+            else:
+                filt.predict(frame.odom_delta)
+            rel = frame.visible_corners_robot_xy
+            rng_m = np.hypot(rel[:, 0], rel[:, 1]) + rng.normal(scale=cfg.range_sigma_m, size=len(rel))
+            brg = np.arctan2(rel[:, 1], rel[:, 0]) + rng.normal(scale=cfg.bearing_sigma_rad, size=len(rel))
+            rep = filt.observe(rng_m[:, None] * np.column_stack((np.cos(brg), np.sin(brg))))
+            pose, pose_cov, labels = filt.pose, filt.pose_cov, frame.visible_corner_ids
+        n_obs += labels.size
+        n_phantom += int(np.sum(labels == PHANTOM))
+        for k, label in enumerate(labels.tolist()):
+            lm_id = int(rep.landmark_ids[k])
             if rep.status[k] == ObsStatus.NEW:
-                corner_of[int(rep.landmark_ids[k])] = int(corner)
+                label_of[lm_id] = label
             elif rep.status[k] == ObsStatus.MATCHED:
                 nis_matched.append(float(rep.nis[k]))
-                n_wrong += int(corner_of[int(rep.landmark_ids[k])] != corner)
-        trace.append((frame.true_pose, filt.pose, frame.odom_pose, filt.pose_cov))
-    true_p, est_p, odom_p, covs = (np.array(c) for c in zip(*trace, strict=True))
-    table = filt.landmarks()
-    truth = sim.map_corners.xy_m[[corner_of[int(i)] for i in table.ids]].reshape(-1, 2)
-    err = truth - table.xy
-    lm_nees = np.einsum("li,li->l", err, np.linalg.solve(table.cov, err[..., None])[..., 0])
-    return RunResult(true_p, est_p, odom_p, covs, np.hypot(err[:, 0], err[:, 1]), lm_nees,
-                     np.array(nis_matched), n_wrong)
+                wrong = label_of[lm_id] != label
+                n_wrong += int(wrong)
+                n_wrong_confirmed += int(wrong and bool(rep.pose_corrected[k]))
+        trace.append((frame.true_pose, pose, frame.odom_pose, pose_cov))
+    true_p, est_p, odom_p, covs_p = (np.array(c) for c in zip(*trace, strict=True))
+    table = (pipeline.slam.ekf if pipeline is not None else filt).landmarks()
+    lm_labels = np.array([label_of[int(i)] for i in table.ids], dtype=np.int64)
+    use = table.confirmed & (lm_labels >= 0)
+    err = truth_xy[lm_labels[use]].reshape(-1, 2) - table.xy[use]
+    lm_nees = np.einsum("li,li->l", err, np.linalg.solve(table.cov[use], err[..., None])[..., 0])
+    cat = (lambda parts: np.concatenate(parts) if parts else np.zeros(0))
+    return RunResult(
+        true_p, est_p, odom_p, covs_p, np.hypot(err[:, 0], err[:, 1]), lm_nees,
+        int(np.sum(table.confirmed & (lm_labels == PHANTOM))), np.array(nis_matched), n_wrong,
+        n_wrong_confirmed, n_obs, n_phantom, cat(feat_err), cat(feat_nees),
+    )
 
 
-def summarise(results: list[RunResult]) -> dict:
+def summarise(results: list[RunResult], final_lap_frac: float = McConfig.final_lap_frac) -> dict:
     """Aggregate runs into the figures printed by :func:`main`.
 
     The first frame is left out of the NEES: the pose is known exactly there.
@@ -181,24 +338,38 @@ def summarise(results: list[RunResult]) -> dict:
     mean_nees = nees.mean(axis=0)
     lo, hi = nees_band(n, 3)
     lm_err = np.concatenate([r.landmark_err_m for r in results])
-    lm_lo, lm_hi = nees_band(sum(r.landmark_nees.size for r in results), 2)
+    lm_nees = np.concatenate([r.landmark_nees for r in results])
+    lm_lo, lm_hi = nees_band(max(lm_nees.size, 1), 2)
+    tail = max(1, round(final_lap_frac * results[0].true_poses.shape[0]))
+    feat_err = np.concatenate([r.feature_err_m for r in results])
+    feat_nees = np.concatenate([r.feature_nees for r in results])
+    nis = np.concatenate([r.nis_matched for r in results])
+    nan = float("nan")
     return {
         "n_runs": n,
         "ate_rmse_m": np.array([ate_rmse(r.true_poses, r.est_poses) for r in results]),
+        "ate_final_rmse_m": np.array([ate_rmse(r.true_poses[-tail:], r.est_poses[-tail:]) for r in results]),
         "odom_ate_rmse_m": np.array([ate_rmse(r.true_poses, r.odom_poses) for r in results]),
+        "final_err_m": np.array([float(np.hypot(*(r.true_poses[-1, :2] - r.est_poses[-1, :2]))) for r in results]),
         "mean_nees_per_step": mean_nees,
         "nees_band": (lo, hi),
         "frac_steps_in_band": float(np.mean((mean_nees >= lo) & (mean_nees <= hi))),
         "frac_steps_above_band": float(np.mean(mean_nees > hi)),
-        "landmark_rmse_m": float(np.sqrt(np.mean(lm_err**2))),
-        "landmark_max_err_m": float(lm_err.max()),
-        "landmark_mean_nees": float(np.mean(np.concatenate([r.landmark_nees for r in results]))),
+        "landmark_rmse_m": float(np.sqrt(np.mean(lm_err**2))) if lm_err.size else nan,
+        "landmark_max_err_m": float(lm_err.max()) if lm_err.size else nan,
+        "landmark_mean_nees": float(np.mean(lm_nees)) if lm_nees.size else nan,
         "landmark_nees_band": (lm_lo, lm_hi),
         "landmarks_per_run": float(np.mean([r.landmark_err_m.size for r in results])),
-        "mean_nis_matched": float(np.mean(np.concatenate([r.nis_matched for r in results]))),
+        "phantoms_confirmed": int(sum(r.n_phantom_confirmed for r in results)),
+        "mean_nis_matched": float(np.mean(nis)) if nis.size else nan,
         "wrong_associations": int(sum(r.n_wrong for r in results)),
-        "runs_with_wrong": [i for i, r in enumerate(results) if r.n_wrong],
-        "matched_observations": int(sum(r.nis_matched.size for r in results)),
+        "wrong_confirmed": int(sum(r.n_wrong_confirmed for r in results)),
+        "runs_with_wrong": [i for i, r in enumerate(results) if r.n_wrong_confirmed],
+        "matched_observations": int(nis.size),
+        "observations": int(sum(r.n_observations for r in results)),
+        "phantom_observations": int(sum(r.n_phantom_obs for r in results)),
+        "feature_rmse_m": float(np.sqrt(np.mean(feat_err**2))) if feat_err.size else nan,
+        "feature_mean_nees": float(np.mean(feat_nees)) if feat_nees.size else nan,
     }
 
 
@@ -207,19 +378,24 @@ def format_summary(s: dict, cfg: McConfig) -> str:
     lo, hi = s["nees_band"]
     m = s["mean_nees_per_step"]
     quarters = np.array_split(m, 4)
+    noise = (f"sigma_r {cfg.range_sigma_m} m, sigma_b {cfg.bearing_sigma_rad} rad" if cfg.features == "truth"
+             else "denoise -> feature -> slam service steps, default configs")
     head = (
         f"EKF-SLAM Monte Carlo: {s['n_runs']} runs x {cfg.n_steps} steps, world {cfg.world_name}, "
-        f"association {cfg.association}, sigma_r {cfg.range_sigma_m} m, sigma_b {cfg.bearing_sigma_rad} rad"
+        f"features {cfg.features} ({noise}), association {cfg.association}"
     )
     ate = (
-        f"ATE RMSE (m)        EKF {s['ate_rmse_m'].mean():.4f} +- {s['ate_rmse_m'].std():.4f}   "
+        f"ATE RMSE (m)        EKF {s['ate_rmse_m'].mean():.4f} +- {s['ate_rmse_m'].std():.4f} "
+        f"(max {s['ate_rmse_m'].max():.4f}); last {100 * cfg.final_lap_frac:.0f} % of the run "
+        f"{s['ate_final_rmse_m'].mean():.4f}; final error {s['final_err_m'].mean():.4f}; "
         f"odometry {s['odom_ate_rmse_m'].mean():.4f} +- {s['odom_ate_rmse_m'].std():.4f}"
     )
     lm_lo, lm_hi = s["landmark_nees_band"]
     landmarks = (
-        f"landmarks           {s['landmarks_per_run']:.1f} per run, RMSE {s['landmark_rmse_m']:.4f} m, "
+        f"landmarks           {s['landmarks_per_run']:.1f} confirmed per run, RMSE {s['landmark_rmse_m']:.4f} m, "
         f"max {s['landmark_max_err_m']:.4f} m, mean NEES {s['landmark_mean_nees']:.2f} "
-        f"(band {lm_lo:.2f}-{lm_hi:.2f} if landmarks were independent)"
+        f"(band {lm_lo:.2f}-{lm_hi:.2f} if landmarks were independent); "
+        f"confirmed phantoms {s['phantoms_confirmed']}"
     )
     nees = (
         f"pose NEES           mean over steps {m.mean():.2f}, max {m.max():.2f}; 95 % band of the run mean "
@@ -229,33 +405,48 @@ def format_summary(s: dict, cfg: McConfig) -> str:
     by_quarter = "pose NEES by quarter of the run: " + ", ".join(f"{q.mean():.2f}" for q in quarters)
     nis = (
         f"matched NIS         mean {s['mean_nis_matched']:.2f} (2.00 if consistent) over "
-        f"{s['matched_observations']} observations; wrong associations {s['wrong_associations']} "
-        f"in runs {s['runs_with_wrong']}"
+        f"{s['matched_observations']} of {s['observations']} observations "
+        f"({s['phantom_observations']} phantoms); wrong pairings {s['wrong_associations']}, "
+        f"{s['wrong_confirmed']} with confirmed landmarks (runs {s['runs_with_wrong']})"
     )
     lines = [head, ate, landmarks, nees, by_quarter, nis]
+    if cfg.features == "extractor":
+        lines.append(f"features            RMSE {s['feature_rmse_m']:.4f} m, mean NEES against their own "
+                     f"covariance {s['feature_mean_nees']:.2f} (2.00 if calibrated)")
     return "\n".join(lines)
 
 
+def run_many(cfg: McConfig, jobs: int = 1) -> list[RunResult]:
+    """All ``cfg.n_runs`` runs, in ``jobs`` worker processes; results in run order."""
+    if jobs <= 1:
+        return [run_once(cfg, i) for i in range(cfg.n_runs)]
+    with ProcessPoolExecutor(jobs) as pool:
+        return list(pool.map(run_once, [cfg] * cfg.n_runs, range(cfg.n_runs)))
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="Monte-Carlo consistency check of EkfSlam on the simulator.")
+    ap = argparse.ArgumentParser(description="Monte-Carlo accuracy and consistency of the EKF-SLAM on the simulator.")
     ap.add_argument("--runs", type=int, default=McConfig.n_runs)
     ap.add_argument("--steps", type=int, default=McConfig.n_steps)
     ap.add_argument("--world", default=McConfig.world_name)
+    ap.add_argument("--features", choices=FEATURE_SOURCES, default=McConfig.features,
+                    help="true corners plus matched noise, or the real denoise -> feature -> slam steps")
     ap.add_argument("--association", choices=("nn", "jcbb"), default=McConfig.association)
-    ap.add_argument("--range-sigma-m", type=float, default=McConfig.range_sigma_m)
-    ap.add_argument("--bearing-sigma-rad", type=float, default=McConfig.bearing_sigma_rad)
+    ap.add_argument("--range-sigma-m", type=float, default=McConfig.range_sigma_m, help="truth features only")
+    ap.add_argument("--bearing-sigma-rad", type=float, default=McConfig.bearing_sigma_rad, help="truth features only")
     ap.add_argument("--odom-scale", type=float, default=1.0, help="multiply the simulator's odometry noise")
     ap.add_argument("--seed", type=int, default=McConfig.seed)
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes")
     args = ap.parse_args(argv)
     base = OdometryNoise()
     cfg = McConfig(
-        n_runs=args.runs, n_steps=args.steps, world_name=args.world, association=args.association,
-        range_sigma_m=args.range_sigma_m, bearing_sigma_rad=args.bearing_sigma_rad, seed=args.seed,
+        n_runs=args.runs, n_steps=args.steps, world_name=args.world, features=args.features,
+        association=args.association, range_sigma_m=args.range_sigma_m, bearing_sigma_rad=args.bearing_sigma_rad,
+        seed=args.seed,
         odometry=OdometryNoise(base.trans_sigma_per_m * args.odom_scale, base.rot_sigma_per_rad * args.odom_scale,
                                base.rot_sigma_per_m_rad * args.odom_scale),
     )
-    results = [run_once(cfg, i) for i in range(cfg.n_runs)]
-    print(format_summary(summarise(results), cfg))
+    print(format_summary(summarise(run_many(cfg, args.jobs), cfg.final_lap_frac), cfg))
     return 0
 
 
