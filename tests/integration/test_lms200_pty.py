@@ -25,7 +25,7 @@ import pytest
 import serial
 
 from lrfslam.drivers.lms200 import protocol as p
-from lrfslam.drivers.lms200.emulator import SimScanSource
+from lrfslam.drivers.lms200.emulated_device import SimScanSource
 from lrfslam.drivers.lms200.port import Lms200, Lms200Timeouts
 
 HANG_GUARD_S = 30.0
@@ -112,12 +112,16 @@ def test_init_switches_baud_variant_and_units_and_scans_match(tmp_path):
         sent = emu.sent()
     counters = lms.counters
     assert counters["inits"] == 1 and counters["config_writes"] == 1 and counters["bad_scans"] == 0
+    assert counters["init_failures"] == counters["reply_timeouts"] == counters["naks"] == 0  # first time right
     assert lms.device_type.startswith("LMS200;")
     for scan in scans:
         assert scan.ranges_m.size == 181 and scan.units is p.Units.MM
         assert (scan.resolution_deg, scan.fov_deg) == (1.0, 180.0)
     indices = match_in_order(scans, sent)
     assert indices == list(range(indices[0], indices[0] + len(scans)))  # none lost
+    # Pacing model (note §6): 372 bytes take 96.9 ms at 38400 Bd, so every 8th mirror turn
+    # (106.6 ms, 9.38 Hz) is sent. Scan numbers count turns; the median ignores a late wake-up.
+    assert np.median(np.diff([sent[j][0] for j in indices])) == 8
     # The dump is not the only witness: scan k is reproducible from the seed alone.
     k, _, ranges = sent[indices[-1]]
     expected = SimScanSource("hallway_loop", 7)(p.VARIANT_180_1, k)

@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 
 from lrfslam.drivers.lms200 import protocol as p
-from lrfslam.drivers.lms200.emulated_device import TYPE_STRING, EmulatedLms200
+from lrfslam.drivers.lms200.emulated_device import (
+    TYPE_STRING,
+    EmulatedLms200,
+    SimScanSource,
+    scan_period_s,
+)
 
 
 def request(telegram: bytes) -> p.Telegram:
@@ -80,3 +85,11 @@ def test_power_cycle_keeps_the_eeprom_configuration():
     device.baud = 38400
     device.power_cycle()
     assert (device.baud, device.variant, device.streaming, device.units) == (9600, p.VARIANT_180_05, False, p.Units.CM)
+
+
+def test_sim_scans_depend_only_on_seed_variant_and_number():
+    a, b = SimScanSource(seed=5), SimScanSource(seed=5)
+    np.testing.assert_array_equal(a(p.VARIANT_180_1, 40), b(p.VARIANT_180_1, 40))
+    assert not np.array_equal(a(p.VARIANT_180_1, 40), a(p.VARIANT_180_1, 41), equal_nan=True)
+    assert a(p.VARIANT_100_025, 3).shape == (401,)
+    assert scan_period_s(p.VARIANT_100_025) == pytest.approx(4 * scan_period_s(p.VARIANT_180_1))

@@ -115,8 +115,8 @@ def test_frame_rejects_programming_errors():
     (p.variant_request(p.VARIANT_100_05), "02 00 05 00 3B 64 00 32 00 B1 59"),
     (p.variant_request(p.VARIANT_100_025), "02 00 05 00 3B 64 00 19 00 E7 72"),
     (p.config_write_request(p.DEFAULT_CONFIG),
-     "02 00 23 00 77 00 00 46 00 00 00 01 00 00 02 02 02 00 00 0A 0A 50 64 00 0A 0A 50 80 00 0A 0A 50 64"
-     " 00 00 00 00 02 00 7B 4B"),
+     ("02 00 23 00 77 00 00 46 00 00 00 01 00 00 02 02 02 00 00 0A 0A 50 64 00 0A 0A 50 80 00 0A 0A 50 64"
+      " 00 00 00 00 02 00 7B 4B")),
 ])
 def test_builders_match_published_telegrams(built, expected):
     assert built == bytes.fromhex(expected)

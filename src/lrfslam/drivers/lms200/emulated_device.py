@@ -1,4 +1,5 @@
-"""Behaviour of an LMS200 as the emulator plays it: request telegram in, reply telegrams out.
+"""Behaviour of an LMS200 as the emulator plays it: request telegram in, reply telegrams out,
+and the simulated scans it measures.
 
 No I/O and no clock: :mod:`.emulator` owns the pseudo-terminal, the pacing and
 the timing. It covers the commands :mod:`.port` sends plus 30h 01h (one scan
@@ -8,17 +9,26 @@ logically invalid command (note §2.1).
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from lrfslam.drivers.lms200 import protocol as p
+from lrfslam.sim.lidar import LidarModel, simulate_scan
+from lrfslam.sim.simulator import SimConfig, Simulator
 
 # ASCII type string, 21 characters as in the TL example (note §2.3).
 TYPE_STRING = b"LMS200;301063;V02.10 "
 _BAUD_BY_CODE = {code: baud for baud, code in p.BAUD_CODES.items()}
 _MODE_OK, _MODE_REFUSED = 0x00, 0x01  # A0h result byte
 _REJECTED, _ACCEPTED = 0x00, 0x01  # BBh / F7h result byte
+MIRROR_TURN_S = 0.01332  # one mirror revolution, 75 Hz (TL §3.4)
+_TURNS_PER_SCAN = {100: 1, 50: 2, 25: 4}  # resolution (1/100°) -> interlaced mirror turns per scan
+
+# Ranges of scan number k for a variant, metres, +inf = no return.
+ScanSource = Callable[[p.Variant, int], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -152,3 +162,45 @@ class EmulatedLms200:
             self.config = bytes(data)
         result = _ACCEPTED if valid else _REJECTED
         return Reaction((p.build_reply(bytes((p.reply_code(p.CMD_CONFIG_WRITE), result)) + data),))
+
+
+def scan_period_s(variant: p.Variant) -> float:
+    """Time between complete scans of ``variant``: interlaced turns at finer resolutions."""
+    return _TURNS_PER_SCAN[variant.resolution_cdeg] * MIRROR_TURN_S
+
+
+class SimScanSource:
+    """Scans of the simulated world along the simulator's loop, one pose per scan period.
+
+    Scan ``k`` is drawn with its own generator seeded by ``(seed, k)``, so any
+    scan can be regenerated from its number without replaying the ones before.
+
+    Parameters
+    ----------
+    world_name : str
+        A :func:`lrfslam.sim.worlds.world_names` entry.
+    seed : int
+    """
+
+    def __init__(self, world_name: str = "hallway_loop", seed: int = 0) -> None:
+        self._world_name = world_name
+        self._seed = seed
+        self._sims: dict[p.Variant, Simulator] = {}
+        self._simulator(p.VARIANT_180_1)  # fail early on an unknown world
+
+    def __call__(self, variant: p.Variant, k: int) -> np.ndarray:
+        """Ranges of scan ``k`` of ``variant``, shape (variant.n_values,), metres."""
+        sim = self._simulator(variant)
+        rng = np.random.default_rng((self._seed, k))
+        return simulate_scan(sim.world, sim.trajectory.pose(k), sim.config.lidar, rng).ranges_m
+
+    def _simulator(self, variant: p.Variant) -> Simulator:
+        if variant not in self._sims:
+            # LMS value 0 points right (-90° in the robot frame), ascending counter-clockwise.
+            lidar = LidarModel(n_beams=variant.n_values,
+                               angle_min_rad=math.radians(variant.start_angle_deg - 90.0),
+                               angle_increment_rad=math.radians(variant.resolution_deg))
+            config = SimConfig(world_name=self._world_name, lidar=lidar,
+                               rate_hz=1.0 / scan_period_s(variant), seed=self._seed)
+            self._sims[variant] = Simulator(config)
+        return self._sims[variant]

@@ -18,7 +18,8 @@ like an LMS200 on the other end of that port (protocol note §9):
   idle is sent: 181 values stream at ≈9.4 Hz at 38400 Bd and 75 Hz at 500 kBd
   (note §6);
 * scans come from :mod:`lrfslam.sim`; scan ``k`` depends only on
-  ``(--world, --seed, variant, k)``, see :class:`SimScanSource`;
+  ``(--world, --seed, variant, k)``, see
+  :class:`~lrfslam.drivers.lms200.emulated_device.SimScanSource`;
 * optional faults on streamed scans: garbage before a telegram, one flipped
   bit, a truncated telegram (each a percentage of telegrams).
 
@@ -52,21 +53,19 @@ from typing import TextIO
 import numpy as np
 
 from lrfslam.drivers.lms200 import protocol as p
-from lrfslam.drivers.lms200.emulated_device import EmulatedLms200
+from lrfslam.drivers.lms200.emulated_device import (
+    EmulatedLms200,
+    ScanSource,
+    SimScanSource,
+    scan_period_s,
+)
 from lrfslam.errors import ConfigError
-from lrfslam.sim.lidar import LidarModel, simulate_scan
-from lrfslam.sim.simulator import SimConfig, Simulator
 
-MIRROR_TURN_S = 0.01332  # one mirror revolution, 75 Hz (TL §3.4)
 HOST_GAP_S = 0.006  # the LMS drops a request whose bytes are further apart (TL p.24)
 BITS_PER_BYTE = 10  # 8N1
 CHUNK_S = 0.004  # paced output goes out in slices this long: well under the 14 ms gap limit
 MAX_GARBAGE_BYTES = 32
 _SPEEDS = {termios.B9600: 9600, termios.B19200: 19200, termios.B38400: 38400, termios.B500000: 500_000}
-_TURNS_PER_SCAN = {100: 1, 50: 2, 25: 4}  # resolution (1/100°) -> mirror turns per scan
-
-# Ranges of scan number k for a variant, metres, +inf = no return.
-ScanSource = Callable[[p.Variant, int], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -84,48 +83,6 @@ class EmulatorOptions:
     fault_truncate_pct: float = 0.0
     link: Path | None = None
     replug_delay_s: float = 0.5
-
-
-def scan_period_s(variant: p.Variant) -> float:
-    """Time between complete scans of ``variant``: interlaced turns at finer resolutions."""
-    return _TURNS_PER_SCAN[variant.resolution_cdeg] * MIRROR_TURN_S
-
-
-class SimScanSource:
-    """Scans of the simulated world along the simulator's loop, one pose per scan period.
-
-    Scan ``k`` is drawn with its own generator seeded by ``(seed, k)``, so any
-    scan can be regenerated from its number without replaying the ones before.
-
-    Parameters
-    ----------
-    world_name : str
-        A :func:`lrfslam.sim.worlds.world_names` entry.
-    seed : int
-    """
-
-    def __init__(self, world_name: str = "hallway_loop", seed: int = 0) -> None:
-        self._world_name = world_name
-        self._seed = seed
-        self._sims: dict[p.Variant, Simulator] = {}
-        self._simulator(p.VARIANT_180_1)  # fail early on an unknown world
-
-    def __call__(self, variant: p.Variant, k: int) -> np.ndarray:
-        """Ranges of scan ``k`` of ``variant``, shape (variant.n_values,), metres."""
-        sim = self._simulator(variant)
-        rng = np.random.default_rng((self._seed, k))
-        return simulate_scan(sim.world, sim.trajectory.pose(k), sim.config.lidar, rng).ranges_m
-
-    def _simulator(self, variant: p.Variant) -> Simulator:
-        if variant not in self._sims:
-            # LMS value 0 points right (-90° in the robot frame), ascending counter-clockwise.
-            lidar = LidarModel(n_beams=variant.n_values,
-                               angle_min_rad=math.radians(variant.start_angle_deg - 90.0),
-                               angle_increment_rad=math.radians(variant.resolution_deg))
-            config = SimConfig(world_name=self._world_name, lidar=lidar,
-                               rate_hz=1.0 / scan_period_s(variant), seed=self._seed)
-            self._sims[variant] = Simulator(config)
-        return self._sims[variant]
 
 
 class PtyLine:

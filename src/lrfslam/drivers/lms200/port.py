@@ -19,11 +19,15 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import serial
 
 from lrfslam.drivers.lms200 import protocol as p
 from lrfslam.errors import ConfigError, DeviceError, TelegramError
+
+if TYPE_CHECKING:
+    from typing import Self  # Python >= 3.11; annotations are not evaluated at run time
 
 # Measuring mode 00h: 13-bit ranges (8.183 m in mm) with field A/B and dazzle flags.
 MEASURING_MODE = 0x00
@@ -101,7 +105,7 @@ class Lms200:
         """Snapshot of every fault and event counter (driver and telegram parser)."""
         return {**self._parser.counters, **self._counts}
 
-    def __enter__(self) -> Lms200:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:
