@@ -119,9 +119,6 @@ def test_init_switches_baud_variant_and_units_and_scans_match(tmp_path):
         assert (scan.resolution_deg, scan.fov_deg) == (1.0, 180.0)
     indices = match_in_order(scans, sent)
     assert indices == list(range(indices[0], indices[0] + len(scans)))  # none lost
-    # Pacing model (note §6): 372 bytes take 96.9 ms at 38400 Bd, so every 8th mirror turn
-    # (106.6 ms, 9.38 Hz) is sent. Scan numbers count turns; the median ignores a late wake-up.
-    assert np.median(np.diff([sent[j][0] for j in indices])) == 8
     # The dump is not the only witness: scan k is reproducible from the seed alone.
     k, _, ranges = sent[indices[-1]]
     expected = SimScanSource("hallway_loop", 7)(p.VARIANT_180_1, k)

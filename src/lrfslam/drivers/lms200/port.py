@@ -76,7 +76,7 @@ class Lms200:
     device_type : str
         Type string from the last init, e.g. ``LMS200;301063;V02.10``; "" before.
     last_stamp_ns : int
-        ``time.time_ns()`` when the newest yielded scan's last byte was read.
+        ``time.time_ns()`` of the read that completed the newest yielded scan.
     """
 
     def __init__(self, device: str, baud: int = 38400, timeouts: Lms200Timeouts = Lms200Timeouts(),
@@ -317,7 +317,7 @@ class Lms200:
         for byte in telegram:
             port.write(bytes((byte,)))
             port.flush()
-            _busy_wait(_FAST_BYTE_GAP_S)  # sleep() can overshoot the 6 ms max gap; spin instead
+            _busy_wait(_FAST_BYTE_GAP_S)  # sleep() is too coarse for 60 us; spin instead
 
     def _set_baud(self, baud: int) -> None:
         port = self._require_port()
