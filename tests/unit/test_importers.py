@@ -16,7 +16,7 @@ from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_metadata, read_recording
 from lrfslam.tools import importers
-from lrfslam.tools.evaluate import stamp_s
+from lrfslam.tools.evaluate import evaluate_relations, stamp_s
 from lrfslam.tools.importers import import_carmen, stamp_ns
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -149,3 +149,21 @@ def test_bad_arguments_fail_cleanly(tmp_path, capsys):
     assert importers.main(["carmen", str(tmp_path / "missing.clf"), "-o", str(tmp_path / "x.mcap")]) == 2
     assert "missing.clf" in capsys.readouterr().err
     assert importers.main(["carmen", str(HEAD), "-o", str(tmp_path / "x.mcap"), "--max-range-m", "0"]) == 2
+
+
+INTEL = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "intel"
+
+
+@pytest.mark.skipif(not (INTEL / "intel.clf.bz2").is_file() or not (INTEL / "intel.relations").is_file(),
+                    reason="Intel dataset not present")
+def test_intel_import_reproduces_the_odometry_baseline(tmp_path):
+    """Imported odometry scores as the log's own (7.37 ± 14.35 m), every relation stamp matched exactly."""
+    out = tmp_path / "intel.mcap"
+    result = import_carmen(INTEL / "intel.clf.bz2", out)
+    assert (result.scans, result.issues, result.stamp_backsteps) == (13631, (), 631)
+    results, undecodable = evaluate_relations(out, INTEL / "intel.relations")
+    odom = results["raw odometry"]
+    assert undecodable == 0 and "slam estimate" not in results
+    assert (odom.n_used, odom.max_match_gap_s) == (2984, 0.0)
+    assert odom.trans_abs_m.mean == pytest.approx(7.37, abs=0.005)
+    assert odom.trans_abs_m.std == pytest.approx(14.35, abs=0.005)
