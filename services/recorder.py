@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lrfslam.msgs import types as t
-from lrfslam.runtime.bus import LogOnce
+from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.recording import RecordingWriter
 from lrfslam.runtime.service import Message, RunContext, ServiceSpec, StepBase
 

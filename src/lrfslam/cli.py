@@ -5,6 +5,7 @@
     lrfslam status                     live services and their statistics
     lrfslam router                     a Zenoh router
     lrfslam info FILE.mcap             topics, schemas, counts and duration of a recording
+    lrfslam pipeline --replay IN.mcap --out OUT.mcap [--stages denoise,feature,slam]
     lrfslam eval features|slam|relations ...
     lrfslam import carmen LOG -o FILE.mcap
     lrfslam emulate-lms200             an LMS200 on a pseudo-terminal
@@ -23,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "status": ("lrfslam.tools.status", "main", "list live services and their statistics"),
     "router": ("lrfslam.tools.router", "main", "run a Zenoh router"),
     "info": ("lrfslam.tools.info", "main", "describe an MCAP recording"),
+    "pipeline": ("lrfslam.tools.pipeline", "main", "run several stages over a recording in one process (offline)"),
     "eval": ("lrfslam.tools.evaluate", "main", "accuracy evaluations (features, slam, relations)"),
     "import": ("lrfslam.tools.importers", "main", "convert a log (CARMEN) into a recording"),
     "emulate-lms200": ("lrfslam.drivers.lms200.emulator", "main", "emulate an LMS200 on a pseudo-terminal"),

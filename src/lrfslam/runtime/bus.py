@@ -15,14 +15,13 @@ import struct
 import threading
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any
 
 import zenoh
 
-from lrfslam.errors import DecodeError, SchemaVersionError
 from lrfslam.msgs import topics
-from lrfslam.msgs.codec import ENCODING_PREFIX, parse_encoding
+from lrfslam.msgs.codec import parse_encoding
 from lrfslam.msgs.topics import Topic
+from lrfslam.runtime.decoding import LogOnce, decode_message
 from lrfslam.runtime.service import Message, Output
 
 log = logging.getLogger(__name__)
@@ -79,19 +78,6 @@ def open_session(conf: zenoh.Config, stop: threading.Event, endpoints: tuple[str
             if stop.wait(delay):
                 return None
             delay = min(delay * 2, 2.0)
-
-
-class LogOnce:
-    """Log each distinct (kind, detail) once; later occurrences are only counted."""
-
-    def __init__(self, logger: logging.Logger) -> None:
-        self._log = logger
-        self._seen: set[tuple[str, str]] = set()
-
-    def warning(self, kind: str, detail: str, msg: str, *args: Any) -> None:
-        if (kind, detail) not in self._seen:
-            self._seen.add((kind, detail))
-            self._log.warning(msg + " (further ones are only counted)", *args)
 
 
 def attachment(seq: int, stamp_ns: int) -> bytes:
@@ -159,17 +145,7 @@ class ZenohBus:
         if topic is None:
             return None
         self._counts[f"in.{topic.name}"] += 1
-        try:
-            if not schema:
-                raise DecodeError("", f"encoding {encoding!r} names no {ENCODING_PREFIX} schema")
-            value = topic.codec.decode(payload, schema)
-        except DecodeError as exc:
-            kind = "error.schema" if isinstance(exc, SchemaVersionError) or not schema else "error.decode"
-            self._counts[kind] += 1
-            self._once.warning(kind, f"{topic.name}:{exc.schema}", "dropping a sample on %s: %s", key, exc)
-            return None
-        return Message(topic, value, getattr(value, "stamp_ns", stamp_ns), schema, topic.name,
-                       getattr(value, "seq", seq))
+        return decode_message(topic, payload, schema, self._counts, self._once, key)
 
     def publish(self, out: Output) -> None:
         """Encode and put ``out.value`` on its topic's key with schema and attachment."""

@@ -23,13 +23,14 @@ from typing import Any, Iterator, Mapping
 
 import zenoh
 
-from lrfslam.errors import ConfigError, DecodeError, InputError, LrfSlamError, SchemaVersionError
+from lrfslam.errors import ConfigError, InputError, LrfSlamError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
 
 
-from lrfslam.runtime.bus import BusConfig, LogOnce, ZenohBus, open_session, zenoh_config
+from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
+from lrfslam.runtime.decoding import LogOnce, decode_message
 from lrfslam.runtime.recording import ReadReport, RecordingWriter, read_recording
 from lrfslam.runtime.service import Message, RunContext, ServiceSpec, Source, run_offline
 
@@ -130,14 +131,9 @@ def replay(spec: ServiceSpec, cfg: Any, robot: str, in_path: Path, out_path: Pat
                 continue
             topic = wanted[rec.topic]
             counts[f"in.{topic.name}"] += 1
-            try:
-                value = topic.codec.decode(rec.data, rec.schema)
-            except DecodeError as exc:
-                kind = "error.schema" if isinstance(exc, SchemaVersionError) else "error.decode"
-                counts[kind] += 1
-                once.warning(kind, rec.topic, "skipping a message on %s: %s", rec.topic, exc)
-                continue
-            yield Message(topic, value, value.stamp_ns, rec.schema, topic.name, value.seq)
+            msg = decode_message(topic, rec.data, rec.schema, counts, once, f"{in_path.name}:{rec.topic}")
+            if msg is not None:
+                yield msg
 
     writer = RecordingWriter(out_path, metadata={
         "lrfslam": {"robot": robot, "service": spec.name, "replay_of": in_path.name,

@@ -33,9 +33,10 @@ from typing import Any
 from tqdm import tqdm
 
 from lrfslam import services
-from lrfslam.errors import ConfigError, DecodeError, InputError, LrfSlamError, SchemaVersionError
+from lrfslam.errors import ConfigError, InputError, LrfSlamError
 from lrfslam.runtime import config as config_mod
-from lrfslam.runtime.bus import BusConfig, LogOnce
+from lrfslam.runtime.bus import BusConfig
+from lrfslam.runtime.decoding import LogOnce, decode_message
 from lrfslam.runtime.recording import ReadReport, RecordedMessage, RecordingWriter, read_recording
 from lrfslam.runtime.runner import service_config, setup_logging, step_close
 from lrfslam.runtime.service import Message, RunContext, ServiceSpec, run_offline
@@ -157,14 +158,7 @@ def run_pipeline(stages: Iterable[Stage], robot: str, in_path: str | Path, out_p
             topic = consumed.get(rec.topic)
             msg = None
             if topic is not None:
-                try:
-                    value = topic.codec.decode(rec.data, rec.schema)
-                except DecodeError as exc:
-                    kind = "error.schema" if isinstance(exc, SchemaVersionError) else "error.decode"
-                    read[kind] += 1
-                    once.warning(kind, rec.topic, "not feeding a message on %s to the stages: %s", rec.topic, exc)
-                else:
-                    msg = Message(topic, value, value.stamp_ns, rec.schema, topic.name, value.seq)
+                msg = decode_message(topic, rec.data, rec.schema, read, once, f"{in_path.name}:{rec.topic}")
             yield _Item(msg, rec)
 
     stream: Iterator[_Item] = source()
