@@ -1,1 +1,1 @@
-"""Generated from schemas/lrfslam/msgs/v1 by tools/gen_schemas (do not edit)."""
+"""Generated from schemas/lrfslam/msgs/v1 by ``python -m lrfslam.tools.gen_schemas`` (do not edit)."""
