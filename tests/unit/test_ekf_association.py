@@ -64,22 +64,30 @@ def test_nearest_neighbour_normalises_by_log_det():
 
 
 def brute_force(n_obs, cand_obs, cand_lm, innov, joint, confidence):
-    """Best (pairs, D²) over every hypothesis, by enumeration."""
+    """Best (pairs, D²) over every hypothesis, by enumeration.
+
+    JCBB grows a hypothesis one observation at a time and gates every step, so a
+    hypothesis counts only if each of its prefixes (in observation order) is
+    jointly compatible too: with a χ² gate that widens with the pair count a set
+    can pass while one of its subsets fails, and JCBB (Neira and Tardós) never
+    reaches such a set.
+    """
+
+    def d2_of(chosen):
+        idx = np.ravel([(2 * c, 2 * c + 1) for c in chosen])
+        nu = innov[chosen].ravel()
+        return float(nu @ np.linalg.solve(joint[np.ix_(idx, idx)], nu))
+
     best = (0, 0.0)
     options = [[None] + [c for c in range(cand_obs.size) if cand_obs[c] == k] for k in range(n_obs)]
     for hyp in itertools.product(*options):
         chosen = [c for c in hyp if c is not None]
-        if len({int(cand_lm[c]) for c in chosen}) < len(chosen):
+        if not chosen or len({int(cand_lm[c]) for c in chosen}) < len(chosen):
             continue
-        if not chosen:
-            continue
-        idx = np.ravel([(2 * c, 2 * c + 1) for c in chosen])
-        nu = innov[chosen].ravel()
-        d2 = float(nu @ np.linalg.solve(joint[np.ix_(idx, idx)], nu))
-        if d2 < chi2.ppf(confidence, 2 * len(chosen)) and (
-            len(chosen) > best[0] or (len(chosen) == best[0] and d2 < best[1])
-        ):
-            best = (len(chosen), d2)
+        if all(d2_of(chosen[:j]) < chi2.ppf(confidence, 2 * j) for j in range(1, len(chosen) + 1)):
+            d2 = d2_of(chosen)
+            if len(chosen) > best[0] or (len(chosen) == best[0] and d2 < best[1]):
+                best = (len(chosen), d2)
     return best
 
 
@@ -94,6 +102,14 @@ def test_jcbb_finds_the_brute_force_optimum(seed, n_obs, n_lm):
     a = rng.normal(size=(2 * len(pairs), 2 * len(pairs)))
     joint = a @ a.T / len(pairs) + 0.3 * np.eye(2 * len(pairs))
     innov = rng.normal(scale=1.2, size=(len(pairs), 2))
+    # The filter hands JCBB individually compatible candidates only.
+    nis, _ = association.nis_2d(innov, association._diag_blocks(joint))
+    keep = nis < chi2.ppf(0.99, 2)
+    if not keep.any():
+        return
+    pairs = [pr for pr, k in zip(pairs, keep, strict=True) if k]
+    cand_obs, cand_lm, innov = cand_obs[keep], cand_lm[keep], innov[keep]
+    joint = joint[np.ix_(np.repeat(keep, 2), np.repeat(keep, 2))]
     res = association.jcbb(n_obs, cand_obs, cand_lm, innov, joint, confidence=0.99)
     n_pairs, d2 = brute_force(n_obs, cand_obs, cand_lm, innov, joint, 0.99)
     assert np.count_nonzero(res.pairing >= 0) == n_pairs

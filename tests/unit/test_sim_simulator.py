@@ -78,7 +78,7 @@ def test_visible_corners_robot_xy_maps_back_to_the_map():
         np.testing.assert_allclose(from_frame(f.visible_corners_robot_xy, f.true_pose), xy, atol=1e-9)
         seen += len(xy)
     assert seen > 30
-    assert len(sim.map_corners) == 52 and sim.world.name == "hallway_loop"
+    assert len(sim.map_corners) == 96 and sim.world.name == "hallway_loop"
 
 
 def test_unknown_world_is_a_config_error():

@@ -69,7 +69,7 @@ def test_convex_corner_with_one_hidden_face_is_visible_but_not_eligible():
 
 
 def test_jump_edge_vertices_are_convex_corners_and_free_ends():
-    assert len(jump_edge_vertices(hallway_loop())) == 26
+    assert len(jump_edge_vertices(hallway_loop())) == 48
     v = jump_edge_vertices(doorway_room())
     assert len(v) == 6
     assert np.any(np.all(np.isclose(v, (1.0, 0.5)), axis=1))

@@ -129,10 +129,24 @@ def test_hallway_walls_are_axis_aligned_and_every_vertex_a_right_angle_corner():
     dx, dy = seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]
     assert np.all((dx == 0) ^ (dy == 0))
     c = w.corners()
-    assert len(c) == len(seg) == 52
+    assert len(c) == len(seg) == 96
     np.testing.assert_allclose(c.angle_deg, 90.0)
-    assert (c.kind == "concave").sum() == 26 and (c.kind == "convex").sum() == 26
+    assert (c.kind == "concave").sum() == 48 and (c.kind == "convex").sum() == 48
     assert len(w.free_endpoints()) == 0
+
+
+def test_hallway_has_corners_the_forward_search_can_see_all_along_the_loop():
+    # Bays and alcoves: both walls of a corner at least as long as the paper's
+    # longest 1.2 m search arm, spaced so that no stretch of the loop is blind.
+    c = hallway_loop().corners()
+    long_armed = c.xy_m[np.all(c.wall_lengths_m >= 1.2, axis=1)]
+    assert len(long_armed) >= 60
+    path = hallway_loop_path()
+    closed = np.vstack((path, path[:1]))
+    s = np.linspace(0.0, 1.0, 200)[:, None]
+    samples = np.vstack([a + s * (b - a) for a, b in itertools.pairwise(closed)])
+    nearest = np.hypot(*(samples[:, None, :] - long_armed[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    assert nearest.max() < 3.0
 
 
 def test_hallway_path_closes_and_keeps_the_corridor_width():

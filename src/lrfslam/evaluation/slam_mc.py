@@ -218,6 +218,33 @@ def label_points(world_xy: np.ndarray, truth_xy: np.ndarray, radius_m: float) ->
     return np.where(d2[np.arange(len(best)), best] <= radius_m**2, best, PHANTOM).astype(np.int64)
 
 
+def truth_clusters(truth_xy: np.ndarray, radius_m: float) -> np.ndarray:
+    """Physical feature of each truth point: points closer than ``radius_m`` (chained) are one.
+
+    The two vertices of a 0.15 m thick door jamb are one physical feature: a
+    jump edge on the jamb's end slides from one to the other as the robot
+    passes, and a labeller with a ``radius_m`` tolerance cannot tell them apart.
+
+    Parameters
+    ----------
+    truth_xy : ndarray, shape (V, 2)
+    radius_m : float
+
+    Returns
+    -------
+    ndarray, shape (V,), int64
+        The smallest index in each point's cluster.
+    """
+    close = ((truth_xy[:, None, :] - truth_xy[None, :, :]) ** 2).sum(axis=2) <= radius_m**2
+    cluster = np.arange(len(truth_xy))
+    # Spread the smallest index along chains of close points until nothing changes.
+    while True:
+        merged = np.where(close, cluster[None, :], len(truth_xy)).min(axis=1)
+        if np.array_equal(merged, cluster):
+            return cluster.astype(np.int64)
+        cluster = merged
+
+
 class _RecordingEkf(EkfSlam):
     """EkfSlam that keeps what its last :meth:`observe` call was given and returned."""
 
@@ -271,6 +298,7 @@ def run_once(cfg: McConfig, run_index: int) -> RunResult:
         raise ValueError(f"features must be one of {FEATURE_SOURCES}, got {cfg.features!r}")
     sim = Simulator(SimConfig(world_name=cfg.world_name, odometry=cfg.odometry, seed=cfg.seed + run_index))
     truth_xy = np.vstack((sim.map_corners.xy_m, sim.world.free_endpoints()))
+    cluster = truth_clusters(truth_xy, cfg.label_radius_m)
     # Measurement noise from its own stream, so it is independent of the simulator's.
     rng = np.random.default_rng([cfg.seed, run_index, 1])
     params = cfg.ekf_params()
@@ -304,7 +332,8 @@ def run_once(cfg: McConfig, run_index: int) -> RunResult:
             pose, pose_cov, labels = filt.pose, filt.pose_cov, frame.visible_corner_ids
         n_obs += labels.size
         n_phantom += int(np.sum(labels == PHANTOM))
-        for k, label in enumerate(labels.tolist()):
+        physical = np.where(labels >= 0, cluster[np.maximum(labels, 0)], PHANTOM)
+        for k, label in enumerate(physical.tolist()):
             lm_id = int(rep.landmark_ids[k])
             if rep.status[k] == ObsStatus.NEW:
                 label_of[lm_id] = label
@@ -318,7 +347,10 @@ def run_once(cfg: McConfig, run_index: int) -> RunResult:
     table = (pipeline.slam.ekf if pipeline is not None else filt).landmarks()
     lm_labels = np.array([label_of[int(i)] for i in table.ids], dtype=np.int64)
     use = table.confirmed & (lm_labels >= 0)
-    err = truth_xy[lm_labels[use]].reshape(-1, 2) - table.xy[use]
+    # Each landmark against the nearest point of the physical feature that created it.
+    members = cluster[None, :] == lm_labels[use, None]
+    d2 = np.where(members, ((truth_xy[None] - table.xy[use, None]) ** 2).sum(axis=2), np.inf)
+    err = truth_xy[d2.argmin(axis=1)].reshape(-1, 2) - table.xy[use]
     lm_nees = np.einsum("li,li->l", err, np.linalg.solve(table.cov[use], err[..., None])[..., 0])
     cat = (lambda parts: np.concatenate(parts) if parts else np.zeros(0))
     return RunResult(

@@ -15,23 +15,33 @@ from lrfslam.sim.world import World, closed_polygon, polyline
 # fmt: off
 # Outer boundary of the hallway loop, free space inside. Corridors: bottom 2.0 m,
 # right 2.2 m, top 2.0 m, left 1.8 m, so widths vary but stay above the paper's 1.5 m.
+# Bays and alcoves are at least 1.3 m deep and 2 m wide, so both walls of their
+# corners reach past the 1.2 m search arms; door recesses (0.3-0.5 m) do not.
 _HALLWAY_OUTER = (
     (-1.8, -2.0),
     # closed door, recessed 0.4 m
     (3.0, -2.0), (3.0, -2.4), (3.9, -2.4), (3.9, -2.0),
+    # stair landing, 2 m x 1.3 m
+    (5.0, -2.0), (5.0, -3.3), (7.0, -3.3), (7.0, -2.0),
     # open 1 m doorway through a 0.15 m wall into a 5 m x 2.35 m room: jump edges at the jambs
     (10.0, -2.0), (10.0, -2.15), (8.5, -2.15), (8.5, -4.5),
     (13.5, -4.5), (13.5, -2.15), (11.0, -2.15), (11.0, -2.0),
     (18.2, -2.0),
+    # waiting bay, 2 m x 1.3 m
+    (18.2, 0.8), (19.5, 0.8), (19.5, 2.8), (18.2, 2.8),
     # side corridor, 1.8 m wide, deeper than the 8 m scanner limit: finite/no-return edges
     (18.2, 4.0), (27.0, 4.0), (27.0, 5.8), (18.2, 5.8),
+    # copier alcove, 2 m x 1.3 m
+    (18.2, 8.0), (19.5, 8.0), (19.5, 10.0), (18.2, 10.0),
     (18.2, 12.0),
     # closed door recessed 0.35 m
     (12.95, 12.0), (12.95, 12.35), (12.0, 12.35), (12.0, 12.0),
-    # alcove 2 m wide, 1.4 m deep: its walls are long enough for the 1.2 m search arms
+    # alcove 2 m wide, 1.4 m deep
     (10.0, 12.0), (10.0, 13.4), (8.0, 13.4), (8.0, 12.0),
     # closed door recessed 0.5 m
     (5.9, 12.0), (5.9, 12.5), (5.0, 12.5), (5.0, 12.0),
+    # stair landing, 2 m x 1.3 m
+    (2.5, 12.0), (2.5, 13.3), (0.5, 13.3), (0.5, 12.0),
     (-1.8, 12.0),
     # closed door recessed 0.3 m
     (-1.8, 5.4), (-2.1, 5.4), (-2.1, 4.5), (-1.8, 4.5),
@@ -39,14 +49,31 @@ _HALLWAY_OUTER = (
     (-1.8, 3.2), (-3.1, 3.2), (-3.1, 1.0), (-1.8, 1.0),
 )
 
-# The 16 m x 10 m block the corridor runs round, solid inside, with two door recesses.
+# The 16 m x 10 m core the corridor runs round (lifts, stairs, services), solid
+# inside, with two door recesses and a lift lobby and service alcoves 1.3 m deep.
 _HALLWAY_BLOCK = (
     (0.0, 0.0),
+    # service alcove
+    (1.0, 0.0), (1.0, 1.3), (3.0, 1.3), (3.0, 0.0),
+    # closed door recessed 0.4 m
     (6.0, 0.0), (6.0, 0.4), (6.9, 0.4), (6.9, 0.0),
+    # lift lobby, 3 m wide
+    (9.5, 0.0), (9.5, 1.3), (12.5, 1.3), (12.5, 0.0),
     (16.0, 0.0),
+    # closed door recessed 0.3 m
     (16.0, 2.0), (15.7, 2.0), (15.7, 2.95), (16.0, 2.95),
+    # service alcove
+    (16.0, 5.5), (14.7, 5.5), (14.7, 7.5), (16.0, 7.5),
     (16.0, 10.0),
+    # service alcove
+    (14.0, 10.0), (14.0, 8.7), (12.0, 8.7), (12.0, 10.0),
+    # lift lobby, 3 m wide
+    (6.5, 10.0), (6.5, 8.7), (3.5, 8.7), (3.5, 10.0),
     (0.0, 10.0),
+    # service alcove
+    (0.0, 8.0), (1.3, 8.0), (1.3, 6.0), (0.0, 6.0),
+    # service alcove
+    (0.0, 3.5), (1.3, 3.5), (1.3, 1.5), (0.0, 1.5),
 )
 # fmt: on
 
@@ -56,12 +83,18 @@ _HALLWAY_PATH = ((8.0, -1.0), (17.1, -1.0), (17.1, 11.0), (-0.9, 11.0), (-0.9, -
 
 
 def hallway_loop() -> World:
-    """Indoor floor: a corridor loop round a 16 m x 10 m block, with doors, alcoves, a room and a side corridor.
+    """Office floor: a corridor loop round a 16 m x 10 m core, with doors, bays, alcoves, a room and a side corridor.
+
+    The core holds two lift lobbies and five service alcoves, the outer wall two
+    stair landings, a waiting bay, a copier alcove and two older alcoves (all at
+    least 1.3 m deep and 2 m wide), besides four shallow door recesses, an open
+    doorway into a room and a side corridor. Without them a 4 m scanner would see
+    no corner with two 1.2 m walls along most of the loop (docs/slam.md).
 
     Returns
     -------
     World
-        52 axis-aligned walls meeting in 52 right-angle corners (26 concave, 26 convex);
+        96 axis-aligned walls meeting in 96 right-angle corners (48 concave, 48 convex);
         no free wall ends.
     """
     segments = np.vstack(
