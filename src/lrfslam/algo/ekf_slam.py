@@ -140,7 +140,7 @@ class EkfParams:
     odom_trans_sigma_floor_m: float = 1e-4
     odom_rot_sigma_floor_rad: float = 1e-4
     # Small: the extractor's own covariance of a refined corner is already
-    # conservative in simulation (2-dof NEES 0.5-0.7 below 3.2 m, docs/slam.md).
+    # conservative in simulation (2-dof NEES 0.45-0.65 below 3.2 m, docs/slam.md).
     corner_range_sigma_m: float = 0.005
     corner_bearing_sigma_rad: float = 0.002
     # Jump edges err 2-3x their reported sigma (bearing 11 mrad against 5, range
