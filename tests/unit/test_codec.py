@@ -47,6 +47,38 @@ def test_features_and_slam_state_round_trip(k, seed):
     assert (back.associated, back.added, back.rejected) == (1, 2, 3)
 
 
+def test_wall_direction_round_trips_and_absence_is_nan():
+    feats = t.Features(7, 3, 2, [1], [(1.5, -0.25)], [np.eye(2) * 1e-4], [80], [90.0], -0.3, 0.002)
+    back = codec.FEATURES.decode(codec.FEATURES.encode(feats))
+    assert back.has_wall_direction
+    assert (back.wall_direction_rad, back.wall_direction_sigma_rad) == (-0.3, 0.002)
+    none = t.Features(7, 3, 2, [], np.zeros((0, 2)), np.zeros((0, 2, 2)), [], [])
+    back = codec.FEATURES.decode(codec.FEATURES.encode(none))
+    assert not back.has_wall_direction and np.isnan(back.wall_direction_rad)
+    assert not codec.FEATURES.to_proto(none).HasField("wall_direction")
+
+
+def test_features_written_before_the_wall_direction_field_still_decode():
+    # One forward corner as the v1 schema without field 4 serialised it (encoded
+    # with the generated code of commit b422ad3).
+    old = bytes.fromhex(
+        "0a0b080710031a056c6173657210021a41080111000000000000f83f19000000000000d0bf22202d431ceb"
+        "e2361a3f000000000000000000000000000000002d431cebe2361a3f2850310000000000805640"
+    )
+    back = codec.FEATURES.decode(old)
+    assert (back.stamp_ns, back.seq, back.scan_seq, len(back)) == (7, 3, 2, 1)
+    np.testing.assert_array_equal(back.xy_m, [[1.5, -0.25]])
+    assert not back.has_wall_direction and np.isnan(back.wall_direction_sigma_rad)
+
+
+@pytest.mark.parametrize("sigma", [0.0, -0.1, float("nan")])
+def test_wall_direction_without_a_usable_sigma_is_a_decode_error(sigma):
+    proto = codec.FEATURES.to_proto(t.Features(7, 3, 2, [], np.zeros((0, 2)), np.zeros((0, 2, 2)), [], []))
+    proto.wall_direction.direction_rad, proto.wall_direction.sigma_rad = 0.1, sigma
+    with pytest.raises(DecodeError, match="wall_direction"):
+        codec.FEATURES.decode(proto.SerializeToString())
+
+
 def test_filtered_scan_keeps_beams_and_points():
     scan = t.LaserScan.from_ranges(5, 1, [1.0, 2.0, np.inf, 3.0], -0.1, 0.05)
     fs = t.FilteredScan(5, 1, scan, [0, 3], [[1.0, 0.0], [3.0, 0.1]], 4.0, "default")

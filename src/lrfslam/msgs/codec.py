@@ -177,6 +177,9 @@ def _features_to(m: t.Features):
         f.covariance_m2.extend(m.cov_m2[i].ravel().tolist())
         f.beam = int(m.beam[i])
         f.angle_deg = float(m.angle_deg[i])
+    if m.has_wall_direction:
+        p.wall_direction.direction_rad = float(m.wall_direction_rad)
+        p.wall_direction.sigma_rad = float(m.wall_direction_sigma_rad)
     return p
 
 
@@ -184,11 +187,17 @@ def _features_from(p) -> t.Features:
     fs = p.features
     if any(len(f.covariance_m2) != 4 for f in fs):
         raise ValueError("a feature covariance is not 2x2")
+    # Absent in scans without a dominant direction and in recordings made before the field existed.
+    wall, wall_sigma = float("nan"), float("nan")
+    if p.HasField("wall_direction"):
+        wall, wall_sigma = p.wall_direction.direction_rad, p.wall_direction.sigma_rad
+        if not (np.isfinite(wall) and np.isfinite(wall_sigma) and wall_sigma > 0):
+            raise ValueError("wall_direction needs a finite direction and a finite sigma > 0")
     return t.Features(
         p.header.stamp_ns, p.header.seq, p.scan_seq,
         [f.kind for f in fs], [(f.x_m, f.y_m) for f in fs],
         np.array([list(f.covariance_m2) for f in fs], np.float64).reshape(-1, 2, 2),
-        [f.beam for f in fs], [f.angle_deg for f in fs],
+        [f.beam for f in fs], [f.angle_deg for f in fs], wall, wall_sigma,
     )
 
 

@@ -120,6 +120,8 @@ class Features:
 
     ``kind`` (K,) FEATURE_* codes, ``xy_m`` (K, 2), ``cov_m2`` (K, 2, 2),
     ``beam`` (K,) source beam indices, ``angle_deg`` (K,) corner angle (NaN for backward).
+    ``wall_direction_rad``: the dominant wall direction modulo 90° in [-pi/4, pi/4), and
+    ``wall_direction_sigma_rad`` its standard deviation; both NaN when there is none.
     """
 
     stamp_ns: int
@@ -130,6 +132,14 @@ class Features:
     cov_m2: np.ndarray
     beam: np.ndarray
     angle_deg: np.ndarray
+    wall_direction_rad: float = float("nan")
+    wall_direction_sigma_rad: float = float("nan")
+
+    @property
+    def has_wall_direction(self) -> bool:
+        """True when the scan has a dominant wall direction with a usable sigma."""
+        return bool(np.isfinite(self.wall_direction_rad) and np.isfinite(self.wall_direction_sigma_rad)
+                    and self.wall_direction_sigma_rad > 0)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kind", _array(self.kind, np.int8))

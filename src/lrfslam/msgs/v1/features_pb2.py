@@ -25,17 +25,19 @@ _sym_db = _symbol_database.Default()
 from lrfslam.msgs.v1 import common_pb2 as lrfslam_dot_msgs_dot_v1_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1elrfslam/msgs/v1/features.proto\x12\x0flrfslam.msgs.v1\x1a\x1clrfslam/msgs/v1/common.proto\"\x87\x01\n\x07\x46\x65\x61ture\x12*\n\x04kind\x18\x01 \x01(\x0e\x32\x1c.lrfslam.msgs.v1.FeatureKind\x12\x0b\n\x03x_m\x18\x02 \x01(\x01\x12\x0b\n\x03y_m\x18\x03 \x01(\x01\x12\x15\n\rcovariance_m2\x18\x04 \x03(\x01\x12\x0c\n\x04\x62\x65\x61m\x18\x05 \x01(\r\x12\x11\n\tangle_deg\x18\x06 \x01(\x01\"q\n\x08\x46\x65\x61tures\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12\x10\n\x08scan_seq\x18\x02 \x01(\x04\x12*\n\x08\x66\x65\x61tures\x18\x03 \x03(\x0b\x32\x18.lrfslam.msgs.v1.Feature*M\n\x0b\x46\x65\x61tureKind\x12\x13\n\x0f\x46\x45\x41TURE_UNKNOWN\x10\x00\x12\x13\n\x0f\x46\x45\x41TURE_FORWARD\x10\x01\x12\x14\n\x10\x46\x45\x41TURE_BACKWARD\x10\x02\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1elrfslam/msgs/v1/features.proto\x12\x0flrfslam.msgs.v1\x1a\x1clrfslam/msgs/v1/common.proto\"\x87\x01\n\x07\x46\x65\x61ture\x12*\n\x04kind\x18\x01 \x01(\x0e\x32\x1c.lrfslam.msgs.v1.FeatureKind\x12\x0b\n\x03x_m\x18\x02 \x01(\x01\x12\x0b\n\x03y_m\x18\x03 \x01(\x01\x12\x15\n\rcovariance_m2\x18\x04 \x03(\x01\x12\x0c\n\x04\x62\x65\x61m\x18\x05 \x01(\r\x12\x11\n\tangle_deg\x18\x06 \x01(\x01\"9\n\rWallDirection\x12\x15\n\rdirection_rad\x18\x01 \x01(\x01\x12\x11\n\tsigma_rad\x18\x02 \x01(\x01\"\xa9\x01\n\x08\x46\x65\x61tures\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12\x10\n\x08scan_seq\x18\x02 \x01(\x04\x12*\n\x08\x66\x65\x61tures\x18\x03 \x03(\x0b\x32\x18.lrfslam.msgs.v1.Feature\x12\x36\n\x0ewall_direction\x18\x04 \x01(\x0b\x32\x1e.lrfslam.msgs.v1.WallDirection*M\n\x0b\x46\x65\x61tureKind\x12\x13\n\x0f\x46\x45\x41TURE_UNKNOWN\x10\x00\x12\x13\n\x0f\x46\x45\x41TURE_FORWARD\x10\x01\x12\x14\n\x10\x46\x45\x41TURE_BACKWARD\x10\x02\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'lrfslam.msgs.v1.features_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_FEATUREKIND']._serialized_start=334
-  _globals['_FEATUREKIND']._serialized_end=411
+  _globals['_FEATUREKIND']._serialized_start=450
+  _globals['_FEATUREKIND']._serialized_end=527
   _globals['_FEATURE']._serialized_start=82
   _globals['_FEATURE']._serialized_end=217
-  _globals['_FEATURES']._serialized_start=219
-  _globals['_FEATURES']._serialized_end=332
+  _globals['_WALLDIRECTION']._serialized_start=219
+  _globals['_WALLDIRECTION']._serialized_end=276
+  _globals['_FEATURES']._serialized_start=279
+  _globals['_FEATURES']._serialized_end=448
 # @@protoc_insertion_point(module_scope)

@@ -33,12 +33,22 @@ class Feature(_message.Message):
     angle_deg: float
     def __init__(self, kind: _Optional[_Union[FeatureKind, str]] = ..., x_m: _Optional[float] = ..., y_m: _Optional[float] = ..., covariance_m2: _Optional[_Iterable[float]] = ..., beam: _Optional[int] = ..., angle_deg: _Optional[float] = ...) -> None: ...
 
+class WallDirection(_message.Message):
+    __slots__ = ("direction_rad", "sigma_rad")
+    DIRECTION_RAD_FIELD_NUMBER: _ClassVar[int]
+    SIGMA_RAD_FIELD_NUMBER: _ClassVar[int]
+    direction_rad: float
+    sigma_rad: float
+    def __init__(self, direction_rad: _Optional[float] = ..., sigma_rad: _Optional[float] = ...) -> None: ...
+
 class Features(_message.Message):
-    __slots__ = ("header", "scan_seq", "features")
+    __slots__ = ("header", "scan_seq", "features", "wall_direction")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     SCAN_SEQ_FIELD_NUMBER: _ClassVar[int]
     FEATURES_FIELD_NUMBER: _ClassVar[int]
+    WALL_DIRECTION_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     scan_seq: int
     features: _containers.RepeatedCompositeFieldContainer[Feature]
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., features: _Optional[_Iterable[_Union[Feature, _Mapping]]] = ...) -> None: ...
+    wall_direction: WallDirection
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., features: _Optional[_Iterable[_Union[Feature, _Mapping]]] = ..., wall_direction: _Optional[_Union[WallDirection, _Mapping]] = ...) -> None: ...
