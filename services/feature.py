@@ -1,14 +1,19 @@
 """feature: corner features by forward searching and jump edges by backward searching.
 
 in:  scan/filtered  FilteredScan
-out: features       Features (robot frame, 2x2 covariance, source beam, scan seq)
+out: features       Features (robot frame, 2x2 covariance, source beam, scan seq; and the
+                   dominant wall direction modulo 90° with its sigma, a heading measurement
+                   for the slam service that is not in the paper, docs/slam.md)
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from lrfslam.algo.corners import CornerParams, extract_features
+from lrfslam.algo.wall_direction import WallDirectionParams, wall_direction
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -23,6 +28,8 @@ _KIND_TO_SCHEMA = (t.FEATURE_FORWARD, t.FEATURE_BACKWARD)
 class FeatureConfig:
     mode: str = "default"   # "paper" or "default"; presets corners.*
     corners: CornerParams = field(default_factory=CornerParams.default)
+    wall_direction: bool = True  # publish the dominant wall direction mod 90° (not in the paper)
+    walls: WallDirectionParams = field(default_factory=WallDirectionParams)
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -32,7 +39,8 @@ class FeatureConfig:
 def preset(mode: str) -> FeatureConfig:
     if mode not in MODES:
         raise ConfigError(f"mode must be one of {MODES}, got {mode!r}")
-    return FeatureConfig(mode=mode, corners=getattr(CornerParams, mode)())
+    # The paper preset is the literal reading: no wall-direction measurement.
+    return FeatureConfig(mode=mode, corners=getattr(CornerParams, mode)(), wall_direction=mode != "paper")
 
 
 class FeatureStep(StepBase):
@@ -48,9 +56,12 @@ class FeatureStep(StepBase):
         self.counts["scans"] += 1
         self.counts["forward"] += kinds.count(t.FEATURE_FORWARD)
         self.counts["backward"] += kinds.count(t.FEATURE_BACKWARD)
+        wall = wall_direction(fs.points_xy_m, self.cfg.walls) if self.cfg.wall_direction else None
+        wall_rad, wall_sigma = (wall.direction_rad, wall.sigma_rad) if wall is not None else (np.nan, np.nan)
+        self.counts["wall_direction"] += int(wall is not None)
         self.seq += 1
         yield Output(topics.FEATURES, t.Features(fs.stamp_ns, self.seq, fs.scan.seq, kinds, found.xy_m,
-                                                 found.cov_m2, found.beam, found.angle_deg))
+                                                 found.cov_m2, found.beam, found.angle_deg, wall_rad, wall_sigma))
 
 
 SPEC = ServiceSpec(

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from lrfslam import services
+from lrfslam.algo.wall_direction import wrap_quarter
 from lrfslam.errors import InputError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -78,6 +79,24 @@ def test_feature_step_finds_the_corner_of_an_l():
     expected = np.array([[c, -s], [s, c]]) @ corner
     assert forward.shape == (1, 2)
     np.testing.assert_allclose(forward[0], expected, atol=0.005)
+
+
+@pytest.mark.parametrize("sets, published", [((), True), (("wall_direction=false",), False),
+                                               (("mode=paper",), False)])
+def test_feature_step_publishes_the_wall_direction(sets, published):
+    den, _ = build("denoise")
+    feat, _ = build("feature", *sets)
+    lidar = LidarModel(range_sigma_m=0.0, quantum_m=0.0, mixed_pixel_prob=0.0)
+    sim = simulate_scan(l_corner(), np.array([0.0, 0.0, 0.3]), lidar, np.random.default_rng(0))
+    scan = t.LaserScan.from_ranges(5, 1, sim.ranges_m, lidar.angle_min_rad, lidar.angle_increment_rad)
+    (fs,) = den.on_message(msg(Output(topics.SCAN, scan)))
+    (out,) = feat.on_message(msg(fs))
+    assert out.value.has_wall_direction == published
+    if published:
+        # The L's walls run at ±45° in the world, so at 45° - 0.3 rad (mod 90°) seen from heading 0.3.
+        assert abs(wrap_quarter(out.value.wall_direction_rad - (np.pi / 4 - 0.3))) < 1e-6
+        assert 0 < out.value.wall_direction_sigma_rad < 0.003
+        assert feat.counts["wall_direction"] == 1
 
 
 def chain(outs):
