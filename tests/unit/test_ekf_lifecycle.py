@@ -7,8 +7,15 @@ import io
 import numpy as np
 import pytest
 
-from lrfslam.algo.ekf_slam import BACKWARD, FORWARD, EkfParams, EkfSlam, ObsStatus
-from lrfslam.algo.geometry import compose, to_frame
+from lrfslam.algo.ekf_slam import (
+    BACKWARD,
+    FORWARD,
+    EkfParams,
+    EkfSlam,
+    ObsStatus,
+    WallStatus,
+)
+from lrfslam.algo.geometry import compose, to_frame, wrap_angle
 from lrfslam.errors import ConfigError, InputError
 
 POSE_COV = np.diag([1e-3, 1e-3, 1e-4])
@@ -223,3 +230,71 @@ def test_bad_inputs_raise_input_error():
     with pytest.raises(InputError):
         f.update_known(5, [1.0, 0.0], np.eye(2))
     assert f.observe(np.zeros((0, 2))).status.size == 0
+
+
+def test_wall_direction_pins_the_heading_against_odometry_drift():
+    # Odometry under-reports every turn by 2 %: the heading error grows without bound
+    # unless the walls (at psi = 0.2 rad mod 90° in the map) are observed.
+    rng = np.random.default_rng(4)
+    params = EkfParams(odom_rot_sigma_per_rad=0.05)
+    with_walls, without = EkfSlam(params), EkfSlam(params)
+    truth = np.zeros(3)
+    for _ in range(200):
+        delta = np.array([0.1, 0.0, 0.1])
+        truth = compose(truth, delta)
+        for f in (with_walls, without):
+            f.predict(delta * [1.0, 1.0, 0.98])
+        upd = with_walls.observe_wall_direction(0.2 - truth[2] + rng.normal(scale=0.002) + np.pi / 2 * 3, 0.002)
+        assert upd.status in (WallStatus.INITIALISED, WallStatus.APPLIED)
+    err_without, err_with = (abs(wrap_angle(f.pose[2] - truth[2])) for f in (without, with_walls))
+    assert err_without > 0.3
+    assert err_with < 3 * np.sqrt(with_walls.pose_cov[2, 2]) and err_with < 0.01
+    psi, var = with_walls.building_orientation
+    assert abs(psi - 0.2) < 3 * np.sqrt(var) + 1e-9 and without.building_orientation is None
+
+
+def test_wall_direction_outside_the_gate_or_ambiguous_is_discarded():
+    f = EkfSlam(EkfParams(odom_rot_sigma_floor_rad=0.5), pose0_cov=POSE_COV)
+    assert f.observe_wall_direction(0.1, 0.01).status == WallStatus.INITIALISED
+    x, P = f.state_mean, f.state_cov
+    off = f.observe_wall_direction(0.1 + np.radians(30), 0.01)  # 30° off, sigma 0.6°
+    assert off.status == WallStatus.GATED and off.nis > 100
+    np.testing.assert_array_equal(f.state_mean, x)
+    np.testing.assert_array_equal(f.state_cov, P)
+    # 0.5 rad of heading noise: a 99 % gate would span more than ±45°, so a wall a
+    # quarter turn away would fit as well as the right one.
+    f.predict([0.0, 0.0, 0.0])
+    x, P = f.state_mean, f.state_cov
+    assert f.observe_wall_direction(0.1, 0.01).status == WallStatus.AMBIGUOUS
+    np.testing.assert_array_equal(f.state_mean, x)
+    for bad in ((np.nan, 0.01), (0.1, 0.0), (0.1, np.inf)):
+        with pytest.raises(InputError):
+            f.observe_wall_direction(*bad)
+
+
+def test_snapshot_keeps_the_building_orientation():
+    f = EkfSlam(EkfParams(), pose0_cov=POSE_COV)
+    drive(f, np.random.default_rng(1), 3)
+    f.observe_wall_direction(-0.3, 0.005)
+    g = EkfSlam.restore(EkfParams(), f.snapshot())
+    assert g.building_orientation == f.building_orientation
+    np.testing.assert_array_equal(g.state_cov, f.state_cov)
+    assert g.observe_wall_direction(-0.29, 0.005) == f.observe_wall_direction(-0.29, 0.005)
+
+
+def test_format_1_snapshot_is_migrated_with_psi_unset():
+    f = EkfSlam(EkfParams(), pose0_cov=POSE_COV)
+    drive(f, np.random.default_rng(1), 4)
+    snap = f.snapshot()
+    # The same filter as format 1 wrote it: no psi in the state, no psi_set.
+    old = {**snap, "format": 1, "state_mean": np.delete(snap["state_mean"], 3),
+           "state_cov": np.delete(np.delete(snap["state_cov"], 3, axis=0), 3, axis=1)}
+    del old["psi_set"]
+    g = EkfSlam.restore(EkfParams(), old)
+    assert g.building_orientation is None
+    for name, value in snap.items():
+        np.testing.assert_array_equal(g.snapshot()[name], value)
+    # An unset psi must be exactly uncorrelated; anything else is a corrupt snapshot.
+    snap["state_cov"][3, 0] = snap["state_cov"][0, 3] = 1e-6
+    with pytest.raises(InputError, match="unset building orientation"):
+        EkfSlam.restore(EkfParams(), snap)

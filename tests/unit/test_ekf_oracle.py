@@ -11,15 +11,17 @@ import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 
-from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
+from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus, WallStatus
 from lrfslam.algo.geometry import compose, wrap_angle
+from lrfslam.algo.wall_direction import wrap_quarter
 
 TOL = 1e-9
+PSI, LM0 = 3, 4  # state layout: [x, y, theta, psi, m1x, m1y, ...]
 
 
 def random_filter(rng, n_lm, params=None, confirmed=True):
-    """A filter holding a random state and a random well-conditioned covariance."""
-    n = 3 + 2 * n_lm
+    """A filter holding a random state (building orientation set) and a random well-conditioned covariance."""
+    n = LM0 + 2 * n_lm
     pose = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)])
     # Landmarks 1-5 m from the robot so ranges and bearings are well defined.
     ang = rng.uniform(-np.pi, np.pi, n_lm)
@@ -27,10 +29,12 @@ def random_filter(rng, n_lm, params=None, confirmed=True):
     lms = pose[:2] + np.column_stack((rad * np.cos(ang), rad * np.sin(ang)))
     a = rng.normal(size=(n, n)) * 0.1
     cov = a @ a.T / n + 0.01 * np.eye(n)
+    psi = rng.uniform(-np.pi / 4, np.pi / 4)
     snap = {
-        "format": 1,
-        "state_mean": np.concatenate((pose, lms.ravel())),
+        "format": 2,
+        "state_mean": np.concatenate((pose, [psi], lms.ravel())),
         "state_cov": cov,
+        "psi_set": True,
         "landmark_ids": np.arange(n_lm, dtype=np.int64) + 10,
         "landmark_kinds": np.zeros(n_lm, dtype=np.int8),
         "landmark_sightings": np.full(n_lm, 5),
@@ -46,13 +50,13 @@ def random_filter(rng, n_lm, params=None, confirmed=True):
 
 def measure(x, i):
     """Dense range-bearing model of landmark index ``i``: returns h (2,1), H (2, n)."""
-    dx, dy = x[3 + 2 * i] - x[0], x[4 + 2 * i] - x[1]
+    dx, dy = x[LM0 + 2 * i] - x[0], x[LM0 + 1 + 2 * i] - x[1]
     q = dx * dx + dy * dy
     r = np.sqrt(q)
     h = np.array([[r], [wrap_angle(np.arctan2(dy, dx) - x[2])]])
     H = np.zeros((2, x.size))
     H[:, :3] = [[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]]
-    H[:, 3 + 2 * i: 5 + 2 * i] = [[dx / r, dy / r], [-dy / q, dx / q]]
+    H[:, LM0 + 2 * i: LM0 + 2 + 2 * i] = [[dx / r, dy / r], [-dy / q, dx / q]]
     return h, H
 
 
@@ -141,7 +145,7 @@ def test_tentative_update_is_dense_joseph_with_landmark_only_gain(seed):
     R = np.diag([0.02**2, 0.01**2])
     S = H @ P @ H.T + R
     K = np.zeros((x.size, 2))
-    rows = slice(3 + 2 * i, 5 + 2 * i)
+    rows = slice(LM0 + 2 * i, LM0 + 2 + 2 * i)
     K[rows] = (P @ H.T @ np.linalg.inv(S))[rows]
     nu = z - h.ravel()
     nu[1] = wrap_angle(nu[1])
@@ -190,7 +194,7 @@ def test_augmentation_has_full_cross_covariance(seed):
     f = random_filter(rng, 3, params)
     x, P = f.state_mean, f.state_cov
     # A point far from every landmark (well beyond the new-landmark gate).
-    far = x[3:].reshape(-1, 2).max(axis=0) + 20.0
+    far = x[LM0:].reshape(-1, 2).max(axis=0) + 20.0
     rb = np.array([np.hypot(*(far - x[:2])), wrap_angle(np.arctan2(*(far - x[:2])[::-1]) - x[2])])
     point = rb[0] * np.array([np.cos(rb[1]), np.sin(rb[1])])
     rep = f.observe(point[None])
@@ -206,6 +210,65 @@ def test_augmentation_has_full_cross_covariance(seed):
     big[x.size:, x.size:] = np.diag([0.03**2, 0.02**2])
     np.testing.assert_allclose(f.state_mean, augment(np.concatenate((x, rb))), atol=1e-9)
     np.testing.assert_allclose(f.state_cov, J @ big @ J.T, atol=1e-7, rtol=0)
+
+
+def wall_model(x):
+    """Dense wall-direction model: h (1, 1) = wrap_quarter(psi - theta), H (1, n)."""
+    H = np.zeros((1, x.size))
+    H[0, 2], H[0, PSI] = -1.0, 1.0
+    return np.array([[wrap_quarter(x[PSI] - x[2])]]), H
+
+
+@pytest.mark.parametrize("n_lm", [0, 1, 4])
+@pytest.mark.parametrize("seed", range(4))
+def test_wall_direction_update_matches_filterpy(n_lm, seed):
+    rng = np.random.default_rng(300 + 10 * n_lm + seed)
+    f = random_filter(rng, n_lm, EkfParams(wall_model_sigma_rad=0.01))
+    x, P = f.state_mean, f.state_cov
+    # A measurement given by any representative modulo 90°, within the gate.
+    h, _ = wall_model(x)
+    z = float(h[0, 0]) + rng.normal(scale=0.02) + np.pi / 2 * rng.integers(-2, 3)
+    sigma = 0.03
+    ekf = ExtendedKalmanFilter(dim_x=x.size, dim_z=1)
+    ekf.x, ekf.P = x.reshape(-1, 1).copy(), P.copy()
+    ekf.update(np.array([[z]]), lambda xc: wall_model(xc.ravel())[1], lambda xc: wall_model(xc.ravel())[0],
+               R=np.array([[sigma**2 + 0.01**2]]), residual=lambda a, b: wrap_quarter(a - b))
+    x_ref = ekf.x.ravel()
+    x_ref[2] = wrap_angle(x_ref[2])
+    upd = f.observe_wall_direction(z, sigma)
+    assert upd.status == WallStatus.APPLIED
+    S = P[2, 2] + P[PSI, PSI] - 2 * P[2, PSI] + sigma**2 + 0.01**2
+    assert upd.nis == pytest.approx(wrap_quarter(z - h[0, 0]) ** 2 / S, rel=1e-9)
+    np.testing.assert_allclose(f.state_mean, x_ref, atol=TOL, rtol=0)
+    np.testing.assert_allclose(f.state_cov, ekf.P, atol=TOL, rtol=0)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_first_wall_direction_initialises_psi_with_theta_cross_covariances(seed):
+    rng = np.random.default_rng(seed)
+    f = EkfSlam(EkfParams(), pose0=(0.3, -0.2, 2.0), pose0_cov=np.diag([0.01, 0.02, 0.003]))
+    for _ in range(3):
+        f.predict(rng.normal(scale=[0.3, 0.05, 0.2]))
+        f.observe(rng.uniform(1.0, 3.0, size=(2, 2)))
+    x, P = f.state_mean, f.state_cov
+    assert f.building_orientation is None and not P[PSI].any() and x[PSI] == 0
+    z, sigma = rng.uniform(-np.pi / 4, np.pi / 4), 0.01
+    assert f.observe_wall_direction(z, sigma).status == WallStatus.INITIALISED
+
+    def initialise(v):  # state with psi unset, and z -> state with psi = theta + z
+        out = v[:-1].copy()
+        out[PSI] = v[2] + v[-1]
+        return out
+
+    J = num_jacobian(initialise, np.concatenate((x, [z])))
+    big = np.zeros((x.size + 1, x.size + 1))
+    big[: x.size, : x.size] = P
+    big[-1, -1] = sigma**2
+    np.testing.assert_allclose(f.state_cov, J @ big @ J.T, atol=1e-9, rtol=0)
+    expected = initialise(np.concatenate((x, [z])))
+    expected[PSI] = wrap_quarter(expected[PSI])
+    np.testing.assert_allclose(f.state_mean, expected, atol=1e-12)
+    assert f.building_orientation == pytest.approx((expected[PSI], P[2, 2] + sigma**2))
 
 
 def test_predict_noise_does_not_depend_on_the_step_size():

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
 from lrfslam.algo.geometry import compose, to_frame
+from lrfslam.algo.wall_direction import wrap_quarter
 
 params_st = st.builds(
     EkfParams,
@@ -27,6 +28,7 @@ scenario_st = st.fixed_dictionaries(
         "n_steps": st.integers(1, 15),
         "clutter": st.floats(0.0, 1.5),
         "turn_rad": st.floats(0.0, 4.0),  # large turns exercise the heading wrap
+        "walls": st.booleans(),  # a wall direction after every scan
     }
 )
 
@@ -37,6 +39,7 @@ def run_scenario(params, sc, check):
     world = rng.uniform(-5, 5, size=(sc["n_world"], 2))
     f = EkfSlam(params, pose0=(0.0, 0.0, rng.uniform(-np.pi, np.pi)), pose0_cov=np.diag([1e-4, 1e-4, 1e-5]))
     truth = f.pose
+    psi = rng.uniform(-np.pi, np.pi)  # the walls' direction in the world
     for _ in range(sc["n_steps"]):
         delta = np.array([rng.uniform(0, 0.4), rng.uniform(-0.05, 0.05), rng.uniform(-1, 1) * sc["turn_rad"]])
         truth = compose(truth, delta)
@@ -47,6 +50,8 @@ def run_scenario(params, sc, check):
         pts = np.vstack((rel, rng.uniform(-4, 4, size=(rng.poisson(sc["clutter"]), 2))))
         kinds = rng.integers(0, 2, size=len(pts))
         rep = f.observe(pts, np.tile(np.eye(2) * 1e-4, (len(pts), 1, 1)), kinds)
+        if sc["walls"]:
+            f.observe_wall_direction(wrap_quarter(psi - truth[2]) + rng.normal(scale=0.01), 0.01)
         check(f, rep)
     return f
 
