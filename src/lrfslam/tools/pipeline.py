@@ -57,10 +57,12 @@ class Stage:
 @dataclass(frozen=True)
 class _Item:
     """A message in the chain: ``rec`` is set for one read from the input file, ``msg``
-    when some stage may consume it (decoded) or a stage produced it."""
+    when some stage may consume it (decoded) or a stage produced it, ``payload`` (its
+    encoding) for a stage's output."""
 
     msg: Message | None
     rec: RecordedMessage | None
+    payload: bytes = b""
 
 
 def stage_names(text: str) -> tuple[str, ...]:
@@ -119,8 +121,12 @@ def _stage(stage: Stage, robot: str, upstream: Iterator[_Item], counts: Counter)
             while held:
                 yield held.popleft()
             counts[f"out.{out.topic.name}"] += 1
-            yield _Item(Message(out.topic, out.value, out.value.stamp_ns, out.topic.schema, out.topic.name,
-                                out.value.seq), None)
+            # Later stages get what the bus would deliver (e.g. float32 points), so a
+            # pipeline run gives the same results as the live services and --replay.
+            payload = out.topic.codec.encode(out.value)
+            value = out.topic.codec.decode(payload)
+            yield _Item(Message(out.topic, value, value.stamp_ns, out.topic.schema, out.topic.name, value.seq),
+                        None, payload)
         while held:
             yield held.popleft()
     finally:
@@ -177,9 +183,8 @@ def run_pipeline(stages: Iterable[Stage], robot: str, in_path: str | Path, out_p
                 read["copied"] += 1
                 writer.write(rec.topic, rec.schema, rec.data, rec.log_time_ns, rec.publish_time_ns, rec.sequence)
             else:
-                topic, value = item.msg.topic, item.msg.value
-                writer.write(topic.name, topic.schema, topic.codec.encode(value), value.stamp_ns,
-                             value.stamp_ns, value.seq)
+                msg = item.msg
+                writer.write(msg.name, msg.schema, item.payload, msg.stamp_ns, msg.stamp_ns, msg.seq)
     finally:
         if writer is not None:
             writer.close()
