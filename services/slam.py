@@ -1,7 +1,7 @@
 """slam: EKF-SLAM with the corner features as landmarks.
 
 in:  odom        Odometry  (motion between scans)
-     features    Features  (robot frame, with covariances)
+     features    Features  (robot frame, with covariances; the walls' direction mod 90° corrects the heading)
 out: slam/state  SlamState (pose, 3x3 covariance, landmarks with stable ids and 2x2 covariances)
 
 Features are processed once odometry up to their stamp has arrived, so the
@@ -38,6 +38,7 @@ _KIND_FROM_SCHEMA = {t.FEATURE_FORWARD: 0, t.FEATURE_BACKWARD: 1}
 class SlamConfig:
     ekf: EkfParams = field(default_factory=EkfParams)
     use_backward_features: bool = True   # jump edges as (tentative, viewpoint-checked) landmarks
+    use_wall_direction: bool = True      # heading from the walls' direction mod 90° (not in the paper)
     wait_for_odometry: bool = True       # false for a laser without odometry (e.g. a bare LMS200)
     max_odom_wait_scans: int = 20        # process features without newer odometry after this many pile up
     checkpoint_path: str = ""            # e.g. checkpoints/slam.npz; empty = no checkpoints
@@ -118,6 +119,10 @@ class SlamStep(StepBase):
             self.last_odom_pose = odom_pose
         else:
             self.counts["no_odometry"] += 1
+        if self.cfg.use_wall_direction and feats.has_wall_direction:
+            # Before the features: a corrected heading makes their association sharper.
+            wall = self.ekf.observe_wall_direction(feats.wall_direction_rad, feats.wall_direction_sigma_rad)
+            self.counts[f"wall_{wall.status.name.lower()}"] += 1
         keep = np.ones(len(feats), dtype=bool) if self.cfg.use_backward_features \
             else feats.kind == t.FEATURE_FORWARD
         kinds = np.array([_KIND_FROM_SCHEMA.get(int(k), 0) for k in feats.kind[keep]], dtype=np.int8)

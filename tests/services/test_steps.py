@@ -143,6 +143,20 @@ def test_pipeline_tracks_ground_truth_over_a_corridor():
     assert max(err) < 0.25, max(err)
 
 
+def test_slam_step_corrects_the_heading_with_the_wall_direction():
+    fed = chain(sim_outputs(30))
+    assert all(m.value.has_wall_direction for m in fed if m.topic is topics.FEATURES)
+    on, _ = build("slam")
+    off, _ = build("slam", "use_wall_direction=false")
+    last_on = [o.value for o in run_offline(on, fed)][-1]
+    last_off = [o.value for o in run_offline(off, fed)][-1]
+    assert on.counts["wall_initialised"] == 1 and on.counts["wall_applied"] >= 25
+    assert not any(k.startswith("wall_") for k in off.counts)
+    # Hundreds of wall points per scan pin the heading far below what odometry and corners give.
+    assert np.sqrt(last_on.pose_cov[2, 2]) < 0.5 * np.sqrt(last_off.pose_cov[2, 2])
+    assert on.ekf.building_orientation is not None and off.ekf.building_orientation is None
+
+
 def test_slam_resumes_from_its_checkpoint(tmp_path):
     fed = chain(sim_outputs(40))
     ckpt = tmp_path / "slam.npz"
