@@ -391,20 +391,26 @@ class EkfSlam:
 
     # ------------------------------------------------------------- prediction
     def predict(self, delta) -> None:
-        """Apply one odometry increment; O(n).
+        """Apply one odometry increment with the odometry noise model; O(n).
 
         Parameters
         ----------
         delta : array_like, shape (3,)
             ``(dx_m, dy_m, dtheta_rad)`` in the previous robot frame.
         """
+        self.predict_with_cov(delta, self.odometry_cov(delta))
+
+    def odometry_cov(self, delta) -> np.ndarray:
+        """Covariance (3, 3) the odometry model gives increment ``delta`` (3,), in its own frame.
+
+        A wheel-scale error along the direction of travel, heading random
+        walks, and the isotropic floor (m², m·rad, rad²).
+        """
         u = np.asarray(delta, dtype=float)
         if u.shape != (3,) or not np.all(np.isfinite(u)):
             raise InputError(f"delta must be 3 finite numbers, got {delta!r}")
         p = self.params
         dist = float(np.hypot(u[0], u[1]))
-        # Covariance of u in its own frame: a wheel-scale error along the
-        # direction of travel, heading random walks, and the isotropic floor.
         q_u = np.diag([p.odom_trans_sigma_floor_m**2, p.odom_trans_sigma_floor_m**2, 0.0])
         if dist > 0:
             along = u[:2] / dist
@@ -414,6 +420,25 @@ class EkfSlam:
             + p.odom_rot_sigma_per_rad**2 * abs(u[2])
             + p.odom_rot_sigma_per_m**2 * dist
         )
+        return q_u
+
+    def predict_with_cov(self, delta, delta_cov) -> None:
+        """Apply one motion increment with its own covariance (e.g. from scan matching); O(n).
+
+        Parameters
+        ----------
+        delta : array_like, shape (3,)
+            ``(dx_m, dy_m, dtheta_rad)`` in the previous robot frame.
+        delta_cov : array_like, shape (3, 3)
+            Its covariance in that frame (m², m·rad, rad²), symmetric positive semi-definite.
+        """
+        u = np.asarray(delta, dtype=float)
+        q_u = np.asarray(delta_cov, dtype=float)
+        if u.shape != (3,) or not np.all(np.isfinite(u)):
+            raise InputError(f"delta must be 3 finite numbers, got {delta!r}")
+        if q_u.shape != (3, 3) or not np.all(np.isfinite(q_u)):
+            raise InputError("delta_cov must be a finite (3, 3) array")
+        q_u = 0.5 * (q_u + q_u.T)
         c, s = np.cos(self._x[2]), np.sin(self._x[2])
         # Jacobians of pose ⊕ u with respect to the pose (Gv) and to u (Gu).
         gv = np.array([[1.0, 0.0, -s * u[0] - c * u[1]], [0.0, 1.0, c * u[0] - s * u[1]], [0, 0, 1]])
