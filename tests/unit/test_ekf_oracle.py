@@ -246,7 +246,8 @@ def test_wall_direction_update_matches_filterpy(n_lm, seed):
 @pytest.mark.parametrize("seed", range(4))
 def test_first_wall_direction_initialises_psi_with_theta_cross_covariances(seed):
     rng = np.random.default_rng(seed)
-    f = EkfSlam(EkfParams(), pose0=(0.3, -0.2, 2.0), pose0_cov=np.diag([0.01, 0.02, 0.003]))
+    params = EkfParams(wall_model_sigma_rad=0.004)
+    f = EkfSlam(params, pose0=(0.3, -0.2, 2.0), pose0_cov=np.diag([0.01, 0.02, 0.003]))
     for _ in range(3):
         f.predict(rng.normal(scale=[0.3, 0.05, 0.2]))
         f.observe(rng.uniform(1.0, 3.0, size=(2, 2)))
@@ -263,12 +264,12 @@ def test_first_wall_direction_initialises_psi_with_theta_cross_covariances(seed)
     J = num_jacobian(initialise, np.concatenate((x, [z])))
     big = np.zeros((x.size + 1, x.size + 1))
     big[: x.size, : x.size] = P
-    big[-1, -1] = sigma**2
+    big[-1, -1] = sigma**2 + 0.004**2  # the model noise adds in quadrature
     np.testing.assert_allclose(f.state_cov, J @ big @ J.T, atol=1e-9, rtol=0)
     expected = initialise(np.concatenate((x, [z])))
     expected[PSI] = wrap_quarter(expected[PSI])
     np.testing.assert_allclose(f.state_mean, expected, atol=1e-12)
-    assert f.building_orientation == pytest.approx((expected[PSI], P[2, 2] + sigma**2))
+    assert f.building_orientation == pytest.approx((expected[PSI], P[2, 2] + sigma**2 + 0.004**2))
 
 
 def test_predict_noise_does_not_depend_on_the_step_size():

@@ -75,6 +75,10 @@ class McConfig:
         Feature source; see the module docstring.
     range_sigma_m, bearing_sigma_rad : float
         "truth" only: noise added to the true corners, and assumed by the filter.
+    truth_wall_sigma_rad : float
+        "truth" only: also give the filter the true wall direction (the world's
+        walls are axis-aligned, so ``-theta`` mod 90°) with this noise and sigma;
+        0 gives none. ("extractor" runs get the feature service's measurement.)
     association : {"nn", "jcbb"}
     odometry : lrfslam.sim.OdometryNoise
         Simulated odometry noise, and the filter's odometry model.
@@ -91,6 +95,7 @@ class McConfig:
     features: str = "truth"
     range_sigma_m: float = 0.015
     bearing_sigma_rad: float = 0.005
+    truth_wall_sigma_rad: float = 0.0
     association: str = "nn"
     odometry: OdometryNoise = field(default_factory=OdometryNoise)
     label_radius_m: float = 0.15
@@ -100,8 +105,8 @@ class McConfig:
     def ekf_params(self) -> EkfParams:
         """Filter parameters.
 
-        "truth": the measurement noise is the one added, and tiny odometry floors
-        keep P invertible. "extractor": the slam service's defaults. In both the
+        "truth": the measurement noise is the one added (corners and, if any, the
+        wall direction), and tiny odometry floors keep P invertible. "extractor": the slam service's defaults. In both the
         odometry model is set to the simulated one (the service's defaults already
         are at the simulator's default noise) and the association as configured.
         """
@@ -118,6 +123,7 @@ class McConfig:
             odom_rot_sigma_floor_rad=1e-6,
             corner_range_sigma_m=self.range_sigma_m,
             corner_bearing_sigma_rad=self.bearing_sigma_rad,
+            wall_model_sigma_rad=0.0,  # the added wall noise is exactly the sigma given
             **odometry,
         )
 
@@ -328,6 +334,9 @@ def run_once(cfg: McConfig, run_index: int) -> RunResult:
             rel = frame.visible_corners_robot_xy
             rng_m = np.hypot(rel[:, 0], rel[:, 1]) + rng.normal(scale=cfg.range_sigma_m, size=len(rel))
             brg = np.arctan2(rel[:, 1], rel[:, 0]) + rng.normal(scale=cfg.bearing_sigma_rad, size=len(rel))
+            if cfg.truth_wall_sigma_rad > 0:
+                wall = -frame.true_pose[2] + rng.normal(scale=cfg.truth_wall_sigma_rad)
+                filt.observe_wall_direction(wall, cfg.truth_wall_sigma_rad)
             rep = filt.observe(rng_m[:, None] * np.column_stack((np.cos(brg), np.sin(brg))))
             pose, pose_cov, labels = filt.pose, filt.pose_cov, frame.visible_corner_ids
         n_obs += labels.size
@@ -410,7 +419,8 @@ def format_summary(s: dict, cfg: McConfig) -> str:
     lo, hi = s["nees_band"]
     m = s["mean_nees_per_step"]
     quarters = np.array_split(m, 4)
-    noise = (f"sigma_r {cfg.range_sigma_m} m, sigma_b {cfg.bearing_sigma_rad} rad" if cfg.features == "truth"
+    walls = f", wall direction sigma {cfg.truth_wall_sigma_rad} rad" if cfg.truth_wall_sigma_rad > 0 else ""
+    noise = (f"sigma_r {cfg.range_sigma_m} m, sigma_b {cfg.bearing_sigma_rad} rad{walls}" if cfg.features == "truth"
              else "denoise -> feature -> slam service steps, default configs")
     head = (
         f"EKF-SLAM Monte Carlo: {s['n_runs']} runs x {cfg.n_steps} steps, world {cfg.world_name}, "
@@ -466,6 +476,8 @@ def main(argv=None) -> int:
     ap.add_argument("--association", choices=("nn", "jcbb"), default=McConfig.association)
     ap.add_argument("--range-sigma-m", type=float, default=McConfig.range_sigma_m, help="truth features only")
     ap.add_argument("--bearing-sigma-rad", type=float, default=McConfig.bearing_sigma_rad, help="truth features only")
+    ap.add_argument("--truth-wall-sigma-rad", type=float, default=McConfig.truth_wall_sigma_rad,
+                    help="truth features only: add the true wall direction with this noise (0: none)")
     ap.add_argument("--odom-scale", type=float, default=1.0, help="multiply the simulator's odometry noise")
     ap.add_argument("--seed", type=int, default=McConfig.seed)
     ap.add_argument("--jobs", type=int, default=1, help="worker processes")
@@ -474,6 +486,7 @@ def main(argv=None) -> int:
     cfg = McConfig(
         n_runs=args.runs, n_steps=args.steps, world_name=args.world, features=args.features,
         association=args.association, range_sigma_m=args.range_sigma_m, bearing_sigma_rad=args.bearing_sigma_rad,
+        truth_wall_sigma_rad=args.truth_wall_sigma_rad,
         seed=args.seed,
         odometry=OdometryNoise(base.trans_sigma_per_m * args.odom_scale, base.rot_sigma_per_rad * args.odom_scale,
                                base.rot_sigma_per_m_rad * args.odom_scale),
