@@ -1,19 +1,27 @@
 """Per-scan cost of noise reduction + feature extraction, both presets.
 
 Simulates LMS200 scans (181 beams, σ = 10 mm, mixed pixels) round the hallway loop
-and in a room, then times ``denoise`` and ``extract_features`` scan by scan. Prints
-mean, median and p95 in milliseconds. Each scan is timed ``--repeat`` times and the
-fastest run kept, so other processes on the machine inflate the figures less.
+and in rooms, then times ``denoise`` and ``extract_features`` scan by scan, on two
+clocks: wall time and the process's CPU time (which leaves out the time other jobs
+on a loaded machine take from it). Each scan is timed ``--repeat`` times per round
+and the fastest run kept; the rounds (``--rounds``) interleave the two presets and
+show how much the machine's load moves the figures. Prints milliseconds per scan:
+mean, median and p95 over scans of the fastest runs, and the spread of the per-round
+means. ``--reference`` times the previous implementation instead
+(``tests/unit/reference_corners.py``, ``reference_histogram.py``, the oracles of the
+tests), for a before/after comparison on the same machine.
 
-    python benchmarks/bench_features.py [--scans 200] [--repeat 5]
+    python benchmarks/bench_features.py [--scans 200] [--repeat 5] [--rounds 3] [--reference]
 """
 
 from __future__ import annotations
 
 import argparse
 import platform
+import sys
 import time
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 
@@ -21,6 +29,8 @@ from lrfslam.algo.corners import CornerParams, extract_features
 from lrfslam.algo.histogram import DenoiseParams, denoise
 from lrfslam.evaluation.features import build_scenes
 from lrfslam.sim.lidar import LidarModel, simulate_scan
+
+CLOCKS = {"wall": time.perf_counter_ns, "cpu": time.process_time_ns}
 
 
 def scans(n: int, seed: int):
@@ -30,42 +40,75 @@ def scans(n: int, seed: int):
     return [simulate_scan(s.world, p, model, rng) for scene in sets.values() for s in scene for p in s.poses]
 
 
-def pipeline(ranges_m, angles_rad, dp: DenoiseParams, cp: CornerParams):
-    return extract_features(ranges_m, angles_rad, denoise(ranges_m, angles_rad, dp).kept, cp)
+def implementation(reference: bool):
+    """(DenoiseParams, denoise, CornerParams, extract_features) of this or the previous implementation."""
+    if not reference:
+        return DenoiseParams, denoise, CornerParams, extract_features
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "unit"))
+    import reference_corners
+    import reference_histogram
+
+    return (reference_histogram.DenoiseParams, reference_histogram.denoise, reference_corners.CornerParams,
+            reference_corners.extract_features)
 
 
-def fastest(fn, repeat: int) -> float:
+def fastest(fn, repeat: int, clock) -> float:
+    """Fastest of ``repeat`` calls, seconds."""
     best = np.inf
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = clock()
         fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+        best = min(best, clock() - t0)
+    return best * 1e-9
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scans", type=int, default=200, help="hallway poses (rooms add half as many)")
-    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--repeat", type=int, default=5, help="timed calls per scan and round; the fastest counts")
+    ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--reference", action="store_true", help="time the previous implementation")
     args = ap.parse_args()
+    den_params, den, cor_params, extract = implementation(args.reference)
     data = scans(args.scans, args.seed)
     print(f"{len(data)} scans of {len(data[0].ranges_m)} beams; Python {platform.python_version()}, "
-          f"numpy {np.__version__}, {platform.machine()} ({platform.processor() or 'unknown cpu'})\n")
-    print("| mode | stage | mean ms | median ms | p95 ms |")
-    print("|---|---|---|---|---|")
-    for mode in ("paper", "default"):
-        dp, cp = getattr(DenoiseParams, mode)(), getattr(CornerParams, mode)()
-        t_den, t_feat, t_all = [], [], []
-        for s in data:
-            r, a = s.ranges_m, s.angles_rad
-            kept = denoise(r, a, dp).kept
-            t_den.append(fastest(partial(denoise, r, a, dp), args.repeat))
-            t_feat.append(fastest(partial(extract_features, r, a, kept, cp), args.repeat))
-            t_all.append(fastest(partial(pipeline, r, a, dp, cp), args.repeat))
-        for stage, t in (("denoise", t_den), ("features", t_feat), ("denoise + features", t_all)):
-            ms = 1e3 * np.asarray(t)
-            print(f"| {mode} | {stage} | {ms.mean():.3f} | {np.median(ms):.3f} | {np.percentile(ms, 95):.3f} |")
+          f"numpy {np.__version__}, {platform.machine()} ({platform.processor() or 'unknown cpu'}); "
+          f"{args.rounds} rounds × {args.repeat} calls per scan; "
+          f"{'previous (reference) implementation' if args.reference else 'this implementation'}\n")
+
+    def pipeline(r, a, dp, cp):
+        return extract(r, a, den(r, a, dp).kept, cp)
+
+    stages = {
+        "denoise": lambda r, a, k, dp, cp: partial(den, r, a, dp),
+        "features": lambda r, a, k, dp, cp: partial(extract, r, a, k, cp),
+        "denoise + features": lambda r, a, k, dp, cp: partial(pipeline, r, a, dp, cp),
+    }
+    modes = ("paper", "default")
+    # best[mode, stage, clock]: per scan, the fastest over all rounds; rounds[...]: each round's mean.
+    best = {(m, s, c): np.full(len(data), np.inf) for m in modes for s in stages for c in CLOCKS}
+    rounds = {key: [] for key in best}
+    for _ in range(args.rounds):
+        for mode in modes:
+            dp, cp = getattr(den_params, mode)(), getattr(cor_params, mode)()
+            for clock_name, clock in CLOCKS.items():
+                this = {s: np.empty(len(data)) for s in stages}
+                for i, scan in enumerate(data):
+                    r, a = scan.ranges_m, scan.angles_rad
+                    kept = den(r, a, dp).kept
+                    for stage, make in stages.items():
+                        this[stage][i] = fastest(make(r, a, kept, dp, cp), args.repeat, clock)
+                for stage, t in this.items():
+                    key = (mode, stage, clock_name)
+                    best[key] = np.minimum(best[key], t)
+                    rounds[key].append(t.mean())
+    print("| mode | stage | clock | mean ms | median ms | p95 ms | round means ms |")
+    print("|---|---|---|---|---|---|---|")
+    for (mode, stage, clock_name), t in best.items():
+        ms, rm = 1e3 * t, 1e3 * np.asarray(rounds[(mode, stage, clock_name)])
+        print(f"| {mode} | {stage} | {clock_name} | {ms.mean():.3f} | {np.median(ms):.3f} | "
+              f"{np.percentile(ms, 95):.3f} | {rm.min():.3f}–{rm.max():.3f} |")
 
 
 if __name__ == "__main__":

@@ -209,11 +209,27 @@ def naive_picks(p, first, last, dists, euclidean):
     return out
 
 
+def arms_by_scan_column(arms, m):
+    """_arm_picks output as {base: (2 sides, A) pick columns in scan order}."""
+    cols = np.where(arms[0] >= m, 2 * m - 1 - arms[0], arms[0])
+    return {int(j): np.stack((cols[:, 1:][i], arms[1, i, 1:])) for i, j in enumerate(arms[1, :, 0])}
+
+
+@pytest.mark.parametrize("near, far", [(4, 12), (1, 2), (16, 32)])
 @pytest.mark.parametrize("metric", ["euclidean", "arclength"])
-def test_arm_picks_match_a_point_by_point_walk(metric):
+def test_arm_picks_match_a_point_by_point_walk(metric, near, far, monkeypatch):
+    # The search windows change speed only: tiny ones send most picks through the
+    # slow paths, wide ones through none.
+    monkeypatch.setattr(C, "_NEAR", near)
+    monkeypatch.setattr(C, "_FAR", far)
+    monkeypatch.setattr(C, "_NEAR_WINDOW", np.arange(near))
+    monkeypatch.setattr(C, "_FAR_WINDOW", np.arange(far))
+    monkeypatch.setattr(C, "_NAN_TAIL", np.full(max(near, far), np.nan + 0j))
     rng = np.random.default_rng(11)
-    params = dataclasses.replace(DEFAULT, arm_metric=metric)
-    for _ in range(20):
+    # No straightness check: no screen, so every base with both arms is returned.
+    params = dataclasses.replace(DEFAULT, arm_metric=metric, arm_max_resid_m=None)
+    checked = 0
+    for _ in range(40):
         m = int(rng.integers(10, 120))
         p = np.cumsum(rng.normal(0.0, 0.05, (m, 2)) + rng.uniform(-0.05, 0.08, 2), axis=0)
         breaks = np.sort(rng.choice(np.arange(1, m), size=int(rng.integers(0, 4)), replace=False))
@@ -221,11 +237,47 @@ def test_arm_picks_match_a_point_by_point_walk(metric):
         starts = np.concatenate(([0], breaks))
         ends = np.concatenate((breaks - 1, [m - 1]))
         first, last = starts[run], ends[run]
-        picks, ok = C._arm_picks(p, first, last, params)
+        z = p[:, 0] + 1j * p[:, 1]
+        brk = np.zeros(m - 1, dtype=bool)
+        brk[breaks - 1] = True
+        got = arms_by_scan_column(C._arm_picks(*C._doubled(z, np.abs(np.diff(z)), brk), params), m)
         expect = naive_picks(p, first, last, params.arm_dists_m, metric == "euclidean")
-        full = np.all(expect >= 0, axis=(1, 2))
-        assert np.array_equal(ok, full)
-        assert np.array_equal(picks[full], expect[full])
+        full = np.flatnonzero(np.all(expect >= 0, axis=(1, 2)))
+        assert sorted(got) == full.tolist()
+        for j in full:
+            assert np.array_equal(got[j], expect[j])
+        checked += len(full)
+    assert checked > 200
+
+
+def test_the_screen_never_drops_a_corner():
+    # Pairs of 5-point arms built against the screen's bound: each arm's nearest pick
+    # and the shared base point lie on opposite sides of the arm's line, nearly
+    # arm_max_resid_m off (the other picks balance them, so the line is their
+    # least-squares fit), and the lines are nearly corner_tol_deg off a right angle.
+    # Wherever the reference's TLS test sees a corner, the chords to the nearest
+    # picks must pass the screen.
+    rng = np.random.default_rng(12)
+    tan_tol = C._screen_tan(DEFAULT)
+    rho, dists = DEFAULT.arm_max_resid_m, np.array(DEFAULT.arm_dists_m)
+    n = 4000
+    direction = rng.uniform(0, 2 * np.pi, n)
+    angle = np.radians(90.0 - DEFAULT.corner_tol_deg * rng.uniform(0.97, 1.0, n))
+    arms = []
+    for theta in (direction, direction + angle):
+        a = 0.999 * rho * rng.choice([-1.0, 1.0], (n, 1))
+        # The nearest pick exactly its distance from the base point, 2a across the line.
+        along = np.concatenate((np.zeros((n, 1)), np.sqrt(dists[0] ** 2 - 4 * a * a), dists[1:] * np.ones((n, 1))), axis=1)
+        b2 = a * along[:, 1:2] / (along[:, 4:5] - along[:, 2:3])
+        off = np.concatenate((-a, a, b2, np.zeros((n, 1)), -b2), axis=1)  # Σoff = 0, Σ along·off = 0
+        arms.append((along + 1j * (off - off[:, :1])) * np.exp(1j * theta)[:, None])  # base point at 0
+    arms = np.stack(arms)  # (2, n, A + 1)
+    theta, max_resid = C._arm_fit(arms)
+    corner = (90.0 - C._line_angle_deg(theta[0], theta[1]) <= DEFAULT.corner_tol_deg) & np.all(max_resid <= rho, axis=0)
+    assert corner.sum() > 1000
+    assert C._square(arms[:, corner, 1], tan_tol).all()
+    # The same chords through a screen 1° tighter lose corners: the bound is tight.
+    assert not C._square(arms[:, corner, 1], np.tan(np.arctan(tan_tol) - np.radians(1.0))).all()
 
 
 @st.composite

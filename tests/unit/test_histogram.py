@@ -11,10 +11,11 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from lrfslam.algo.histogram import DenoiseParams, denoise, valid_returns
-from lrfslam.algo.mixed_pixels import along_beam, depth_outliers
+from lrfslam.algo.mixed_pixels import along_beam, beam_tables, depth_outliers, off_line
 from lrfslam.errors import ConfigError
 from lrfslam.sim.lidar import LidarModel, raycast, simulate_scan
 from lrfslam.sim.trajectory import loop_path
+from lrfslam.sim.world import World, polyline
 from lrfslam.sim.worlds import corridor_end, hallway_loop, straight_wall, waypoints
 
 ANGLES = np.radians(np.arange(-90.0, 91.0))
@@ -35,13 +36,15 @@ def hallway_scans(n, sigma_m, seed=0):
 def test_presets_differ_where_the_paper_is_silent():
     assert (PAPER.bin_deg, PAPER.period_deg, PAPER.shadow_min_angle_deg, PAPER.mixed_tol_m) == (10.0, 180.0, 0.0, 0.0)
     assert (DEFAULT.period_deg, DEFAULT.max_range_m, DEFAULT.keep_frac) == (90.0, 4.0, 0.15)
+    assert (PAPER.bin_mode, DEFAULT.bin_mode, DEFAULT.mixed_model) == ("fixed", "sliding", "line")
     assert DEFAULT.mixed_tol_m > 0
 
 
 @pytest.mark.parametrize(
     "change",
     [{"bin_deg": 20.0}, {"period_deg": 120.0}, {"keep_frac": 1.0}, {"stride": 0}, {"bin_mode": "wide"},
-     {"keep_rule": "xor"}, {"jump_m": 0.0}, {"shadow_min_angle_deg": 95.0}, {"mixed_tol_m": -1.0}],
+     {"keep_rule": "xor"}, {"jump_m": 0.0}, {"shadow_min_angle_deg": 95.0}, {"mixed_tol_m": -1.0},
+     {"mixed_model": "cubic"}],
 )
 def test_bad_parameters_are_config_errors(change):
     with pytest.raises(ConfigError):
@@ -66,7 +69,7 @@ def test_beyond_max_range_is_not_kept():
     assert np.isnan(res.points_xy[r > 4.0]).all()
 
 
-@pytest.mark.parametrize("params", [DEFAULT, dataclasses.replace(DEFAULT, bin_mode="sliding"), PAPER])
+@pytest.mark.parametrize("params", [DEFAULT, dataclasses.replace(DEFAULT, bin_mode="fixed"), PAPER])
 def test_noise_free_walls_are_kept(params):
     # Wall at y = -1 seen side on (a dy = 0 direction in the robot frame) and a wall ahead.
     r = scan_of(corridor_end(2.0, 6.0, 3.0))
@@ -128,6 +131,28 @@ def test_depth_outliers_keep_corner_and_edge_points():
     assert depth_outliers(r2, np.ones(9, bool), 0.08)[7]
 
 
+def test_line_test_keeps_a_grazing_wall_and_removes_a_blend_on_it_unlike_the_range_trend():
+    # A wall 0.4 m to the side, seen down to 6° incidence before the 4 m cut: its range
+    # curves fast, so the linear range trend misses real points and vouches for a
+    # point 10 cm short of the wall; the line through two neighbours does neither.
+    r = scan_of(World(polyline([(-1.0, 0.4), (8.0, 0.4)]), "side_wall"))
+    valid = valid_returns(r, 4.0)
+    beams = beam_tables(ANGLES)
+    assert not off_line(r, beams, valid, 0.08).any()
+    assert depth_outliers(r, valid, 0.08).sum() >= 2
+    blend = np.flatnonzero(valid)[3]
+    r[blend] -= 0.10
+    assert off_line(r, beams, valid, 0.08)[blend] and not depth_outliers(r, valid, 0.08)[blend]
+    assert denoise(r, ANGLES, DEFAULT).mixed[blend]
+    assert not denoise(r, ANGLES, dataclasses.replace(DEFAULT, mixed_model="range")).mixed[blend]
+
+
+def test_line_test_keeps_corner_and_edge_points():
+    r = scan_of(corridor_end(1.6, 6.0, 3.0))
+    valid = valid_returns(r, 4.0)
+    assert not off_line(r, beam_tables(ANGLES), valid, 0.08).any()
+
+
 def test_paper_literal_removes_a_short_end_wall_that_the_fold_keeps():
     # Looking down a 1.6 m corridor: the end wall holds ~13 % of segments (< 15 %).
     r = scan_of(corridor_end(1.6, 8.0, 3.8))
@@ -139,7 +164,8 @@ def test_paper_literal_removes_a_short_end_wall_that_the_fold_keeps():
 
 def test_sliding_decision_is_invariant_under_rotating_the_scan():
     scans = hallway_scans(8, 0.01, seed=3)
-    params = dataclasses.replace(DEFAULT, bin_mode="sliding", mixed_tol_m=0.0)
+    params = dataclasses.replace(DEFAULT, mixed_tol_m=0.0)
+    assert params.bin_mode == "sliding"
     for scan in scans:
         base = denoise(scan.ranges_m, scan.angles_rad, params).kept
         for turn_deg in (17.0, -61.0, 123.0):
@@ -148,9 +174,10 @@ def test_sliding_decision_is_invariant_under_rotating_the_scan():
 
 
 def test_fixed_bins_are_rotation_invariant_up_to_bin_edges():
+    fixed = dataclasses.replace(DEFAULT, bin_mode="fixed")
     for scan in hallway_scans(8, 0.01, seed=4):
-        base = denoise(scan.ranges_m, scan.angles_rad, DEFAULT).kept
-        turned = denoise(scan.ranges_m, scan.angles_rad + np.radians(17.0), DEFAULT).kept
+        base = denoise(scan.ranges_m, scan.angles_rad, fixed).kept
+        turned = denoise(scan.ranges_m, scan.angles_rad + np.radians(17.0), fixed).kept
         assert np.mean(base != turned) < 0.15
 
 
@@ -189,10 +216,10 @@ ranges_st = arrays(
 
 
 @settings(max_examples=150, deadline=None)
-@given(ranges_st, st.sampled_from(["paper", "default", "sliding", "stride3", "and", "shadow"]))
+@given(ranges_st, st.sampled_from(["paper", "default", "fixed", "stride3", "and", "shadow"]))
 def test_arbitrary_ranges_never_raise(r, preset):
     params = {
-        "paper": PAPER, "default": DEFAULT, "sliding": dataclasses.replace(DEFAULT, bin_mode="sliding"),
+        "paper": PAPER, "default": DEFAULT, "fixed": dataclasses.replace(DEFAULT, bin_mode="fixed"),
         "stride3": dataclasses.replace(DEFAULT, stride=3), "and": dataclasses.replace(DEFAULT, keep_rule="and"),
         "shadow": dataclasses.replace(DEFAULT, shadow_min_angle_deg=10.0),
     }[preset]

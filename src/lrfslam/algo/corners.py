@@ -18,6 +18,29 @@ straightness check (rejects arms bent round a second corner), non-maximum suppre
 (one detection per corner), refinement (refit both walls densely and intersect), arms
 that break at 0.5 m gaps, and no jump edges across long stretches of removed points.
 
+Cost. A scan is a few hundred points, so the run time is the number of numpy calls
+and the size of their arrays, not arithmetic. Forward searching therefore drops base
+points as early as it can prove they cannot be corners, and still returns exactly
+what picking and fitting every arm of every base point returns
+(``tests/unit/reference_corners.py`` is that slow version, the oracle of the tests):
+
+1. a base point needs both stretches at least ``arm_dists_m[-1]`` long in arc length
+   (arc length bounds the Euclidean distance from above);
+2. with the Euclidean metric and the straightness check on, a *screen*: every point of
+   an arm lies within ``ρ = arm_max_resid_m`` of its TLS line, so the chord from the
+   base point to its nearest pick (at least ``d = arm_dists_m[0]`` long) is within
+   ``asin(2ρ / d)`` of that line (19.5° for the defaults), and a corner's two chords
+   are at a right angle within ``corner_tol_deg`` plus twice that. On straight walls
+   the chords are nearly collinear: about four base points in five drop out here;
+3. the picks of the rest, all distances at once; each is found a few columns past its
+   arc-length bound, the rare one that is not is searched for up to the stretch end
+   (the farthest) or the farthest pick (the others, which lie before it);
+4. the TLS fits, suppression and the dense refit, for the few base points left.
+
+Points are complex numbers ``x + iy``, so one array operation moves both coordinates,
+and the lower side of every base point is searched as the upper side of the scan
+reversed, so one operation serves both sides.
+
 Covariance model (robot frame, m²):
 
 * refined corner: each wall line ``k`` is a TLS fit of ``m_k`` points with residual
@@ -33,12 +56,13 @@ Covariance model (robot frame, m²):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from lrfslam.algo.geometry import polar_to_xy
 from lrfslam.algo.histogram import valid_returns
+from lrfslam.algo.mixed_pixels import beam_tables
 from lrfslam.errors import ConfigError
 
 FORWARD = np.int8(0)
@@ -46,9 +70,25 @@ BACKWARD = np.int8(1)
 
 _ARM_METRICS = ("euclidean", "arclength")
 _INF_EDGE_RULES = ("margin", "any")
-# Points scanned in the first window of the Euclidean pick search (then doubled);
-# it changes speed only, never results.
-_FIRST_WINDOW = 8
+# Columns tried at once by the Euclidean pick search from the arc-length bound
+# before searching the rest: the screen's nearest pick is almost always within _NEAR
+# of it, every pick within _FAR. Speed only: every array element costs.
+_NEAR = 4
+_FAR = 12
+# Arc-length lower bounds are taken this much short of the distance, so rounding in
+# the cumulative sum can never start a Euclidean search past its answer.
+_ARC_SLACK_M = 1e-9
+# Added to the chord screen's bound so rounding can never drop a true corner.
+_SCREEN_SLACK_DEG = 1e-6
+# ndarray.any/.sum go through Python wrappers; the ufunc reductions do not.
+_ANY = np.logical_or.reduce
+_SUM = np.add.reduce
+_ZERO_F = np.zeros(1)
+_NAN_TAIL = np.full(_FAR, np.nan + 0j)
+_NEAR_WINDOW = np.arange(_NEAR)
+_FAR_WINDOW = np.arange(_FAR)
+_ZERO_I = np.zeros(1, dtype=np.intp)
+_TRUE = np.ones(1, dtype=bool)
 
 
 @dataclass(frozen=True)
@@ -196,48 +236,6 @@ class FeatureSet:
         return len(self.kind)
 
 
-def _tls(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None, axis: int = -1) -> dict[str, np.ndarray]:
-    """Total-least-squares lines, batched, optionally over a subset of the points.
-
-    Parameters
-    ----------
-    x, y : ndarray, same shape
-        Point coordinates in metres; ``axis`` runs over the points of one line.
-    w : ndarray of float, optional
-        0/1 membership weights, broadcastable to ``x`` (all points when omitted). A
-        line needs two members to be defined; callers reject smaller groups by ``n``.
-    axis : int
-        The points axis. Keep the long batch axis innermost: numpy loops over short
-        inner axes slowly.
-
-    Returns
-    -------
-    dict of ndarray, shapes of ``x`` without ``axis``
-        ``cx``, ``cy`` centroid; ``theta`` direction in radians; ``nx``, ``ny`` unit
-        normal; ``n`` member count; ``rms`` and ``max_resid`` perpendicular residuals
-        in m; ``spread2`` along-line variance in m².
-    """
-    if w is None:
-        w = np.ones(x.shape)
-    n = w.sum(axis=axis)
-    # Empty groups get a harmless denominator; callers reject them by ``n``.
-    nz = np.maximum(n, 1.0)
-    cx, cy = (w * x).sum(axis=axis) / nz, (w * y).sum(axis=axis) / nz
-    qx, qy = x - np.expand_dims(cx, axis), y - np.expand_dims(cy, axis)
-    wqx, wqy = w * qx, w * qy
-    sxx, syy, sxy = (wqx * qx).sum(axis=axis), (wqy * qy).sum(axis=axis), (wqx * qy).sum(axis=axis)
-    # Principal axis of the 2x2 scatter matrix in closed form.
-    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    ct, st = np.cos(theta), np.sin(theta)
-    resid = wqy * np.expand_dims(ct, axis) - wqx * np.expand_dims(st, axis)
-    ss_resid = (resid * resid).sum(axis=axis)
-    return {
-        "cx": cx, "cy": cy, "theta": theta, "nx": -st, "ny": ct, "n": n,
-        "rms": np.sqrt(ss_resid / nz),
-        "max_resid": np.abs(resid).max(axis=axis),
-        "spread2": (sxx + syy - ss_resid) / nz,
-    }
-
 
 def _line_angle_deg(theta_a: np.ndarray, theta_b: np.ndarray) -> np.ndarray:
     """Angle between two undirected lines, degrees in [0, 90]."""
@@ -245,256 +243,409 @@ def _line_angle_deg(theta_a: np.ndarray, theta_b: np.ndarray) -> np.ndarray:
     return np.minimum(d, 180.0 - d)
 
 
-def _first_hits(p: np.ndarray, last: np.ndarray, dists_m: np.ndarray, euclidean: bool) -> np.ndarray:
-    """Walking to higher columns, the first point at least each distance from each base.
+def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, d_m: float, width: int) -> np.ndarray:
+    """First column in ``[start, stop]`` at least ``d_m`` from ``z[col]``.
 
-    Arc length along the polyline is never shorter than the chord, so no point before
-    the first one at arc length ``d`` can be ``d`` away: the Euclidean search starts
-    there and scans forward in windows that double until every (base, distance) pair
-    has its point or has left its stretch.
+    The columns are tried in a window of ``width`` from ``start``; the pairs not
+    settled there get all that is left in a second window.
 
     Parameters
     ----------
-    p : ndarray, shape (M, 2)
-        Kept points in scan order, metres.
-    last : ndarray of int, shape (M,)
-        Column of the last point of each point's stretch.
-    dists_m : ndarray, shape (A,)
-        Arm distances, increasing, metres.
-    euclidean : bool
-        Distance from the base point; False measures arc length along the polyline.
+    z : ndarray of complex, shape (K + width - 1,)
+        Points, metres, followed by at least ``width - 1`` NaN.
+    col, start, stop : ndarray of int, shape (P,)
+        Base column and inclusive search range of each pair; ``start <= stop < K``.
+    d_m : float
+    width : int
 
     Returns
     -------
-    ndarray of int, shape (M, A)
-        Column of each pick, -1 where the stretch ends first.
+    ndarray of int, shape (P,)
+        The column, -1 where none in range.
     """
-    m, n_arm = len(p), len(dists_m)
-    x, y = p[:, 0].copy(), p[:, 1].copy()
-    dx, dy = x[1:] - x[:-1], y[1:] - y[:-1]
-    arc = np.concatenate(([0.0], np.cumsum(np.sqrt(dx * dx + dy * dy))))
-    # Pairs are laid out distance-major, (A, M), so the long axis is the inner one
-    # throughout: numpy loops over short inner axes slowly.
-    hits = np.searchsorted(arc, (arc + dists_m[:, None]).ravel())
-    if euclidean:
-        base = np.tile(np.arange(m), n_arm)
-        d2 = np.repeat(dists_m * dists_m, m)
-        start = hits
-        hits = np.full(m * n_arm, -1, dtype=np.intp)
-        todo = np.flatnonzero(start <= last[base])
-        width = _FIRST_WINDOW
-        while len(todo):
-            cand = np.minimum(start[todo] + np.arange(width)[:, None], m - 1)  # (W, P)
-            b = base[todo]
-            ex, ey = x[cand] - x[b], y[cand] - y[b]
-            past = ex * ex + ey * ey >= d2[todo]
-            t = past.argmax(axis=0)
-            got = past[t, np.arange(len(todo))]
-            hits[todo[got]] = cand[t[got], np.flatnonzero(got)]
-            start[todo] += width
-            todo = todo[~got & (start[todo] <= last[b])]
-            width *= 2
-    hits = hits.reshape(n_arm, m).T.copy()
-    hits[hits > last[:, None]] = -1
-    return hits
+    zc = z[col][:, None]
+    d2 = d_m * d_m
+    # The window may run past the stretch (a hit there is rejected) and past the
+    # points (z is padded with NaN, which is never far).
+    cand = start[:, None] + np.arange(width)
+    diff = z[cand] - zc
+    far = diff.real * diff.real + diff.imag * diff.imag >= d2
+    hit = start + far.argmax(axis=1)
+    out = np.where(_ANY(far, axis=1) & (hit <= stop), hit, -1)
+    rest = ((out < 0) & (start + width <= stop)).nonzero()[0]
+    if len(rest):
+        s, e = start[rest] + width, stop[rest]
+        cand = np.minimum(s[:, None] + np.arange(int((e - s).max()) + 1), e[:, None])
+        diff = z[cand] - zc[rest]
+        far = diff.real * diff.real + diff.imag * diff.imag >= d2
+        out[rest] = np.where(_ANY(far, axis=1), np.minimum(s + far.argmax(axis=1), e), -1)
+    return out
 
 
-def _arm_picks(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerParams):
-    """Picks of every base point on both sides.
+def _square(c: np.ndarray, tan_tol: float) -> np.ndarray:
+    """Chord pairs whose lines may be at a right angle, shape (B,) bool.
+
+    ``c`` (2, B) holds the chords ``x + iy`` of both sides; ``tan_tol`` is
+    ``tan(tol)`` from :func:`_screen_tan`.
+    """
+    # c_lo · conj(c_hi) = dot + i cross, and the angle between the chords' lines is
+    # >= 90° - tol  <=>  |dot| <= |cross| tan(tol).
+    p = c[0] * c[1].conjugate()
+    return np.abs(p.real) <= np.abs(p.imag) * tan_tol
+
+
+def _doubled(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray):
+    """The kept points followed by their reverse, for searching both sides at once.
+
+    The lower side of base j is the upper side of column 2M - 1 - j.
 
     Parameters
     ----------
-    p : ndarray, shape (M, 2)
+    z : ndarray of complex, shape (M,)
         Kept points in scan order, metres.
-    first, last : ndarray of int, shape (M,)
-        Columns of the first and last point of each point's stretch.
+    step_m : ndarray, shape (M - 1,)
+        Distances between successive points, metres.
+    brk : ndarray of bool, shape (M - 1,)
+        True where a new stretch starts after the point.
+
+    Returns
+    -------
+    zz : ndarray of complex, shape (2M + _FAR,)
+        The points, then in reverse, then NaN (search windows may run off the end).
+    arc : ndarray, shape (2M,)
+        Cumulative arc length along ``zz``, metres.
+    end : ndarray of int, shape (2M,)
+        Column of the last point of each point's stretch; the seam ends one too.
+    """
+    zz = np.concatenate((z, z[::-1], _NAN_TAIL))
+    arc = np.concatenate((_ZERO_F, step_m, _ZERO_F, step_m[::-1])).cumsum()
+    brk2 = np.concatenate((brk, _TRUE, brk[::-1], _TRUE))
+    return zz, arc, brk2.nonzero()[0][np.concatenate((_ZERO_I, brk2[:-1].cumsum()))]
+
+
+def _screen_tan(params: CornerParams) -> float | None:
+    """Tangent of the screen's tolerance (module docstring, step 2), or None for no screen.
+
+    The screen compares the chords from a base point to its nearest picks, at least
+    ``d = arm_dists_m[0]`` long. An arm whose points all lie within
+    ``ρ = arm_max_resid_m`` of its TLS line makes an angle of at most ``asin(2ρ / d)``
+    with such a chord, so a corner's chords are at a right angle within
+    ``corner_tol_deg`` plus twice that. Without the Euclidean metric or the
+    straightness check there is no such bound; past 90° it rejects nothing.
+    """
+    if params.arm_metric != "euclidean" or params.arm_max_resid_m is None:
+        return None
+    slope = min(1.0, 2.0 * params.arm_max_resid_m / params.arm_dists_m[0])
+    tol = params.corner_tol_deg + 2.0 * math.degrees(math.asin(slope)) + _SCREEN_SLACK_DEG
+    return math.tan(math.radians(tol)) if tol < 90.0 else None
+
+
+def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerParams) -> np.ndarray:
+    """Arms of the base points that have both, as columns of the doubled scan.
+
+    Parameters
+    ----------
+    zz, arc, end
+        From :func:`_doubled` (M points).
     params : CornerParams
 
     Returns
     -------
-    picks : ndarray of int, shape (M, 2, A)
-        Column of each pick (side 0 = lower beams); -1 where not found.
-    ok : ndarray of bool, shape (M,)
-        Both arms found all their picks.
+    ndarray of int, shape (2, B, A + 1)
+        Per side (0 = lower beams, in the reversed half) and base point (by scan
+        column), the column in ``zz`` of the base point followed by its picks, nearest
+        first. Every base point with both arms is there, less those the screen
+        (:func:`_screen_tan`) proves cannot be corners.
     """
-    m = len(p)
-    # The lower side is the higher side of the reversed scan; stacking both halves
-    # answers the two sides in one call (stretches never cross the seam).
-    both = np.concatenate((p, p[::-1]))
-    both_last = np.concatenate((last, 2 * m - 1 - first[::-1]))
-    hits = _first_hits(both, both_last, np.asarray(params.arm_dists_m, dtype=float), params.arm_metric == "euclidean")
-    hi = hits[:m]
-    lo = np.where(hits[m:] < 0, -1, 2 * m - 1 - hits[m:])[::-1]
-    picks = np.stack((lo, hi), axis=1)
-    return picks, np.all(picks >= 0, axis=(1, 2))
+    m = len(arc) // 2
+    dists = params.arm_dists_m
+    euclid = params.arm_metric == "euclidean"
+    slack = _ARC_SLACK_M if euclid else 0.0
+    # Arc length is never shorter than the distance from the base: a stretch too
+    # short in arc length on either side has no farthest pick (step 1).
+    fits = arc[end] >= arc + (dists[-1] - slack)
+    base = (fits[:m] & fits[::-1][:m]).nonzero()[0]
+    col = np.concatenate((2 * m - 1 - base, base)).reshape(2, -1)
+    if not euclid:
+        return np.concatenate((col[..., None], arc.searchsorted(arc[col][..., None] + dists)), axis=2)
+    zb = zz[base]
+    stop = end[col]
+    tan_tol = _screen_tan(params)
+    if tan_tol is not None:
+        # Stage 1 (the screen): the nearest pick, in a window of _NEAR columns from its
+        # arc-length bound, where it nearly always is (zz's NaN tail lets the window
+        # run off the end). A hit past the stretch's end is no pick, but then there is
+        # no farthest pick either and stage 2 drops the base: no test needed here.
+        lb0 = arc.searchsorted(arc[col] + (dists[0] - slack))
+        diff = zz[lb0[..., None] + _NEAR_WINDOW] - zb[:, None]
+        past = diff.real * diff.real + diff.imag * diff.imag >= dists[0] * dists[0]
+        found = _ANY(past, axis=2)
+        # A side not settled in the window whose stretch goes on stays undecided: a
+        # zero chord passes the screen.
+        ok = found | (lb0 + _NEAR <= stop)
+        chord = zz[np.where(found, lb0 + past.argmax(axis=2), col)] - zb
+        i = (ok[0] & ok[1] & _square(chord, tan_tol)).nonzero()[0]
+        col, zb, stop = col[:, i], zb[i], stop[:, i]
+    # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
+    # (the farthest lags its bound most: arc length gathers the most noise there).
+    lb = arc.searchsorted(arc[col][..., None] + np.array([d - slack for d in dists]))  # (2, B, A)
+    diff = zz[lb[..., None] + _FAR_WINDOW] - zb[:, None, None]
+    past = diff.real * diff.real + diff.imag * diff.imag >= np.array([[d * d] for d in dists])
+    pick = lb + past.argmax(axis=3)
+    got = _ANY(past, axis=3)
+    # The farthest pick must lie in the stretch; past its window, the rest is searched.
+    far, far_lb = pick[..., -1], lb[..., -1]
+    got[..., -1] &= far <= stop
+    j = (~got[..., -1] & (far_lb + _FAR <= stop)).nonzero()
+    if len(j[0]):
+        far[j] = _reach(zz, col[j], far_lb[j] + _FAR, stop[j], dists[-1], _FAR)
+        got[..., -1][j] = far[j] >= 0
+    has = got[0, :, -1] & got[1, :, -1]
+    # With the farthest pick every nearer one exists, at or before it (a window that
+    # ran past the stretch met it first); the few outside their window are searched
+    # for up to it.
+    if not got.all():
+        missed = ~got[..., :-1] & has[:, None]
+        for a in range(len(dists) - 1):
+            j = missed[..., a].nonzero()
+            if len(j[0]):
+                pick[..., a][j] = _reach(zz, col[j], lb[..., a][j] + _FAR, far[j], dists[a], _FAR)
+    return np.concatenate((col[..., None], pick), axis=2)[:, has]
 
 
-def _suppress(xy: np.ndarray, score: np.ndarray, radius_m: float) -> np.ndarray:
-    """Greedy non-maximum suppression; returns indices kept, best (lowest score) first."""
-    order = np.argsort(score, kind="stable")
+def _arm_fit(arm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """TLS lines through the points of each arm.
+
+    Parameters
+    ----------
+    arm : ndarray of complex, shape (..., P)
+        Points ``x + iy`` of each arm along the last axis, metres.
+
+    Returns
+    -------
+    theta : ndarray, shape (...)
+        Line direction, radians.
+    max_resid : ndarray, shape (...)
+        Largest perpendicular distance of a point from its line, metres.
+    """
+    q = arm - _SUM(arm, axis=-1)[..., None] / arm.shape[-1]
+    # Σq² = (sxx - syy) + 2i sxy; rotating by -θ leaves the perpendicular offset in
+    # the imaginary part.
+    q2 = _SUM(q * q, axis=-1)
+    theta = 0.5 * np.arctan2(q2.imag, q2.real)
+    return theta, np.maximum.reduce(np.abs((q * np.exp(-1j * theta)[..., None]).imag), axis=-1)
+
+
+def _suppress(z: list[complex], score: list[float], radius_m: float) -> list[int]:
+    """Greedy non-maximum suppression; indices kept, best (lowest score) first.
+
+    A handful of candidates per scan: plain Python beats array calls here.
+    """
+    order = sorted(range(len(score)), key=score.__getitem__)  # stable, like argsort(kind="stable")
     if radius_m <= 0:
         return order
+    r2 = radius_m * radius_m
     chosen: list[int] = []
     for i in order:
-        if all((xy[i, 0] - xy[j, 0]) ** 2 + (xy[i, 1] - xy[j, 1]) ** 2 >= radius_m**2 for j in chosen):
-            chosen.append(int(i))
-    return np.asarray(chosen, dtype=np.intp)
+        q = z[i]
+        if all((q - z[c]).real ** 2 + (q - z[c]).imag ** 2 >= r2 for c in chosen):
+            chosen.append(i)
+    return chosen
 
 
-def _wall_members(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray, params: CornerParams):
-    """Points of the two walls leaving each corner candidate, for the refit.
+def _refine(z: np.ndarray, lo: int, hi: int, j: int, params: CornerParams):
+    """Dense wall refit around one corner candidate.
 
-    Walks from the base on each side within its stretch, stops at the first point
-    farther than ``refine_rmax_m`` (so a wall is never followed round a second
-    corner) and keeps the points at least ``refine_rmin_m`` away.
-
-    Returns
-    -------
-    ndarray of float, shape (2, C, M)
-        0/1 membership weights; side 0 = lower beams.
-    """
-    m, c = len(p), len(base)
-    # Lower side = higher side of the reversed scan; both halves in one pass.
-    both = np.concatenate((p, p[::-1]))
-    both_last = np.concatenate((last, 2 * m - 1 - first[::-1]))
-    start = np.concatenate((base, 2 * m - 1 - base))
-    col = np.arange(2 * m)
-    d2 = ((both[None, :, :] - both[start, None, :]) ** 2).sum(axis=2)
-    ahead = (col[None, :] > start[:, None]) & (col[None, :] <= both_last[start, None])
-    beyond = ahead & (d2 > params.refine_rmax_m**2)
-    stop = np.where(beyond.any(axis=1), beyond.argmax(axis=1), 2 * m)
-    inside = (ahead & (col[None, :] < stop[:, None]) & (d2 >= params.refine_rmin_m**2)).astype(float)
-    return np.stack((inside[c:, m:][:, ::-1], inside[:c, :m]))
-
-
-def _refine(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray, params: CornerParams):
-    """Dense wall refit around corner candidates.
+    Each wall is every kept point from the base outwards, within the base's stretch,
+    up to the first point farther than ``refine_rmax_m`` (so a wall is never followed
+    round a second corner), less those nearer than ``refine_rmin_m``. There are only a
+    few candidates per scan, so the fit works on Python scalars after the moment sums.
 
     Parameters
     ----------
-    p : ndarray, shape (M, 2)
+    z : ndarray of complex, shape (M,)
         Kept points, metres.
-    first, last : ndarray of int, shape (M,)
-        Columns of the first and last point of each point's stretch.
-    base : ndarray of int, shape (C,)
-        Columns of the candidates.
+    lo, hi : int
+        Columns of the first and last point that may belong to a wall: the
+        candidate's stretch, or less where that is known to reach past
+        ``refine_rmax_m`` on both sides.
+    j : int
+        Column of the candidate.
     params : CornerParams
 
     Returns
     -------
-    xy : ndarray, shape (C, 2)
-        Intersection of the refitted walls.
-    cov : ndarray, shape (C, 2, 2)
-    angle_deg : ndarray, shape (C,)
-    ok : ndarray of bool, shape (C,)
-        Enough points on both walls and the intersection within ``refine_accept_m``.
+    tuple or None
+        ``(xy, cov, angle_deg)``: the intersection of the two walls as ``x + iy``,
+        its covariance as nested lists (m²) and the angle between the walls; None
+        if a wall has fewer than ``refine_min_points`` points or the intersection is
+        farther than ``refine_accept_m`` from the candidate.
     """
-    w = _wall_members(p, first, last, base, params)
-    f = _tls(p[:, 0], p[:, 1], w)  # every field is (2 walls, C)
-    (nx1, nx2), (ny1, ny2) = f["nx"], f["ny"]
-    c1, c2 = f["nx"] * f["cx"] + f["ny"] * f["cy"]
+    # Coordinates relative to the candidate keep the moment sums small, so centring
+    # them afterwards loses no precision.
+    zj = complex(z[j])
+    e = z[lo:hi + 1] - zj
+    d2 = e.real * e.real + e.imag * e.imag
+    k = j - lo
+    beyond = d2 > params.refine_rmax_m**2
+    up = beyond[k + 1:]
+    t = int(up.argmax()) if len(up) else 0
+    end = k + 1 + t if len(up) and up[t] else len(e)
+    down = beyond[:k][::-1]
+    t = int(down.argmax()) if k else 0
+    start = k - t if k and down[t] else 0
+    # Both walls as rows of 0/1 weights (points at least refine_rmin_m out), and
+    # their moment sums with a handful of array calls.
+    near = d2 >= params.refine_rmin_m**2
+    w = np.zeros((2, len(e)))
+    w[0, start:k] = near[start:k]
+    w[1, k + 1:end] = near[k + 1:end]
+    sums = np.concatenate((_SUM(w, axis=1), _SUM(w * e, axis=1), _SUM(w * (e * e), axis=1), _SUM(w * d2, axis=1)))
+    sums = sums.reshape(4, 2).T.tolist()
+    walls = []
+    for n, s1, s2, sa in sums:
+        n = round(n.real)
+        if n < params.refine_min_points:
+            return None
+        c = s1 / n
+        # Σ(w - c)² = (sxx - syy) + 2i sxy and Σ|w - c|² = sxx + syy.
+        q = s2 - s1 * c
+        tot = sa.real - (s1 * c.conjugate()).real
+        theta = 0.5 * math.atan2(q.imag, q.real)
+        # Residual sum of squares about the line = the smaller scatter eigenvalue;
+        # rounding may leave it a hair below 0.
+        ss = max(0.5 * (tot - abs(q)), 0.0)
+        spread2 = (tot - ss) / n
+        if not spread2 > 0:
+            return None
+        nx, ny = -math.sin(theta), math.cos(theta)
+        walls.append((n, c, theta, nx, ny, nx * c.real + ny * c.imag, max(params.range_sigma_m**2, ss / n), spread2))
+    (n1, c1, th1, nx1, ny1, o1, g1, sp1), (n2, c2, th2, nx2, ny2, o2, g2, sp2) = walls
     det = nx1 * ny2 - ny1 * nx2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        # Intersection of the walls n_k · p = c_k (Cramer's rule).
-        x, y = (c1 * ny2 - c2 * ny1) / det, (nx1 * c2 - nx2 * c1) / det
-        ok = np.all(f["n"] >= params.refine_min_points, axis=0) & np.isfinite(x) & np.isfinite(y)
-        ok &= (x - p[base, 0]) ** 2 + (y - p[base, 1]) ** 2 <= params.refine_accept_m**2
-        sig2 = np.maximum(params.range_sigma_m**2, f["rms"] ** 2)
-        # Distance along each wall from its fit centroid to the corner: the lever arm
-        # of the wall's direction error.
-        t = (x - f["cx"]) * f["ny"] - (y - f["cy"]) * f["nx"]
-        v1, v2 = sig2 / f["n"] * (1.0 + t**2 / f["spread2"])
-        # cov = A⁻¹ diag(v1, v2) A⁻ᵀ with A = [n1; n2] and A⁻¹ = [[ny2, -ny1], [-nx2, nx1]] / det.
-        cov = np.empty((len(base), 2, 2))
-        cov[:, 0, 0] = (ny2 * ny2 * v1 + ny1 * ny1 * v2) / det**2
-        cov[:, 1, 1] = (nx2 * nx2 * v1 + nx1 * nx1 * v2) / det**2
-        cov[:, 0, 1] = cov[:, 1, 0] = -(ny2 * nx2 * v1 + ny1 * nx1 * v2) / det**2
-    return np.column_stack((x, y)), cov, _line_angle_deg(f["theta"][0], f["theta"][1]), ok
+    if det == 0.0:
+        return None
+    # Intersection of the walls n_k · p = o_k (Cramer's rule).
+    x, y = (o1 * ny2 - o2 * ny1) / det, (nx1 * o2 - nx2 * o1) / det
+    if not x * x + y * y <= params.refine_accept_m**2:
+        return None
+    # Distance along each wall from its fit centroid to the corner: the lever arm of
+    # the wall's direction error.
+    t1 = (x - c1.real) * ny1 - (y - c1.imag) * nx1
+    t2 = (x - c2.real) * ny2 - (y - c2.imag) * nx2
+    v1 = g1 / n1 * (1.0 + t1 * t1 / sp1)
+    v2 = g2 / n2 * (1.0 + t2 * t2 / sp2)
+    # cov = A⁻¹ diag(v1, v2) A⁻ᵀ with A = [n1; n2] and A⁻¹ = [[ny2, -ny1], [-nx2, nx1]] / det.
+    det2 = det * det
+    cxy = -(ny2 * nx2 * v1 + ny1 * nx1 * v2) / det2
+    cov = [[(ny2 * ny2 * v1 + ny1 * ny1 * v2) / det2, cxy], [cxy, (nx2 * nx2 * v1 + nx1 * nx1 * v2) / det2]]
+    d = math.degrees(abs(th1 - th2)) % 180.0
+    return zj + complex(x, y), cov, min(d, 180.0 - d)
 
 
-def _forward(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerParams):
+def _forward(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray, params: CornerParams):
     """Forward searching on kept points.
+
+    Parameters
+    ----------
+    z : ndarray of complex, shape (M,)
+        Kept points in scan order, metres.
+    step_m : ndarray, shape (M - 1,)
+        Distances between successive points, metres.
+    brk : ndarray of bool, shape (M - 1,)
+        True where a new stretch starts after the point: an arm never crosses it.
+    params : CornerParams
 
     Returns
     -------
-    cols : ndarray of int, shape (C,)
-        Kept-point column of each corner, increasing.
-    xy : ndarray, shape (C, 2)
-    cov : ndarray, shape (C, 2, 2)
-        NaN where the caller has to fill in the point model.
-    angle_deg : ndarray, shape (C,)
-    refined : ndarray of bool, shape (C,)
+    list of tuple
+        One ``(column, xy, cov, angle_deg, refined)`` per corner, by column: ``xy`` is
+        ``x + iy``; ``cov`` nested lists (m²), or None where the caller has to fill in
+        the point model.
     """
-    cols, angle = np.zeros(0, dtype=np.intp), np.zeros(0)
-    if len(p) >= 2 * len(params.arm_dists_m) + 1:
-        picks, ok = _arm_picks(p, first, last, params)
-        base = np.flatnonzero(ok)
-        # Each arm is the base point followed by its picks: shape (A + 1, 2 sides, B),
-        # the long base axis innermost.
-        arm_cols = np.concatenate((np.broadcast_to(base, (1, 2, len(base))), picks[base].transpose(2, 1, 0)))
-        fit = _tls(p[arm_cols, 0], p[arm_cols, 1], axis=0)
-        angle = _line_angle_deg(fit["theta"][0], fit["theta"][1])
-        dev = 90.0 - angle
-        cand = dev <= params.corner_tol_deg
-        if params.arm_max_resid_m is not None:
-            cand &= np.all(fit["max_resid"] <= params.arm_max_resid_m, axis=0)
-        keep = np.sort(_suppress(p[base[cand]], dev[cand], params.nms_radius_m))
-        cols, angle = base[cand][keep], angle[cand][keep]
-    xy = p[cols]
-    cov = np.full((len(cols), 2, 2), np.nan)
-    refined = np.zeros(len(cols), dtype=bool)
-    if params.refine_corner and len(cols):
-        rxy, rcov, rangle, refined = _refine(p, first, last, cols, params)
-        xy[refined], cov[refined], angle[refined] = rxy[refined], rcov[refined], rangle[refined]
-    return cols, xy, cov, angle, refined
+    m = len(z)
+    if m < 2 * len(params.arm_dists_m) + 1:
+        return []
+    zz, arc, end = _doubled(z, step_m, brk)
+    arms = _arm_picks(zz, arc, end, params)
+    if not arms.shape[1]:
+        return []
+    theta, max_resid = _arm_fit(zz[arms])
+    angle = _line_angle_deg(theta[0], theta[1])
+    dev = 90.0 - angle
+    cand = dev <= params.corner_tol_deg
+    if params.arm_max_resid_m is not None:
+        cand &= (max_resid[0] <= params.arm_max_resid_m) & (max_resid[1] <= params.arm_max_resid_m)
+    cand = cand.nonzero()[0]
+    if not len(cand):
+        return []
+    # Upper-side base columns are scan columns; lower-side picks are in the reversed half.
+    cols, angle = arms[1, cand, 0].tolist(), angle[cand].tolist()
+    # With the Euclidean metric, a pick farther than refine_rmax_m bounds each refit
+    # wall (the wall stops at the first point that far out); otherwise the whole
+    # stretch is searched.
+    bound = next((a for a, d in enumerate(params.arm_dists_m) if d > params.refine_rmax_m), None)
+    if params.arm_metric != "euclidean" or bound is None:
+        ends = [(2 * m - 1 - int(end[2 * m - 1 - j]), int(end[j])) for j in cols]
+    else:
+        ends = list(zip((2 * m - 1 - arms[0, cand, bound + 1]).tolist(), arms[1, cand, bound + 1].tolist()))
+    out = []
+    for i in sorted(_suppress(z[cols].tolist(), dev[cand].tolist(), params.nms_radius_m)):
+        j = cols[i]
+        fit = None
+        if params.refine_corner:
+            fit = _refine(z, *ends[i], j, params)
+        out.append((j, complex(z[j]), None, angle[i], False) if fit is None else (j, *fit, True))
+    return out
 
 
-def _backward(ranges_m: np.ndarray, valid: np.ndarray, use: np.ndarray, xy: np.ndarray, params: CornerParams):
-    """Beam indices of jump-edge features, sorted, unique."""
+def _backward(ranges_m: np.ndarray, valid: np.ndarray, use: np.ndarray, z_all: np.ndarray, params: CornerParams):
+    """Beam indices of jump-edge features, increasing.
+
+    ``z_all`` (N,) holds the points ``x + iy`` of all beams, NaN where not valid.
+    """
     # The sequence seen by backward searching: kept points and no-returns in scan
     # order; points removed by the filter are skipped as if never measured.
-    seq = np.flatnonzero(use | ~valid)
+    seq = (use | ~valid).nonzero()[0]
     fin = use[seq]
     r = ranges_m[seq]
-    a, b = seq[:-1], seq[1:]
-    fa, fb = fin[:-1], fin[1:]
-    if params.edge_max_removed is None:
-        judged = judged_inf = np.ones(len(a), dtype=bool)
-    else:
+    d = z_all[seq]
+    d = d[1:] - d[:-1]
+    # NaN gaps (a no-return on either side) compare False.
+    jump = d.real * d.real + d.imag * d.imag > params.jump_m**2
+    near_is_a = r[:-1] <= r[1:]
+    # Finite points that may sit next to a no-return as an edge.
+    edge = fin & (r < (params.max_range_m - params.jump_m if params.inf_edge_rule == "margin" else np.inf))
+    gone = ~fin
+    edge_a, edge_b = edge[:-1] & gone[1:], edge[1:] & gone[:-1]
+    if params.edge_max_removed is not None:
         # A mixed pixel removed between the two sides of a jump must not hide it, but
         # a longer removed stretch (a wall at grazing incidence, a noise cluster) hides
         # what lies between. Next to a no-return, any removed return in between shows
         # that the surface went on, so the edge must be the no-return's neighbour.
-        removed_between = b - a - 1
-        judged = removed_between <= params.edge_max_removed
-        judged_inf = removed_between == 0
-    d = xy[b] - xy[a]
-    with np.errstate(invalid="ignore"):
-        # NaN gaps (a no-return on either side) compare False.
-        jump = judged & ((d * d).sum(axis=1) > params.jump_m**2)
-    near_is_a = r[:-1] <= r[1:]
-    limit = params.max_range_m - params.jump_m if params.inf_edge_rule == "margin" else np.inf
-    with np.errstate(invalid="ignore"):
-        edge_a = judged_inf & fa & ~fb & (r[:-1] < limit)
-        edge_b = judged_inf & fb & ~fa & (r[1:] < limit)
-    out = np.concatenate((a[jump & near_is_a], b[jump & ~near_is_a], a[edge_a], b[edge_b]))
-    return np.unique(out)
+        skipped = seq[1:] - seq[:-1]
+        jump &= skipped <= params.edge_max_removed + 1
+        adjacent = skipped == 1
+        edge_a &= adjacent
+        edge_b &= adjacent
+    # A point can be the near side of two jumps or a jump and an edge: flags, not a list.
+    near_a = jump & near_is_a
+    flag = np.zeros(len(seq), dtype=bool)
+    flag[:-1] = near_a | edge_a
+    flag[1:] |= (jump ^ near_a) | edge_b
+    return seq[flag]
 
 
-def _point_cov(ranges_m: np.ndarray, bearings_rad: np.ndarray, beam_step_rad: float, range_sigma_m: float) -> np.ndarray:
-    """Covariance of features placed on measured points, shape (K, 2, 2), m².
+def _point_cov(range_m: float, bearing_rad: float, beam_step_rad: float, range_sigma_m: float) -> list:
+    """Covariance of a feature placed on a measured point, 2×2 nested lists, m².
 
     ``range_sigma_m`` along the beam; across it the uniform spread of one beam step,
     ``r Δθ / √12``.
     """
-    c, s = np.cos(bearings_rad), np.sin(bearings_rad)
+    c, s = math.cos(bearing_rad), math.sin(bearing_rad)
     var_r = range_sigma_m**2
-    var_t = (ranges_m * beam_step_rad) ** 2 / 12.0
-    cov = np.empty((len(ranges_m), 2, 2))
-    cov[:, 0, 0] = c * c * var_r + s * s * var_t
-    cov[:, 1, 1] = s * s * var_r + c * c * var_t
-    cov[:, 0, 1] = cov[:, 1, 0] = c * s * (var_r - var_t)
-    return cov
+    var_t = (range_m * beam_step_rad) ** 2 / 12.0
+    cxy = c * s * (var_r - var_t)
+    return [[c * c * var_r + s * s * var_t, cxy], [cxy, s * s * var_r + c * c * var_t]]
 
 
 def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndarray, params: CornerParams) -> FeatureSet:
@@ -521,38 +672,47 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
     kept = np.asarray(kept, dtype=bool)
     if not (r.shape == ang.shape == kept.shape and r.ndim == 1):
         raise ValueError(f"ranges_m {r.shape}, angles_rad {ang.shape}, kept {kept.shape} must be equal 1-D shapes")
+    beams = beam_tables(ang)
     valid = valid_returns(r, params.max_range_m)
     use = valid & kept
-    xy_all = polar_to_xy(np.where(valid, r, np.nan), ang)
-    idx = np.flatnonzero(use)
-    p = xy_all[idx]
-    beam_step = float(np.median(np.abs(np.diff(ang)))) if len(ang) > 1 else 0.0
-
-    # Stretches of kept points: a new one starts after a no-return beam or a wide gap.
-    n_invalid = np.concatenate(([0], np.cumsum(~valid)))
-    step = p[1:] - p[:-1]
-    brk = (n_invalid[idx[1:]] != n_invalid[idx[:-1] + 1]) | ((step * step).sum(axis=1) > params.arm_break_gap_m**2)
-    ends = np.flatnonzero(np.append(brk, True))
-    run = np.concatenate(([0], np.cumsum(brk)))
-    first, last = np.concatenate(([0], ends[:-1] + 1))[run], ends[run]
-
-    cols, f_xy, f_cov, f_angle, f_ref = _forward(p, first, last, params)
-    f_beam = idx[cols]
-    b_beam = _backward(r, valid, use, xy_all, params)
-    if params.nms_radius_m > 0 and len(f_beam) and len(b_beam):
+    # Paper eq. (1) in the robot frame, as complex numbers x + iy; NaN where no return.
+    xy_all = np.empty((len(r), 2))
+    rv = np.where(valid, r, np.nan)
+    np.multiply(rv, beams.cos, out=xy_all[:, 0])
+    np.multiply(rv, beams.sin, out=xy_all[:, 1])
+    z_all = xy_all.view(np.complex128)[:, 0]
+    idx = use.nonzero()[0]
+    z = z_all[idx]
+    dz = z[1:] - z[:-1]
+    s2 = dz.real * dz.real + dz.imag * dz.imag
+    # Stretches of kept points: a new one starts after a no-return beam (the running
+    # count of no-returns changes) or a gap wider than arm_break_gap_m.
+    n_invalid = (~valid).cumsum()[idx]
+    brk = (n_invalid[1:] != n_invalid[:-1]) | (s2 > params.arm_break_gap_m**2)
+    feats = [(int(idx[j]), FORWARD, *rest) for j, *rest in _forward(z, np.sqrt(s2), brk, params)]
+    edges = _backward(r, valid, use, z_all, params).tolist()
+    if params.nms_radius_m > 0 and feats and edges:
         # A convex corner with one wall occluded fires both searches; the forward
         # corner is better localised, so the jump edge gives way.
-        d2 = ((xy_all[b_beam][:, None, :] - f_xy[None, :, :]) ** 2).sum(axis=2)
-        b_beam = b_beam[np.all(d2 >= params.nms_radius_m**2, axis=1)]
-
-    beam = np.concatenate((f_beam, b_beam))
-    xy = np.concatenate((f_xy, xy_all[b_beam]))
-    cov = np.concatenate((f_cov, np.full((len(b_beam), 2, 2), np.nan)))
-    point_model = ~np.isfinite(cov[:, 0, 0])
-    src = beam[point_model]
-    cov[point_model] = _point_cov(r[src], ang[src], beam_step, params.range_sigma_m)
-    kind = np.concatenate((np.full(len(f_beam), FORWARD), np.full(len(b_beam), BACKWARD))).astype(np.int8)
-    angle = np.concatenate((f_angle, np.full(len(b_beam), np.nan)))
-    refined = np.concatenate((f_ref, np.zeros(len(b_beam), dtype=bool)))
-    order = np.argsort(beam, kind="stable")
-    return FeatureSet(kind[order], xy[order], cov[order], beam[order], angle[order], refined[order])
+        r2 = params.nms_radius_m**2
+        corners = [f[2] for f in feats]
+        edges = [i for i in edges if all(((q := complex(z_all[i]) - c).real ** 2 + q.imag**2) >= r2 for c in corners)]
+    feats += [(i, BACKWARD, complex(z_all[i]), None, math.nan, False) for i in edges]
+    # A handful of features per scan: assembled in Python, sorted by beam (corners
+    # before edges on the same beam).
+    feats.sort(key=lambda f: f[0])
+    if not feats:
+        return FeatureSet(np.empty(0, np.int8), np.empty((0, 2)), np.empty((0, 2, 2)), np.empty(0, np.intp),
+                          np.empty(0), np.empty(0, bool))
+    if any(f[3] is None for f in feats):
+        feats = [f if f[3] is not None else (*f[:3], _point_cov(float(r[f[0]]), float(ang[f[0]]), beams.step_rad, params.range_sigma_m), *f[4:])
+                 for f in feats]
+    beam, kind, xy, cov, angle, refined = zip(*feats)
+    return FeatureSet(
+        kind=np.array(kind, dtype=np.int8),
+        xy_m=np.array(xy).view(np.float64).reshape(-1, 2),
+        cov_m2=np.array(cov, dtype=float),
+        beam=np.array(beam, dtype=np.intp),
+        angle_deg=np.array(angle, dtype=float),
+        refined=np.array(refined, dtype=bool),
+    )

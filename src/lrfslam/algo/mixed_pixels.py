@@ -3,13 +3,82 @@
 Where a beam's footprint straddles a depth edge the scanner returns a range between
 the two surfaces: a point floating in empty space on the beam. The angle histogram
 is a weak filter for these, because down a corridor they line up with the walls
-(notes §5.3), so two local tests remove them first. Both leave the edge points of the
+(notes §5.3), so local tests remove them first. All leave the edge points of the
 surfaces themselves alone, which backward searching needs.
+
+* :func:`off_line` (the default): a point must lie on the straight line through its
+  two neighbours on one side. A flat wall satisfies this exactly at any incidence,
+  so the tolerance only has to cover the range noise.
+* :func:`depth_outliers`: the same with a linear range trend instead of the line.
+  The trend bends with the wall's range curve, ``r'' Δθ²`` (8 cm at 10° incidence),
+  so it both loses grazing wall points and vouches for mixed pixels there.
+* :func:`along_beam`: the veiling-angle test of ROS ``ScanShadowsFilter``.
+
+:func:`beam_tables` holds the per-beam trigonometry the filters share.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+
+
+@dataclass(frozen=True)
+class BeamTables:
+    """Trigonometry of one beam layout (N bearings θ), read-only arrays.
+
+    Attributes
+    ----------
+    cos, sin : ndarray, shape (N,)
+        ``cos θ_k``, ``sin θ_k``.
+    sin1 : ndarray, shape (N - 1,)
+        ``sin(θ_{k+1} - θ_k)``.
+    sin2 : ndarray, shape (N - 2,)
+        ``sin(θ_{k+2} - θ_k)`` (empty for N < 2).
+    step_rad : float
+        Median ``|θ_{k+1} - θ_k|``, radians (0 for N < 2).
+    """
+
+    cos: np.ndarray
+    sin: np.ndarray
+    sin1: np.ndarray
+    sin2: np.ndarray
+    step_rad: float
+
+
+def beam_tables(angles_rad: np.ndarray) -> BeamTables:
+    """The :class:`BeamTables` of a scan's bearings (radians, shape (N,)).
+
+    A scanner repeats one layout scan after scan, so the tables of the last layout
+    seen are kept and reused while the bearings are byte-for-byte the same: a pure
+    function of its argument, memoised, which saves a handful of array operations on
+    every scan (at 181 beams the count of operations is what costs).
+    """
+    key = np.ascontiguousarray(angles_rad, dtype=float).tobytes()
+    # One (bytes, tables) pair, read and replaced whole, so concurrent callers with
+    # different layouts never mix them up. Comparing the bytes is a memcmp; hashing
+    # them (as a dict or lru_cache would) costs more than the tables.
+    last = _LAST[0]
+    if last[0] != key:
+        last = (key, _tables(np.frombuffer(key, dtype=float)))
+        _LAST[0] = last
+    return last[1]
+
+
+def _tables(a: np.ndarray) -> BeamTables:
+    d = np.abs(a[1:] - a[:-1])
+    # np.median without its overhead: the middle of the sorted steps.
+    srt, k = np.sort(d), len(d) // 2
+    step = 0.0 if not len(d) else float(srt[k]) if len(d) % 2 else float((srt[k - 1] + srt[k]) / 2.0)
+    tables = (np.cos(a), np.sin(a), np.sin(a[1:] - a[:-1]), np.sin(a[2:] - a[:-2]))
+    for t in tables:
+        t.setflags(write=False)
+    return BeamTables(*tables, step_rad=step)
+
+
+# The last layout seen and its tables (see beam_tables).
+_LAST: list = [(None, None)]
 
 
 def along_beam(points_xy: np.ndarray, valid: np.ndarray, min_angle_deg: float) -> np.ndarray:
@@ -61,18 +130,65 @@ def along_beam(points_xy: np.ndarray, valid: np.ndarray, min_angle_deg: float) -
     return valid & (has_prev | has_next) & prev_ok & next_ok
 
 
+def off_line(ranges_m: np.ndarray, beams: BeamTables, valid: np.ndarray, tol_m: float) -> np.ndarray:
+    """Points that lie on neither neighbouring wall line.
+
+    Beam ``i`` is cut with the straight line through the points of beams ``i-2, i-1``
+    and with the one through ``i+2, i+1``. A point on a flat surface lies on at least
+    one of them (corner points on both walls, edge points on their own surface); a
+    mixed pixel floats between surfaces and lies on neither. A side without two valid
+    beams cannot vouch for the point.
+
+    The mismatch is measured along the beam, in range: a point's range noise moves it
+    along its beam, and at grazing incidence mostly along the wall, so the line through
+    two neighbours stays close to the wall and the predicted range scatters by about
+    ``√6 σ`` at any incidence. In inverse range a line is ``1/r = A cos θ + B sin θ``,
+    so the prediction from beams ``j, k`` at beam ``i`` is exact and needs no points:
+    ``sin(θ_k - θ_j) / r_i = sin(θ_i - θ_j) / r_k - sin(θ_i - θ_k) / r_j``.
+
+    Parameters
+    ----------
+    ranges_m : ndarray, shape (N,)
+        Ranges in metres.
+    beams : BeamTables
+        Of the beam bearings, which must increase by less than π per beam.
+    valid : ndarray of bool, shape (N,)
+    tol_m : float
+        Largest range mismatch that still counts as on the line; 0 returns an
+        all-False mask. Keep it well above the noise of the prediction (≈ 2.5 σ).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    n = len(valid)
+    if tol_m <= 0 or n < 3:
+        return np.zeros(n, dtype=bool)
+    r = np.where(valid, ranges_m, np.nan)
+    s1, s2 = beams.sin1, beams.sin2
+    # A subnormal "range" would overflow 1/r; clamped, every product below stays finite.
+    inv = 1.0 / np.maximum(r, 1e-300)
+    # The prediction is s1 / num, in front of the scanner only if num > 0; testing
+    # |r num - s1| <= tol num needs no division and fails for num <= 0. A NaN (a
+    # neighbour without return) compares False: no vouching.
+    num = inv[1:-1] * s2 - inv[:-2] * s1[1:]
+    vouched = np.zeros(n, dtype=bool)
+    vouched[2:] = np.abs(r[2:] * num - s1[:-1]) <= tol_m * num
+    num = inv[1:-1] * s2 - inv[2:] * s1[:-1]
+    vouched[:-2] |= np.abs(r[:-2] * num - s1[1:]) <= tol_m * num
+    return valid & ~vouched
+
+
 def depth_outliers(ranges_m: np.ndarray, valid: np.ndarray, tol_m: float) -> np.ndarray:
-    """Points whose range fits neither neighbouring surface.
+    """Points whose range fits neither neighbouring surface's range trend.
 
     The range of beam ``i`` is predicted linearly from beams ``i-2, i-1`` and from
     ``i+2, i+1``. A point on a surface matches at least one prediction (corner points
     match both walls, edge points their own surface); a mixed pixel floats between
     surfaces and matches neither. A side without two valid beams cannot vouch for the
-    point. Range, not Cartesian, collinearity is used on purpose: down a corridor the
-    near surface is often seen at grazing incidence, and a mixed pixel behind its end
-    then lies on the extension of its line but not on its range trend. The price is
-    that a wall seen below about 10° incidence, where the range curves fast, loses
-    points too.
+    point. The trend is exact only for a wall seen head-on: below about 10° incidence
+    the range curves fast, the wall loses points and a mixed pixel on it can pass
+    (measured in docs/features.md; :func:`off_line` has neither problem).
 
     Parameters
     ----------

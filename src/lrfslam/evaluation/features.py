@@ -10,7 +10,8 @@ default), and score them against the map (notes §2):
   1.2 m arms) and against all *visible* ones;
 * localisation RMSE of the matched detections (mm) and their mean NEES
   ``eᵀ C⁻¹ e`` (2 for a consistent covariance);
-* wall points kept and mixed pixels removed by the filter (%);
+* wall points kept and mixed pixels removed by the filter (%), the latter with its
+  95 % Wilson interval (a world set holds only about a hundred mixed pixels);
 * jump edges per scan and the share of them that are phantoms (farther than
   ``phantom_radius_m`` from any convex corner or free wall end).
 
@@ -160,6 +161,7 @@ class Tally:
         def ratio(a: float, b: float) -> float:
             return a / b if b else float("nan")
 
+        lo, hi = wilson_interval(self.spurious_removed, self.spurious_points)
         return {
             "precision": ratio(self.true_positives, self.detections),
             "recall_eligible": ratio(self.eligible_found, self.eligible),
@@ -169,9 +171,21 @@ class Tally:
             "corners_per_scan": ratio(self.detections, self.scans),
             "wall_kept_pct": 100.0 * ratio(self.wall_kept, self.wall_points),
             "spurious_removed_pct": 100.0 * ratio(self.spurious_removed, self.spurious_points),
+            "spurious_removed_lo_pct": 100.0 * lo,
+            "spurious_removed_hi_pct": 100.0 * hi,
             "jumps_per_scan": ratio(self.jumps, self.scans),
             "phantom_pct": 100.0 * ratio(self.phantoms, self.jumps),
         }
+
+
+def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval of a proportion ``k / n`` (95 % for ``z = 1.96``); NaN for n = 0."""
+    if n == 0:
+        return float("nan"), float("nan")
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return float(centre - half), float(centre + half)
 
 
 def hallway_poses(n_poses: int, rng: np.random.Generator) -> np.ndarray:
@@ -280,9 +294,10 @@ def ablation_configs() -> dict[str, Config]:
         "period 180° (no fold)": {"period_deg": 180.0},
         "bins 10°": {"bin_deg": 10.0},
         "bins 30°": {"bin_deg": 30.0},
-        "no depth-outlier test": {"mixed_tol_m": 0.0},
+        "no mixed-pixel test": {"mixed_tol_m": 0.0},
+        "range-trend mixed-pixel test": {"mixed_model": "range"},
         "veiling test 10° on": {"shadow_min_angle_deg": 10.0},
-        "sliding window": {"bin_mode": "sliding"},
+        "fixed bins": {"bin_mode": "fixed"},
         "stride 3": {"stride": 3},
     }
     cor = {
@@ -334,26 +349,36 @@ def evaluate(
     return {name: t.row() for name, t in tallies.items()}
 
 
+def _number(key: str, spec: str):
+    return lambda row: format(row[key], spec)
+
+
+def _share_with_interval(row: dict[str, float]) -> str:
+    return (f"{row['spurious_removed_pct']:.1f} "
+            f"[{row['spurious_removed_lo_pct']:.0f}–{row['spurious_removed_hi_pct']:.0f}]")
+
+
+# (header, the score it shows, its cell)
 _COLUMNS = (
-    ("precision", "P", "{:.3f}"),
-    ("recall_eligible", "R elig.", "{:.3f}"),
-    ("recall_visible", "R vis.", "{:.3f}"),
-    ("rmse_mm", "RMSE mm", "{:.1f}"),
-    ("nees", "NEES", "{:.2f}"),
-    ("corners_per_scan", "corners/scan", "{:.2f}"),
-    ("wall_kept_pct", "wall kept %", "{:.1f}"),
-    ("spurious_removed_pct", "mixed removed %", "{:.1f}"),
-    ("jumps_per_scan", "jumps/scan", "{:.2f}"),
-    ("phantom_pct", "phantom jumps %", "{:.1f}"),
+    ("P", "precision", _number("precision", ".3f")),
+    ("R elig.", "recall_eligible", _number("recall_eligible", ".3f")),
+    ("R vis.", "recall_visible", _number("recall_visible", ".3f")),
+    ("RMSE mm", "rmse_mm", _number("rmse_mm", ".1f")),
+    ("NEES", "nees", _number("nees", ".2f")),
+    ("corners/scan", "corners_per_scan", _number("corners_per_scan", ".2f")),
+    ("wall kept %", "wall_kept_pct", _number("wall_kept_pct", ".1f")),
+    ("mixed removed % [95 % CI]", "spurious_removed_pct", _share_with_interval),
+    ("jumps/scan", "jumps_per_scan", _number("jumps_per_scan", ".2f")),
+    ("phantom jumps %", "phantom_pct", _number("phantom_pct", ".1f")),
 )
 
 
 def format_table(rows: Sequence[tuple[Sequence[str], dict[str, float]]], key_names: Sequence[str]) -> str:
     """Markdown table: the key columns, then every score column."""
-    head = list(key_names) + [c[1] for c in _COLUMNS]
+    head = list(key_names) + [c[0] for c in _COLUMNS]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for keys, row in rows:
-        cells = list(keys) + [fmt.format(row[k]) if np.isfinite(row[k]) else "–" for k, _, fmt in _COLUMNS]
+        cells = list(keys) + [cell(row) if np.isfinite(row[key]) else "–" for _, key, cell in _COLUMNS]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
