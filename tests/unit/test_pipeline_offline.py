@@ -82,9 +82,10 @@ def test_same_outputs_as_the_services_replayed_one_by_one(sim_recording, tmp_pat
 
     replay(services.spec("denoise"), cfg("denoise"), ROBOT, sim_recording, tmp_path / "d.mcap")
     replay(services.spec("feature"), cfg("feature"), ROBOT, tmp_path / "d.mcap", tmp_path / "f.mcap")
+    slam_inputs = [tp.name for tp in services.spec("slam").inputs]  # odom, scan (scan matching), features
     with RecordingWriter(tmp_path / "odom_features.mcap") as writer:
         for path in (sim_recording, tmp_path / "f.mcap"):
-            for r in read_recording(path, ["odom", "features"]):
+            for r in read_recording(path, slam_inputs):
                 writer.write(r.topic, r.schema, r.data, r.log_time_ns, r.publish_time_ns, r.sequence)
     replay(services.spec("slam"), cfg("slam"), ROBOT, tmp_path / "odom_features.mcap", tmp_path / "s.mcap")
 

@@ -1,0 +1,626 @@
+"""Point-to-line ICP: the motion between laser scans from their overlap.
+
+Symbols (used only inside this module; public names are by role):
+
+* reference points ``q_j`` (M, 2) with unit normals ``n_j`` (M, 2), in the
+  reference frame; current points ``p_i`` (N, 2) in the current robot frame;
+* the sought pose ``u = (x_m, y_m, theta_rad)`` of the current scan in the
+  reference frame (an odometry increment when the reference is the previous
+  scan's robot frame): a current point maps to ``R(theta) p_i + (x, y)``;
+* residual ``r_i = n_j · (R p_i + t − q_j)`` for the nearest reference point
+  ``q_j``; Jacobian ``J_i = (n_jx, n_jy, n_j · R' p_i)`` with ``R' = dR/dθ``.
+
+Design choices
+--------------
+* **Point-to-line** (Chen & Medioni; Censi's PL-ICP uses the same metric): walls
+  are lines and two scans sample them at different spots, so the point-to-point
+  error of standard ICP is biased by the beam spacing; the distance to the
+  reference's local line is not, and Gauss–Newton on it converges in a few
+  iterations.
+* **Normals** come from a line fit (PCA) to up to ``normal_neighbours``
+  nearest points within ``normal_radius_m``, in the reference and in the
+  current scan alike. Points whose neighbourhood is not line-like (clutter,
+  corners, isolated returns) get no normal and take no part: they have no line
+  to be compared along, and a scan matched to itself is then exactly the
+  identity. A pair must also have normals within ``max_normal_angle_rad``: near
+  a corner the nearest reference point may lie on the other wall.
+* **Robustness.** Pairs farther apart than a gate are not correspondences; the
+  gate starts wide (initial-guess error) and narrows after
+  ``wide_gate_iterations``. Remaining pairs get Cauchy weights
+  ``1 / (1 + (r/s)²)``, so people walking by and newly seen walls count little.
+* **Degenerate geometry.** In a featureless corridor the motion along it leaves
+  every residual unchanged: the information matrix (rotation scaled to metres of
+  arc at the rms range, divided by the total weight) has a near-zero eigenvalue.
+  Gauss–Newton then steps only in the constrained directions ("solution
+  remapping", Zhang et al. 2016) so the unconstrained ones keep the initial
+  guess (odometry): in a corridor the scan still fixes heading and lateral
+  offset. Without a covariance for the guess a degenerate match fails instead.
+  On the Intel log this beats both a full fallback to odometry and a Gaussian
+  odometry prior on every direction: the wheel heading is biased (about −0.8°
+  per 1.5 s there), and a prior lets that bias into every match.
+* **Covariance** ``(Jᵀ W J / (cov_scale σ̂²) + Σ_guess⁻¹)⁻¹``: the Gauss–Newton
+  information with the residual variance ``σ̂²`` estimated from the weighted
+  residuals, combined with the guess's information so that remapped directions
+  carry the odometry's uncertainty. It ignores that neighbouring beams' errors
+  correlate and that the normals are themselves noisy, so alone it is
+  optimistic; ``cov_scale`` is the factor that makes the NEES consistent on the
+  simulator (``tests/unit/test_scan_match.py``).
+* **Termination**: a step below ``converged_*``, or a correspondence set met
+  before (nearest neighbours can swap back and forth with sub-mm steps).
+* **Failure is reported, not hidden**: too few points, no convergence, too few
+  inliers, a correction larger than any plausible guess error. The caller then
+  uses odometry.
+
+:class:`ScanTracker` chains matches into odometry against *keyframes*: the
+current scan is matched to the last few keyframes and to every keyframe within
+``map_radius_m`` of the predicted pose (old ones too), merged and thinned to one
+point per ``map_cell_m`` cell. Matching to a keyframe instead of the previous
+scan stops the error from accumulating while the robot stands or creeps; taking
+in old keyframes when the robot comes back snaps the pose onto what it saw there
+before. The normals are fitted on the merged points, so a wall seen twice out of
+register is thick there and drops out instead of dragging the match. Per metre
+travelled, ``drift_*_sigma_per_m`` is added to the increments' covariance: on
+real data the chained matches drift more than each match's covariance shows
+(docs/slam.md, "Real data: Intel Research Lab").
+
+References
+----------
+Y. Chen, G. Medioni, "Object modelling by registration of multiple range
+images", Image and Vision Computing 10(3), 1992. A. Censi, "An ICP variant using
+a point-to-line metric", ICRA 2008. J. Zhang, M. Kaess, S. Singh, "On degeneracy
+of optimization-based state estimation problems", ICRA 2016.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.errors import ConfigError, InputError
+
+
+class MatchStatus(enum.IntEnum):
+    """Outcome of :func:`match`; anything but OK means "use odometry instead"."""
+
+    OK = 0
+    TOO_FEW_POINTS = 1  # in the reference (with normals) or in the current scan
+    NOT_CONVERGED = 2
+    FEW_INLIERS = 3  # inlier ratio below ``min_inlier_ratio``
+    DEGENERATE = 4  # a direction unconstrained and no guess covariance to take it from
+    IMPLAUSIBLE = 5  # the correction to the initial guess exceeds the plausible guess error
+    NO_REFERENCE = 6  # ScanTracker: first scan, nothing to match against yet
+
+
+@dataclass(frozen=True)
+class ScanMatchParams:
+    """Parameters of :func:`match` and :class:`ScanTracker`.
+
+    Attributes
+    ----------
+    max_point_range_m : float
+        Current-scan points farther than this from the sensor are not used (m).
+    normal_neighbours : int
+        At most this many nearest points (the point included) are fitted with a
+        line for the normal at a point...
+    normal_radius_m : float
+        ...of those within this distance of it (m)...
+    normal_min_neighbours : int
+        ...and at least this many are needed.
+    normal_max_thickness : float
+        Largest ratio of the line fit's minor to major standard deviation for a
+        neighbourhood to count as a line (dimensionless, 0 = perfect line).
+    wide_gate_m, narrow_gate_m : float
+        Largest distance between a current point and its nearest reference point
+        for a correspondence: during the first ``wide_gate_iterations``
+        iterations, then after (m).
+    wide_gate_iterations : int
+        Iterations run with the wide gate.
+    robust_scale_m : float
+        Scale ``s`` of the Cauchy weight on the point-to-line residual (m).
+    max_iterations : int
+        Gauss–Newton iterations at most.
+    converged_trans_m, converged_rot_rad : float
+        An iteration whose step is below both ends the search (m, rad); so does
+        a correspondence set met before (a cycle).
+    max_normal_angle_rad : float
+        A current point pairs only with a reference point whose normal is within
+        this angle of its own (rad).
+    min_points : int
+        Current and reference points with normals (line points) needed, and
+        paired points at every iteration.
+    min_inlier_ratio : float
+        Fraction of the current line points that must have a correspondence at the end.
+    min_information_ratio : float
+        Directions whose normalised information eigenvalue is below this are
+        unconstrained (dimensionless; 1/3 for ideal isotropic geometry, 0 for
+        the direction along a corridor).
+    max_correction_trans_m, max_correction_rot_rad : float
+        A result that differs from the initial guess by more than this is
+        rejected as a false minimum (m, rad).
+    min_residual_sigma_m : float
+        Floor of the estimated per-point residual standard deviation (m): a
+        near-perfect fit must not make the scan infinitely certain.
+    cov_scale : float
+        Factor on the scan's Gauss–Newton covariance (see the module notes).
+    keyframe_trans_m, keyframe_rot_rad : float
+        :class:`ScanTracker` makes the current scan a keyframe once it is this
+        far (m) or turned this much (rad) from the last keyframe.
+    recent_keyframes : int
+        The last this many keyframes are always matched against.
+    map_radius_m : float
+        Keyframes whose pose is within this distance of the predicted pose are
+        matched against too (m; 0 = only the recent ones).
+    map_max_keyframes : int
+        At most this many of those, the nearest first.
+    map_cell_m : float
+        The keyframes' points are merged to one point per square of this side (m).
+    max_keyframes : int
+        Keyframes kept; the oldest is forgotten beyond (memory bound of a long run).
+    drift_trans_sigma_per_m, drift_rot_sigma_per_m : float
+        :class:`ScanTracker` adds a random walk of this much position (m) and
+        heading (rad) error per metre travelled to every matched increment's
+        covariance: real-world drift the per-match covariance does not show.
+    """
+
+    # Intel log, matched odometry alone: 4 m (the paper's cut) 3.2 m relation error, 8 m 1.0 m.
+    max_point_range_m: float = 8.0
+    normal_neighbours: int = 10
+    normal_radius_m: float = 0.3
+    normal_min_neighbours: int = 4
+    # Intel (cluttered): 0.15 leaves too few line points (2.2 m relation error), 0.35 0.94 m, 0.5 1.0 m.
+    normal_max_thickness: float = 0.35
+    wide_gate_m: float = 0.5
+    narrow_gate_m: float = 0.15
+    wide_gate_iterations: int = 3
+    robust_scale_m: float = 0.03
+    max_iterations: int = 40
+    converged_trans_m: float = 1e-6
+    converged_rot_rad: float = 1e-6
+    max_normal_angle_rad: float = 0.5
+    min_points: int = 30
+    min_inlier_ratio: float = 0.3
+    min_information_ratio: float = 0.01
+    max_correction_trans_m: float = 0.5
+    max_correction_rot_rad: float = 0.35
+    min_residual_sigma_m: float = 0.005
+    cov_scale: float = 1.6  # mean NEES 3.0 over 170 simulated matches (4.8 with 1.0)
+    keyframe_trans_m: float = 0.3
+    keyframe_rot_rad: float = 0.2
+    recent_keyframes: int = 3
+    map_radius_m: float = 3.0
+    map_max_keyframes: int = 10
+    map_cell_m: float = 0.05
+    max_keyframes: int = 20_000
+    drift_trans_sigma_per_m: float = 0.0
+    # Intel: lets the walls' direction correct the heading (gated 1320 times instead of 1735), docs/slam.md.
+    drift_rot_sigma_per_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        positive = ("max_point_range_m", "normal_radius_m", "wide_gate_m", "narrow_gate_m", "robust_scale_m",
+                    "max_correction_trans_m", "max_correction_rot_rad", "min_residual_sigma_m", "cov_scale",
+                    "max_normal_angle_rad", "map_cell_m")
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"scan matching {name} must be finite and > 0, got {value!r}")
+        non_negative = ("normal_max_thickness", "converged_trans_m", "converged_rot_rad", "min_inlier_ratio",
+                        "min_information_ratio", "keyframe_trans_m", "keyframe_rot_rad", "map_radius_m",
+                        "drift_trans_sigma_per_m", "drift_rot_sigma_per_m")
+        for name in non_negative:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ConfigError(f"scan matching {name} must be finite and >= 0, got {value!r}")
+        if not 3 <= self.normal_min_neighbours <= self.normal_neighbours:
+            raise ConfigError("need 3 <= normal_min_neighbours <= normal_neighbours")
+        if self.max_iterations < 1 or self.min_points < 3:
+            raise ConfigError("need max_iterations >= 1 and min_points >= 3")
+        if self.wide_gate_iterations < 0 or self.map_max_keyframes < 0:
+            raise ConfigError("wide_gate_iterations and map_max_keyframes must be >= 0")
+        if self.recent_keyframes < 1 or self.max_keyframes < self.recent_keyframes:
+            raise ConfigError("need 1 <= recent_keyframes <= max_keyframes")
+
+
+@dataclass(frozen=True, eq=False)
+class ReferenceScan:
+    """Points with line normals, ready to be matched against.
+
+    Attributes
+    ----------
+    points_xy_m : ndarray, shape (M, 2)
+        The usable reference points (those with a normal) (m).
+    normals : ndarray, shape (M, 2)
+        Unit normals of the local line at each point.
+    """
+
+    points_xy_m: np.ndarray
+    normals: np.ndarray
+
+    @classmethod
+    def build(cls, points_xy_m, params: ScanMatchParams) -> ReferenceScan:
+        """Fit a line to each point's neighbourhood; keep the points on a line.
+
+        ``points_xy_m`` (N, 2) in one frame (m): a scan's, or several scans'
+        moved into one frame; non-finite rows are ignored.
+        """
+        pts = _usable(points_xy_m, np.inf)
+        if pts.shape[0] < params.normal_min_neighbours:
+            return cls(np.zeros((0, 2)), np.zeros((0, 2)))
+        dist, idx = cKDTree(pts).query(pts, k=params.normal_neighbours,
+                                       distance_upper_bound=params.normal_radius_m)
+        # Neighbours beyond the radius come back with distance inf (and an index
+        # past the end). Up to k of them: near the sensor the beams are dense and
+        # k spans enough wall for the line to stand out of the range noise.
+        # Over several scans, a wall seen twice out of register is thick here and
+        # drops out, so a misaligned old keyframe cannot drag the match.
+        found = np.isfinite(dist)
+        count = found.sum(axis=1)
+        enough = count >= params.normal_min_neighbours
+        wts = found / np.maximum(count, 1)[:, None]  # (N, k) averaging weights over the found neighbours
+        nb = pts[np.where(found, idx, 0)]  # (N, k, 2)
+        d = nb - np.einsum("nk,nkc->nc", wts, nb)[:, None, :]
+        sxx, sxy, syy = (np.sum(wts * d[..., a] * d[..., b], axis=1) for a, b in ((0, 0), (0, 1), (1, 1)))
+        # Closed-form eigen-decomposition of each 2×2 scatter [[sxx, sxy], [sxy, syy]].
+        half_trace = 0.5 * (sxx + syy)
+        disc = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
+        lam_major, lam_minor = half_trace + disc, np.maximum(half_trace - disc, 0.0)
+        phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # direction of the major axis
+        normals = np.column_stack((-np.sin(phi), np.cos(phi)))
+        line = enough & (lam_major > 0)
+        line[line] = np.sqrt(lam_minor[line] / lam_major[line]) <= params.normal_max_thickness
+        return cls(pts[line], normals[line])
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        """k-d tree over ``points_xy_m``, built on first use."""
+        return cKDTree(self.points_xy_m)
+
+    def __len__(self) -> int:
+        return int(self.points_xy_m.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class MatchResult:
+    """What :func:`match` found.
+
+    Attributes
+    ----------
+    status : MatchStatus
+        OK, or why the result must not be used.
+    pose : ndarray, shape (3,)
+        ``(x_m, y_m, theta_rad)`` of the current scan in the reference frame.
+        The initial guess when the status is not OK.
+    cov : ndarray, shape (3, 3)
+        Its covariance (m², m·rad, rad²); NaN when the status is not OK.
+    iterations : int
+        Gauss–Newton iterations run.
+    inlier_ratio : float
+        Fraction of the current line points with a correspondence at the end.
+    residual_rms_m : float
+        Weighted rms of the point-to-line residuals at the end (m).
+    information_ratio : float
+        Smallest normalised information eigenvalue (see ``min_information_ratio``).
+    unconstrained : int
+        Directions (0–3) taken from the guess because the scan did not constrain them.
+    """
+
+    status: MatchStatus
+    pose: np.ndarray
+    cov: np.ndarray
+    iterations: int = 0
+    inlier_ratio: float = 0.0
+    residual_rms_m: float = float("nan")
+    information_ratio: float = float("nan")
+    unconstrained: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return self.status is MatchStatus.OK
+
+
+@dataclass(frozen=True, eq=False)
+class _Linearisation:
+    """Correspondences of the current points at one pose, and the normal equations."""
+
+    pairs: np.ndarray  # (N,) index of each current point's reference point, -1 if none (gate, direction)
+    residual_m: np.ndarray  # (K,) point-to-line residuals of the paired points
+    weight: np.ndarray  # (K,) Cauchy weights
+    info: np.ndarray  # (3, 3) J^T W J
+    gradient: np.ndarray  # (3,) J^T W r
+    scale: np.ndarray  # (3,) (1, 1, 1/lever): normalisation of the information
+    eigvals: np.ndarray  # (3,) ascending eigenvalues of the normalised information
+    eigvecs: np.ndarray  # (3, 3) their eigenvectors (columns), in scaled coordinates
+
+    @property
+    def paired(self) -> np.ndarray:
+        """(N,) bool: the current point has a correspondence."""
+        return self.pairs >= 0
+
+    def residual_variance(self, params: ScanMatchParams) -> float:
+        """Per-point residual variance (m²): weighted, 3 degrees of freedom used, floored."""
+        sigma2 = float(np.sum(self.weight * self.residual_m**2) / max(float(self.weight.sum()) - 3.0, 1.0))
+        return max(sigma2, params.min_residual_sigma_m**2)
+
+
+def _usable(points_xy_m, max_range_m: float) -> np.ndarray:
+    pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
+    finite = np.all(np.isfinite(pts), axis=1)
+    if np.isfinite(max_range_m):
+        finite[finite] = np.hypot(pts[finite, 0], pts[finite, 1]) <= max_range_m
+    return pts[finite]
+
+
+def _linearise(reference: ReferenceScan, current: ReferenceScan, u: np.ndarray, gate_m: float,
+               params: ScanMatchParams) -> _Linearisation:
+    c, s = np.cos(u[2]), np.sin(u[2])
+    rot_t = np.array([[c, s], [-s, c]])  # row vectors: p @ R^T = (R p)^T
+    moved = current.points_xy_m @ rot_t + u[:2]
+    dist, j = reference.tree.query(moved, distance_upper_bound=gate_m)
+    paired = np.isfinite(dist)
+    # A point pairs only with a line of about its own direction: near a corner the
+    # nearest reference point may lie on the other wall.
+    cos_angle = np.einsum("ij,ij->i", reference.normals[np.where(paired, j, 0)], current.normals @ rot_t)
+    paired &= np.abs(cos_angle) >= np.cos(params.max_normal_angle_rad)
+    pairs = np.where(paired, j, -1)
+    q, nrm = reference.points_xy_m[j[paired]], reference.normals[j[paired]]
+    p, m = current.points_xy_m[paired], moved[paired]
+    r = np.einsum("ij,ij->i", nrm, m - q)
+    w = 1.0 / (1.0 + (r / params.robust_scale_m) ** 2)
+    d_theta = nrm[:, 0] * (-s * p[:, 0] - c * p[:, 1]) + nrm[:, 1] * (c * p[:, 0] - s * p[:, 1])
+    jac = np.column_stack((nrm, d_theta))
+    info = jac.T @ (w[:, None] * jac)
+    # Rotation in metres of arc at the rms range, information per unit weight:
+    # the eigenvalues are then comparable between scans and directions.
+    lever = float(np.sqrt(np.mean(np.sum(p * p, axis=1)))) if p.size else 1.0
+    scale = np.array([1.0, 1.0, 1.0 / max(lever, 1e-9)])
+    eigvals, eigvecs = np.linalg.eigh(info * np.outer(scale, scale) / max(float(w.sum()), 1e-300))
+    return _Linearisation(pairs, r, w, info, jac.T @ (w * r), scale, eigvals, eigvecs)
+
+
+def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatchParams,
+          guess_cov=None) -> MatchResult:
+    """Align the current scan's points to ``reference`` by point-to-line ICP.
+
+    Parameters
+    ----------
+    reference : ReferenceScan
+        An earlier scan (or several, merged) in the reference frame.
+    points_xy_m : array_like, shape (N, 2)
+        Current scan's points in its robot frame (m); non-finite rows and points
+        beyond ``params.max_point_range_m`` are ignored.
+    initial_guess : array_like, shape (3,)
+        ``(x_m, y_m, theta_rad)`` of the current pose in the reference frame,
+        e.g. the odometry increment when the reference is the previous scan.
+    params : ScanMatchParams
+    guess_cov : array_like, shape (3, 3), optional
+        Covariance of ``initial_guess`` (m², m·rad, rad²). With it, directions
+        the scan leaves unconstrained keep the guess and the result's covariance
+        includes the guess's information; without it such a match fails as
+        DEGENERATE and the covariance is the scan's alone.
+
+    Returns
+    -------
+    MatchResult
+    """
+    guess = np.asarray(initial_guess, dtype=float)
+    if guess.shape != (3,) or not np.all(np.isfinite(guess)):
+        raise InputError(f"initial_guess must be 3 finite numbers, got {initial_guess!r}")
+    prior_info = np.zeros((3, 3))
+    if guess_cov is not None:
+        g_cov = np.asarray(guess_cov, dtype=float)
+        if g_cov.shape != (3, 3) or not np.all(np.isfinite(g_cov)):
+            raise InputError("guess_cov must be a finite (3, 3) array")
+        # The floor keeps a zero variance (no turn, no heading noise) invertible.
+        prior_info = np.linalg.inv(0.5 * (g_cov + g_cov.T) + 1e-12 * np.eye(3))
+    # Only line points of the current scan take part, with their own normals: clutter
+    # and corner points have no line to be compared along, and a scan matched to
+    # itself is then exactly the identity.
+    current = ReferenceScan.build(_usable(points_xy_m, params.max_point_range_m), params)
+    if len(current) < params.min_points or len(reference) < params.min_points:
+        return MatchResult(MatchStatus.TOO_FEW_POINTS, guess.copy(), np.full((3, 3), np.nan))
+
+    def failed(status: MatchStatus, lin: _Linearisation, iterations: int) -> MatchResult:
+        return MatchResult(status, guess.copy(), np.full((3, 3), np.nan), iterations, float(lin.paired.mean()),
+                           information_ratio=float(lin.eigvals[0]))
+
+    u = guess.copy()
+    converged = False
+    iterations = 0
+    seen: set[bytes] = set()  # correspondence sets met with the narrow gate
+    for it in range(params.max_iterations):
+        iterations = it + 1
+        gate = params.wide_gate_m if it < params.wide_gate_iterations else params.narrow_gate_m
+        lin = _linearise(reference, current, u, gate, params)
+        if lin.paired.sum() < params.min_points:
+            return failed(MatchStatus.FEW_INLIERS, lin, iterations)
+        constrained = lin.eigvals >= params.min_information_ratio
+        if not constrained.all() and (guess_cov is None or not constrained.any()):
+            return failed(MatchStatus.DEGENERATE, lin, iterations)
+        # Gauss–Newton step in the constrained directions only (in scaled coordinates,
+        # where the eigen-decomposition was taken); the others keep the guess.
+        v = lin.eigvecs[:, constrained]
+        step = -lin.scale * (v @ ((v.T @ (lin.scale * lin.gradient)) / (lin.eigvals[constrained] * lin.weight.sum())))
+        u = u + step
+        u[2] = wrap_angle(u[2])
+        if it + 1 < params.wide_gate_iterations:
+            continue
+        small = np.hypot(step[0], step[1]) < params.converged_trans_m and abs(step[2]) < params.converged_rot_rad
+        # Nearest neighbours can swap back and forth between a few sets with
+        # sub-mm steps: meeting a set again (narrow gate) ends the search too.
+        key = lin.pairs.tobytes()
+        if small or key in seen:
+            converged = True
+            break
+        seen.add(key)
+
+    lin = _linearise(reference, current, u, params.narrow_gate_m, params)
+    if not converged:
+        return failed(MatchStatus.NOT_CONVERGED, lin, iterations)
+    inlier_ratio = float(lin.paired.mean())
+    if inlier_ratio < params.min_inlier_ratio or lin.paired.sum() < params.min_points:
+        return failed(MatchStatus.FEW_INLIERS, lin, iterations)
+    constrained = lin.eigvals >= params.min_information_ratio
+    if not constrained.all() and guess_cov is None:
+        return failed(MatchStatus.DEGENERATE, lin, iterations)
+    correction = relative(guess, u)
+    if np.hypot(correction[0], correction[1]) > params.max_correction_trans_m \
+            or abs(correction[2]) > params.max_correction_rot_rad:
+        return failed(MatchStatus.IMPLAUSIBLE, lin, iterations)
+    cov = np.linalg.inv(lin.info / (params.cov_scale * lin.residual_variance(params)) + prior_info)
+    rms = float(np.sqrt(np.sum(lin.weight * lin.residual_m**2) / lin.weight.sum()))
+    return MatchResult(MatchStatus.OK, u, 0.5 * (cov + cov.T), iterations, inlier_ratio, rms,
+                       float(lin.eigvals[0]), int((~constrained).sum()))
+
+
+@dataclass(frozen=True, eq=False)
+class TrackStep:
+    """What :meth:`ScanTracker.step` returns: the motion to use, and how it was found.
+
+    Attributes
+    ----------
+    increment : ndarray, shape (3,)
+        ``(dx_m, dy_m, dtheta_rad)`` from the previous scan's pose to this one,
+        in the previous robot frame: the matched one, or the odometry's.
+    cov : ndarray, shape (3, 3)
+        Its covariance: from the match, or the odometry's.
+    match : MatchResult
+        The match (its status says whether the increment is matched).
+    """
+
+    increment: np.ndarray
+    cov: np.ndarray
+    match: MatchResult
+
+    @property
+    def matched(self) -> bool:
+        return self.match.ok
+
+
+@dataclass(frozen=True, eq=False)
+class _Keyframe:
+    pose: np.ndarray  # (3,) in the tracker's frame
+    points_xy_m: np.ndarray  # (N, 2) the scan's points in the tracker's frame
+
+
+class ScanTracker:
+    """Laser odometry: each scan matched against nearby keyframes (mutable state).
+
+    The tracker keeps its own pose chain in a frame fixed at the first scan; the
+    caller only uses the increments between consecutive scans. Deterministic:
+    the same calls give the same results.
+
+    Parameters
+    ----------
+    params : ScanMatchParams
+
+    Attributes
+    ----------
+    pose : ndarray, shape (3,), or None
+        Pose of the last scan in the tracker's frame; None before the first scan.
+    keyframes : list
+        The keyframes kept, oldest first; each has ``pose`` (3,) and
+        ``points_xy_m`` (N, 2) in the tracker's frame.
+    """
+
+    def __init__(self, params: ScanMatchParams) -> None:
+        self.params = params
+        self.pose: np.ndarray | None = None
+        self.keyframes: list[_Keyframe] = []
+        self._dropped = 0  # keyframes forgotten so far: keeps the local map's cache key unique
+        self._active: tuple[int, ...] = ()  # cache key of _reference
+        self._reference: ReferenceScan | None = None
+
+    def step(self, points_xy_m, odom_increment, odom_cov) -> TrackStep:
+        """Match one scan; returns the increment from the previous scan.
+
+        Parameters
+        ----------
+        points_xy_m : array_like, shape (N, 2)
+            This scan's points in its robot frame (m).
+        odom_increment : array_like, shape (3,)
+            Odometry motion from the previous scan, in its frame (zeros for the first scan).
+        odom_cov : array_like, shape (3, 3)
+            Its covariance: the fallback's, and the prior of unconstrained directions.
+        """
+        u0 = np.asarray(odom_increment, dtype=float)
+        q0 = np.asarray(odom_cov, dtype=float)
+        if u0.shape != (3,) or q0.shape != (3, 3) or not (np.all(np.isfinite(u0)) and np.all(np.isfinite(q0))):
+            raise InputError("odom_increment must be (3,) and odom_cov (3, 3), finite")
+        pts = _usable(points_xy_m, self.params.max_point_range_m)
+        if self.pose is None:
+            self.pose = np.zeros(3)
+            self._add_keyframe(pts)
+            return TrackStep(u0.copy(), q0.copy(), MatchResult(MatchStatus.NO_REFERENCE, u0.copy(),
+                                                               np.full((3, 3), np.nan)))
+        guess = compose(self.pose, u0)
+        # The odometry covariance rotated from the previous robot frame into the tracker's frame.
+        rot = _rotation3(self.pose[2])
+        result = match(self._local_map(guess), pts, guess, self.params, rot @ q0 @ rot.T)
+        if result.ok:
+            increment, cov = relative(self.pose, result.pose), rot.T @ result.cov @ rot
+            # Drift the fit cannot see (a corridor's along-track guess, real walls
+            # that are not lines), as a random walk per metre travelled.
+            dist = float(np.hypot(increment[0], increment[1]))
+            cov = cov + np.diag([self.params.drift_trans_sigma_per_m**2 * dist] * 2
+                                + [self.params.drift_rot_sigma_per_m**2 * dist])
+        else:
+            increment, cov = u0.copy(), q0.copy()
+        self.pose = compose(self.pose, increment)
+        moved = relative(self.keyframes[-1].pose, self.pose)
+        # After a failure the recent keyframes no longer fit this pose: start afresh from this scan.
+        if not result.ok or np.hypot(moved[0], moved[1]) >= self.params.keyframe_trans_m \
+                or abs(moved[2]) >= self.params.keyframe_rot_rad:
+            self._add_keyframe(pts)
+        return TrackStep(increment, 0.5 * (cov + cov.T), result)
+
+    def skip(self, increment) -> None:
+        """A scan that will not be matched (lost): move the pose by ``increment`` (3,), e.g. odometry's."""
+        if self.pose is not None:
+            self.pose = compose(self.pose, np.asarray(increment, dtype=float))
+
+    def _add_keyframe(self, pts: np.ndarray) -> None:
+        c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
+        self.keyframes.append(_Keyframe(self.pose.copy(), pts @ np.array([[c, s], [-s, c]]) + self.pose[:2]))
+        if len(self.keyframes) > self.params.max_keyframes:
+            del self.keyframes[0]
+            self._dropped += 1
+
+    def _local_map(self, guess: np.ndarray) -> ReferenceScan:
+        """The recent keyframes and the nearest ones around ``guess`` as one reference (cached while unchanged)."""
+        p = self.params
+        n = len(self.keyframes)
+        chosen = set(range(max(0, n - p.recent_keyframes), n))
+        if p.map_radius_m > 0 and p.map_max_keyframes > 0:
+            xy = np.array([kf.pose[:2] for kf in self.keyframes])
+            dist = np.hypot(xy[:, 0] - guess[0], xy[:, 1] - guess[1])
+            near = np.flatnonzero(dist <= p.map_radius_m)
+            # Stable sort: equal distances keep keyframe order, so the choice is deterministic.
+            chosen |= set(near[np.argsort(dist[near], kind="stable")][: p.map_max_keyframes].tolist())
+        key = tuple(sorted(i + self._dropped for i in chosen))
+        if key != self._active or self._reference is None:
+            self._active = key
+            # Normals from the merged points (see ReferenceScan.build): a consistency
+            # filter. Thinned to one point per cell first, or k neighbours of a
+            # dense stack of scans would span less than the range noise.
+            merged = np.vstack([self.keyframes[i].points_xy_m for i in sorted(chosen)])
+            self._reference = ReferenceScan.build(_thin(merged, p.map_cell_m), p)
+        return self._reference
+
+
+def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
+    """Mean of the points in each occupied ``cell_m`` square, (M, 2), in cell order (deterministic)."""
+    cells, inverse = np.unique(np.floor(points_xy_m / cell_m).astype(np.int64), axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    sums = np.zeros((cells.shape[0], 2))
+    np.add.at(sums, inverse, points_xy_m)
+    return sums / np.bincount(inverse, minlength=cells.shape[0])[:, None]
+
+
+def _rotation3(theta: float) -> np.ndarray:
+    """Jacobian of a pose in a frame rotated by ``theta``: rotates (x, y), keeps the heading."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
