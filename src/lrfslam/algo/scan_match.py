@@ -38,10 +38,13 @@ Design choices
   On the Intel log this beats both a full fallback to odometry and a Gaussian
   odometry prior on every direction: the wheel heading is biased (about −0.8°
   per 1.5 s there), and a prior lets that bias into every match.
-* **Covariance** ``(Jᵀ W J / (cov_scale σ̂²) + Σ_guess⁻¹)⁻¹``: the Gauss–Newton
+* **Covariance** ``(Jᵀ W J / (cov_scale σ̂²) + Π Σ_guess⁻¹ Π)⁻¹``: the Gauss–Newton
   information with the residual variance ``σ̂²`` estimated from the weighted
-  residuals, combined with the guess's information so that remapped directions
-  carry the odometry's uncertainty. It ignores that neighbouring beams' errors
+  residuals, plus the guess's information projected (``Π``) onto the remapped
+  directions only, which carry the odometry's uncertainty: the estimate takes
+  nothing from the guess elsewhere, so neither may its covariance (wheel
+  odometry's near-zero lateral variance made the first matches 15× overconfident
+  across the corridor before). It ignores that neighbouring beams' errors
   correlate and that the normals are themselves noisy, so alone it is
   optimistic; ``cov_scale`` is the factor that makes the NEES consistent on the
   simulator (``tests/unit/test_scan_match.py``).
@@ -62,6 +65,15 @@ register is thick there and drops out instead of dragging the match. Per metre
 travelled, ``drift_*_sigma_per_m`` is added to the increments' covariance: on
 real data the chained matches drift more than each match's covariance shows
 (docs/slam.md, "Real data: Intel Research Lab").
+
+The increments' covariances are meant to be summed by a filter as a random
+walk, which matches against keyframes are not: scans matched to the same
+reference carry its error once, so while the reference stays the same only the
+growth of the match covariance is handed out; and a match that takes in old
+keyframes again (a loop) jumps by the chain's error since then, so that step
+carries the chain's covariance beyond the old keyframe's (``chain_cov``, kept
+with each keyframe). On the simulator this keeps the filter's pose NEES from
+the 15× overconfidence of naive chaining without adding up to a random walk.
 
 References
 ----------
@@ -470,7 +482,16 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
     if np.hypot(correction[0], correction[1]) > params.max_correction_trans_m \
             or abs(correction[2]) > params.max_correction_rot_rad:
         return failed(MatchStatus.IMPLAUSIBLE, lin, iterations)
-    cov = np.linalg.inv(lin.info / (params.cov_scale * lin.residual_variance(params)) + prior_info)
+    # The estimate takes the guess only in the unconstrained directions, so its
+    # covariance does too: the guess's information elsewhere would make it
+    # overconfident (odometry claims sub-mm lateral precision that the match
+    # does not use). Projected in the scaled coordinates, where eigvecs are orthonormal.
+    free = lin.eigvecs[:, ~constrained]
+    to_free = free @ free.T
+    inv_scale = 1.0 / lin.scale
+    info_scaled = np.outer(lin.scale, lin.scale) * lin.info / (params.cov_scale * lin.residual_variance(params)) \
+        + to_free @ (np.outer(inv_scale, inv_scale) * prior_info) @ to_free
+    cov = np.outer(lin.scale, lin.scale) * np.linalg.inv(info_scaled)
     rms = float(np.sqrt(np.sum(lin.weight * lin.residual_m**2) / lin.weight.sum()))
     return MatchResult(MatchStatus.OK, u, 0.5 * (cov + cov.T), iterations, inlier_ratio, rms,
                        float(lin.eigvals[0]), int((~constrained).sum()))
@@ -504,6 +525,7 @@ class TrackStep:
 class _Keyframe:
     pose: np.ndarray  # (3,) in the tracker's frame
     points_xy_m: np.ndarray  # (N, 2) the scan's points in the tracker's frame
+    cov: np.ndarray  # (3, 3) the chain's covariance of ``pose`` when it was taken
 
 
 class ScanTracker:
@@ -533,6 +555,12 @@ class ScanTracker:
         self._dropped = 0  # keyframes forgotten so far: keeps the local map's cache key unique
         self._active: tuple[int, ...] = ()  # cache key of _reference
         self._reference: ReferenceScan | None = None
+        # The last fully constrained match: (reference key, covariance in the tracker's frame).
+        self._anchor: tuple[tuple[int, ...], np.ndarray] | None = None
+        self._chosen: frozenset[int] = frozenset()  # keyframe ids (index + _dropped) in the reference
+        # Covariance of ``pose`` as the sum of the increments handed out (tracker's frame):
+        # what the caller's filter has been told, so the uncertainty a loop closure resolves.
+        self.chain_cov = np.zeros((3, 3))
 
     def step(self, points_xy_m, odom_increment, odom_cov) -> TrackStep:
         """Match one scan; returns the increment from the previous scan.
@@ -559,16 +587,31 @@ class ScanTracker:
         guess = compose(self.pose, u0)
         # The odometry covariance rotated from the previous robot frame into the tracker's frame.
         rot = _rotation3(self.pose[2])
+        before = self._chosen
         result = match(self._local_map(guess), pts, guess, self.params, rot @ q0 @ rot.T)
         if result.ok:
-            increment, cov = relative(self.pose, result.pose), rot.T @ result.cov @ rot
+            increment = relative(self.pose, result.pose)
+            chain = _pose_jacobian(self.pose, increment) @ self.chain_cov @ _pose_jacobian(self.pose, increment).T
+            cov = self._fresh_cov(result)
             # Drift the fit cannot see (a corridor's along-track guess, real walls
             # that are not lines), as a random walk per metre travelled.
             dist = float(np.hypot(increment[0], increment[1]))
             cov = cov + np.diag([self.params.drift_trans_sigma_per_m**2 * dist] * 2
                                 + [self.params.drift_rot_sigma_per_m**2 * dist])
+            anchor = self._loop_anchor(before, result.pose)
+            if anchor is not None:
+                # Back at an old keyframe: the match jumps by the chain's error since
+                # then, which the increment must carry, and the chain is as sure as there.
+                cov = cov + _psd_part(chain - anchor)
+                self.chain_cov = anchor + result.cov
+            else:
+                self.chain_cov = chain + cov
+            cov = rot.T @ cov @ rot
         else:
             increment, cov = u0.copy(), q0.copy()
+            self._anchor = None
+            g = _pose_jacobian(self.pose, increment)
+            self.chain_cov = g @ self.chain_cov @ g.T + rot @ cov @ rot.T
         self.pose = compose(self.pose, increment)
         moved = relative(self.keyframes[-1].pose, self.pose)
         # After a failure the recent keyframes no longer fit this pose: start afresh from this scan.
@@ -577,14 +620,49 @@ class ScanTracker:
             self._add_keyframe(pts)
         return TrackStep(increment, 0.5 * (cov + cov.T), result)
 
+    def _fresh_cov(self, result: MatchResult) -> np.ndarray:
+        """Covariance of the error this match adds to the chain, in the tracker's frame.
+
+        Matched against the same reference, consecutive poses carry that
+        reference's error once, not once per scan: their errors relative to it
+        are independent draws, so the chain's error is the newest one's, not a
+        sum. The caller adds the increments' covariances as a random walk, so
+        while the reference stays the same only the growth of the match
+        covariance is new; a new reference brings the whole of it. A match
+        that took directions from the odometry guess (a corridor) does
+        accumulate there, so it always counts whole.
+        """
+        key = self._active
+        fresh = result.cov
+        if result.unconstrained == 0 and self._anchor is not None and self._anchor[0] == key:
+            fresh = _psd_part(result.cov - self._anchor[1])
+        self._anchor = (key, result.cov) if result.unconstrained == 0 else None
+        return fresh
+
+    def _loop_anchor(self, before: frozenset[int], pose: np.ndarray) -> np.ndarray | None:
+        """Covariance (tracker's frame) the reference lends ``pose`` if it took in old keyframes, else None.
+
+        Old: not among the recent ones, and not in the previous reference. Of
+        those, the surest (smallest trace) anchors the match.
+        """
+        recent = len(self.keyframes) - self.params.recent_keyframes + self._dropped
+        entered = [i for i in self._chosen - before if i < recent]
+        if not entered:
+            return None
+        kf = min((self.keyframes[i - self._dropped] for i in entered), key=lambda k: float(np.trace(k.cov)))
+        jac = _pose_jacobian(kf.pose, relative(kf.pose, pose))
+        return jac @ kf.cov @ jac.T
+
     def skip(self, increment) -> None:
         """A scan that will not be matched (lost): move the pose by ``increment`` (3,), e.g. odometry's."""
+        self._anchor = None
         if self.pose is not None:
             self.pose = compose(self.pose, np.asarray(increment, dtype=float))
 
     def _add_keyframe(self, pts: np.ndarray) -> None:
         c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
-        self.keyframes.append(_Keyframe(self.pose.copy(), pts @ np.array([[c, s], [-s, c]]) + self.pose[:2]))
+        self.keyframes.append(_Keyframe(self.pose.copy(), pts @ np.array([[c, s], [-s, c]]) + self.pose[:2],
+                                        self.chain_cov.copy()))
         if len(self.keyframes) > self.params.max_keyframes:
             del self.keyframes[0]
             self._dropped += 1
@@ -601,6 +679,7 @@ class ScanTracker:
             # Stable sort: equal distances keep keyframe order, so the choice is deterministic.
             chosen |= set(near[np.argsort(dist[near], kind="stable")][: p.map_max_keyframes].tolist())
         key = tuple(sorted(i + self._dropped for i in chosen))
+        self._chosen = frozenset(key)
         if key != self._active or self._reference is None:
             self._active = key
             # Normals from the merged points (see ReferenceScan.build): a consistency
@@ -618,6 +697,19 @@ def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     sums = np.zeros((cells.shape[0], 2))
     np.add.at(sums, inverse, points_xy_m)
     return sums / np.bincount(inverse, minlength=cells.shape[0])[:, None]
+
+
+def _psd_part(mat: np.ndarray) -> np.ndarray:
+    """The positive semi-definite part of a symmetric (3, 3) matrix (negative eigenvalues set to 0)."""
+    vals, vecs = np.linalg.eigh(0.5 * (mat + mat.T))
+    return (vecs * np.clip(vals, 0.0, None)) @ vecs.T
+
+
+def _pose_jacobian(pose: np.ndarray, increment: np.ndarray) -> np.ndarray:
+    """Jacobian (3, 3) of ``compose(pose, increment)`` with respect to ``pose``."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    dx, dy = increment[0], increment[1]
+    return np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
 
 
 def _rotation3(theta: float) -> np.ndarray:

@@ -52,6 +52,7 @@ from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus, UpdateReport
 from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.service import Message, Output, RunContext
 from lrfslam.sim import OdometryNoise, SimConfig, SimFrame, Simulator
 
@@ -87,6 +88,9 @@ class McConfig:
     final_lap_frac : float
         Fraction of each run, at its end, over which the second ATE is taken.
     seed : int
+    stage_sets : tuple of str
+        "extractor" only: ``"<service>.<name>=<value>"`` overrides of the
+        denoise, feature and slam configs, as ``--set`` gives them to a service.
     """
 
     n_runs: int = 30
@@ -101,6 +105,7 @@ class McConfig:
     label_radius_m: float = 0.15
     final_lap_frac: float = 0.25
     seed: int = 0
+    stage_sets: tuple[str, ...] = ()
 
     def ekf_params(self) -> EkfParams:
         """Filter parameters.
@@ -117,7 +122,7 @@ class McConfig:
             "association": self.association,
         }
         if self.features == "extractor":
-            return replace(services.spec("slam").config_type().ekf, **odometry)
+            return replace(self.stage_config("slam").ekf, **odometry)
         return EkfParams(
             odom_trans_sigma_floor_m=1e-5,
             odom_rot_sigma_floor_rad=1e-6,
@@ -126,6 +131,13 @@ class McConfig:
             wall_model_sigma_rad=0.0,  # the added wall noise is exactly the sigma given
             **odometry,
         )
+
+    def stage_config(self, name: str):
+        """The ``name`` service's config: its defaults (or mode preset) with this experiment's ``stage_sets``."""
+        spec = services.spec(name)
+        sets = [item.partition(".")[2] for item in self.stage_sets if item.partition(".")[0] == name]
+        base = spec.preset(config_mod.peek(spec.config_type, "mode", sets=sets)) if spec.preset else None
+        return config_mod.load(spec.config_type, sets=sets, base=base)
 
 
 @dataclass(frozen=True, eq=False)
@@ -273,12 +285,11 @@ class _Pipeline:
     recording one anchored at the true start pose.
     """
 
-    def __init__(self, sim: Simulator, params: EkfParams, pose0: np.ndarray) -> None:
+    def __init__(self, sim: Simulator, cfg: McConfig, params: EkfParams, pose0: np.ndarray) -> None:
         ctx = RunContext("slam_mc", replay=True)
-        build = {name: services.spec(name) for name in ("denoise", "feature", "slam")}
-        self.denoise = build["denoise"].build(build["denoise"].config_type(), ctx)
-        self.feature = build["feature"].build(build["feature"].config_type(), ctx)
-        self.slam = build["slam"].build(build["slam"].config_type(ekf=params), ctx)
+        self.denoise = services.spec("denoise").build(cfg.stage_config("denoise"), ctx)
+        self.feature = services.spec("feature").build(cfg.stage_config("feature"), ctx)
+        self.slam = services.spec("slam").build(replace(cfg.stage_config("slam"), ekf=params), ctx)
         self.slam.ekf = _RecordingEkf(params, pose0=pose0)
         self.lidar = sim.config.lidar
         self.scan_time_s = 1.0 / sim.config.rate_hz
@@ -290,6 +301,7 @@ class _Pipeline:
                                        self.lidar.angle_increment_rad, self.lidar.max_range_m,
                                        scan_time_s=self.scan_time_s, source="sim")
         states = list(self.slam.on_message(_message(Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose)))))
+        states += self.slam.on_message(_message(Output(topics.SCAN, scan)))
         for filtered in self.denoise.on_message(_message(Output(topics.SCAN, scan))):
             for feats in self.feature.on_message(_message(filtered)):
                 states += self.slam.on_message(_message(feats))
@@ -319,7 +331,7 @@ def run_once(cfg: McConfig, run_index: int) -> RunResult:
     for frame in (next(sim) for _ in range(cfg.n_steps)):
         if cfg.features == "extractor":
             if pipeline is None:
-                pipeline = _Pipeline(sim, params, frame.true_pose)
+                pipeline = _Pipeline(sim, cfg, params, frame.true_pose)
             pose, pose_cov, xy, covs, rep = pipeline.step(frame)
             labels = label_points(from_frame(xy, frame.true_pose), truth_xy, cfg.label_radius_m)
             real = labels >= 0
@@ -481,13 +493,15 @@ def main(argv=None) -> int:
     ap.add_argument("--odom-scale", type=float, default=1.0, help="multiply the simulator's odometry noise")
     ap.add_argument("--seed", type=int, default=McConfig.seed)
     ap.add_argument("--jobs", type=int, default=1, help="worker processes")
+    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="SERVICE.NAME=VALUE",
+                    help="extractor only: override a denoise/feature/slam setting, e.g. slam.scan_matching=false")
     args = ap.parse_args(argv)
     base = OdometryNoise()
     cfg = McConfig(
         n_runs=args.runs, n_steps=args.steps, world_name=args.world, features=args.features,
         association=args.association, range_sigma_m=args.range_sigma_m, bearing_sigma_rad=args.bearing_sigma_rad,
         truth_wall_sigma_rad=args.truth_wall_sigma_rad,
-        seed=args.seed,
+        seed=args.seed, stage_sets=tuple(args.sets),
         odometry=OdometryNoise(base.trans_sigma_per_m * args.odom_scale, base.rot_sigma_per_rad * args.odom_scale,
                                base.rot_sigma_per_m_rad * args.odom_scale),
     )
