@@ -33,7 +33,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from lrfslam.algo.mixed_pixels import along_beam, beam_tables, depth_outliers, off_line
+from lrfslam.algo.mixed_pixels import along_beam, beam_tables, depth_outliers, line_vouched
 from lrfslam.errors import ConfigError
 
 _BIN_MODES = ("fixed", "sliding")
@@ -199,17 +199,23 @@ def _bin_edges(bin_deg: float, n_bins: int) -> np.ndarray:
     return edges
 
 
+@lru_cache(maxsize=4)
+def _period_shifts(period_deg: float) -> np.ndarray:
+    """``[[-period], [0], [period]]`` in degrees, shape (3, 1), read-only."""
+    shifts = np.array(((-period_deg,), (0.0,), (period_deg,)))
+    shifts.setflags(write=False)
+    return shifts
+
+
 def _sliding_support(angle_deg: np.ndarray, members: np.ndarray, params: DenoiseParams) -> np.ndarray:
     """Number of ``members`` within ``±bin_deg/2`` of each direction, shape (S,).
 
     ``angle_deg`` (S,) holds the segment directions, ``members`` (M,) those that count.
     """
     w, period = params.bin_deg, params.period_deg
-    # Sort once and append a copy shifted by one period each way, so windows that
-    # cross 0° count the wrapped segments too.
-    srt = members.copy()
-    srt.sort()
-    ext = np.concatenate((srt - period, srt, srt + period))
+    # Sort once and lay copies shifted by one period each way either side, so windows
+    # that cross 0° count the wrapped segments too (x + 0.0 is x).
+    ext = (np.sort(members) + _period_shifts(period)).ravel()
     return ext.searchsorted(angle_deg + 0.5 * w, side="right") - ext.searchsorted(angle_deg - 0.5 * w, side="left")
 
 
@@ -235,50 +241,56 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
     n = len(r)
     beams = beam_tables(a)
     valid = valid_returns(r, params.max_range_m)
-    # Paper eq. (1) with pose 0; NaN where no return. The complex view z = x + iy
-    # moves both coordinates in one array operation.
-    xy = np.empty((n, 2))
+    # Paper eq. (1) with pose 0; NaN where no return. The complex z = x + iy moves
+    # both coordinates in one array operation; points_xy is a view of it.
     rv = np.where(valid, r, np.nan)
-    np.multiply(rv, beams.cos, out=xy[:, 0])
-    np.multiply(rv, beams.sin, out=xy[:, 1])
-    mixed = np.zeros(n, dtype=bool)
-    if params.mixed_tol_m > 0:
+    z_all = rv * beams.expi
+    xy = z_all.view(np.float64).reshape(n, 2)
+    if params.mixed_tol_m > 0 and n >= 3:
         if params.mixed_model == "line":
-            mixed = off_line(rv, beams, valid, params.mixed_tol_m)
+            mixed = valid & ~line_vouched(rv, beams, params.mixed_tol_m)
         else:
             mixed = depth_outliers(rv, valid, params.mixed_tol_m)
+    else:
+        mixed = np.zeros(n, dtype=bool)
     if params.shadow_min_angle_deg > 0:
         mixed |= along_beam(xy, valid, params.shadow_min_angle_deg)
     w, n_bins = params.bin_deg, params.n_bins
     edges = _bin_edges(w, n_bins)
 
-    idx = (valid & ~mixed).nonzero()[0]
+    # mixed is a subset of valid: valid ^ mixed = valid & ~mixed.
+    idx = (valid ^ mixed).nonzero()[0]
     s = params.stride
     kept = np.zeros(n, dtype=bool)
     if len(idx) <= s:
         return DenoiseResult(kept, valid, xy, mixed, np.zeros(n_bins, np.intp), edges, 0)
 
-    z = xy.view(np.complex128)[:, 0][idx]
+    z = z_all[idx]
     step = z[1:] - z[:-1]
-    jump = step.real * step.real + step.imag * step.imag > params.jump_m**2
+    # Successive valid points are finite, so "no jump" is the negated comparison.
+    seg_len2 = step.real * step.real + step.imag * step.imag
     if s == 1:
-        seg_ok, d = ~jump, step
+        seg_ok, d = seg_len2 <= params.jump_m**2, step
     else:
         # A strided segment is a jump if any of the consecutive steps it spans is one.
-        n_jumps = np.concatenate(([0], jump.cumsum()))
+        n_jumps = np.concatenate(([0], (seg_len2 > params.jump_m**2).cumsum()))
         seg_ok, d = n_jumps[s:] == n_jumps[:-s], z[s:] - z[:-s]
     ang = np.degrees(np.arctan2(d.imag, d.real)) % params.period_deg
     n_seg = int(np.count_nonzero(seg_ok))
+    members = ang[seg_ok]
     # Bins start at -w/2 so an axis-aligned wall falls mid-bin; the modulo folds the
-    # last half bin (e.g. -0.0° folded to 89.99°) back onto bin 0.
-    bins = np.floor((ang + 0.5 * w) / w).astype(np.intp) % n_bins
-    counts = np.bincount(bins[seg_ok], minlength=n_bins)
-    # Supports of jump segments are computed too (fewer calls than masking them out)
-    # and ignored below.
+    # last half bin (e.g. -0.0° folded to 89.99°) back onto bin 0. ang >= 0, so the
+    # integer conversion (truncation) is the floor.
     if params.bin_mode == "fixed":
+        bins = ((ang + 0.5 * w) / w).astype(np.intp) % n_bins
+        counts = np.bincount(bins[seg_ok], minlength=n_bins)
         support = counts[bins]
     else:
-        support = _sliding_support(ang, ang[seg_ok], params)
+        # Only the members are binned: the histogram is reported, not used.
+        counts = np.bincount(((members + 0.5 * w) / w).astype(np.intp) % n_bins, minlength=n_bins)
+        # Supports of jump segments are computed too (fewer calls than masking them
+        # out) and ignored below.
+        support = _sliding_support(ang, members, params)
     passes = seg_ok & (support > params.keep_frac * n_seg)
 
     # Segment j joins compressed points j and j + s; gather both sides of each point.

@@ -8,7 +8,8 @@ surfaces themselves alone, which backward searching needs.
 
 * :func:`off_line` (the default): a point must lie on the straight line through its
   two neighbours on one side. A flat wall satisfies this exactly at any incidence,
-  so the tolerance only has to cover the range noise.
+  so the tolerance only has to cover the range noise. :func:`line_vouched` is its
+  core, for callers that already hold the ranges with NaN where there is no return.
 * :func:`depth_outliers`: the same with a linear range trend instead of the line.
   The trend bends with the wall's range curve, ``r'' Δθ²`` (8 cm at 10° incidence),
   so it both loses grazing wall points and vouches for mixed pixels there.
@@ -32,18 +33,27 @@ class BeamTables:
     ----------
     cos, sin : ndarray, shape (N,)
         ``cos θ_k``, ``sin θ_k``.
+    expi : ndarray of complex, shape (N,)
+        ``cos θ_k + i sin θ_k`` (the same values), so a point ``x + iy`` is one product.
     sin1 : ndarray, shape (N - 1,)
         ``sin(θ_{k+1} - θ_k)``.
     sin2 : ndarray, shape (N - 2,)
         ``sin(θ_{k+2} - θ_k)`` (empty for N < 2).
+    line : tuple of 3 ndarray, shape (2N - 2,) each
+        The sines of :func:`off_line` for the scan followed by its reverse (empty for
+        N < 3): element ``t`` serves the point ``t + 2`` of that doubled sequence, with
+        the two points before it; the two elements across the seam are NaN. A tuple,
+        not a 2-D array: unpacking an array's rows costs more than the rest of a step.
     step_rad : float
         Median ``|θ_{k+1} - θ_k|``, radians (0 for N < 2).
     """
 
     cos: np.ndarray
     sin: np.ndarray
+    expi: np.ndarray
     sin1: np.ndarray
     sin2: np.ndarray
+    line: tuple[np.ndarray, np.ndarray, np.ndarray]
     step_rad: float
 
 
@@ -71,10 +81,21 @@ def _tables(a: np.ndarray) -> BeamTables:
     # np.median without its overhead: the middle of the sorted steps.
     srt, k = np.sort(d), len(d) // 2
     step = 0.0 if not len(d) else float(srt[k]) if len(d) % 2 else float((srt[k - 1] + srt[k]) / 2.0)
-    tables = (np.cos(a), np.sin(a), np.sin(a[1:] - a[:-1]), np.sin(a[2:] - a[:-2]))
-    for t in tables:
+    cos, sin = np.cos(a), np.sin(a)
+    expi = np.empty(len(a), dtype=complex)
+    expi.real, expi.imag = cos, sin
+    s1, s2 = np.sin(a[1:] - a[:-1]), np.sin(a[2:] - a[:-2])
+    if len(a) >= 3:
+        # Reversing the scan flips the sign of every sine; off_line's test is written
+        # for increasing bearings, so the reversed half reuses the forward values.
+        seam = np.full(2, np.nan)
+        line = (np.concatenate((s2, seam, s2[::-1])), np.concatenate((s1[1:], seam, s1[:-1][::-1])),
+                np.concatenate((s1[:-1], seam, s1[1:][::-1])))
+    else:
+        line = (np.empty(0), np.empty(0), np.empty(0))
+    for t in (cos, sin, expi, s1, s2, *line):
         t.setflags(write=False)
-    return BeamTables(*tables, step_rad=step)
+    return BeamTables(cos, sin, expi, s1, s2, line, step_rad=step)
 
 
 # The last layout seen and its tables (see beam_tables).
@@ -164,19 +185,30 @@ def off_line(ranges_m: np.ndarray, beams: BeamTables, valid: np.ndarray, tol_m: 
     n = len(valid)
     if tol_m <= 0 or n < 3:
         return np.zeros(n, dtype=bool)
-    r = np.where(valid, ranges_m, np.nan)
-    s1, s2 = beams.sin1, beams.sin2
+    return valid & ~line_vouched(np.where(valid, ranges_m, np.nan), beams, tol_m)
+
+
+def line_vouched(r: np.ndarray, beams: BeamTables, tol_m: float) -> np.ndarray:
+    """Points vouched for by the line through two neighbours on either side, shape (N,) bool.
+
+    ``r`` (N,) holds the ranges, NaN where not valid; ``N >= 3``. The side after each
+    point is the side before it in the reversed scan, so both sides take one pass
+    over the scan followed by its reverse (``beams.line``).
+    """
+    n = len(r)
+    rr = np.concatenate((r, r[::-1]))
+    s2, s1_before, s1_after = beams.line
     # A subnormal "range" would overflow 1/r; clamped, every product below stays finite.
-    inv = 1.0 / np.maximum(r, 1e-300)
+    inv = 1.0 / np.maximum(rr, 1e-300)
     # The prediction is s1 / num, in front of the scanner only if num > 0; testing
     # |r num - s1| <= tol num needs no division and fails for num <= 0. A NaN (a
-    # neighbour without return) compares False: no vouching.
-    num = inv[1:-1] * s2 - inv[:-2] * s1[1:]
+    # neighbour without return, or the seam) compares False: no vouching.
+    num = inv[1:-1] * s2 - inv[:-2] * s1_before
+    on = np.abs(rr[2:] * num - s1_after) <= tol_m * num
     vouched = np.zeros(n, dtype=bool)
-    vouched[2:] = np.abs(r[2:] * num - s1[:-1]) <= tol_m * num
-    num = inv[1:-1] * s2 - inv[2:] * s1[:-1]
-    vouched[:-2] |= np.abs(r[:-2] * num - s1[1:]) <= tol_m * num
-    return valid & ~vouched
+    vouched[2:] = on[:n - 2]
+    vouched[:n - 2] |= on[:n - 1:-1]
+    return vouched
 
 
 def depth_outliers(ranges_m: np.ndarray, valid: np.ndarray, tol_m: float) -> np.ndarray:
