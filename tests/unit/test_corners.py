@@ -250,6 +250,12 @@ def test_arm_picks_match_a_point_by_point_walk(metric, near, far, monkeypatch):
     assert checked > 200
 
 
+def line_angle_deg(theta_a, theta_b):
+    """Angle between undirected lines of directions theta_a, theta_b (radians), degrees in [0, 90]."""
+    d = np.degrees(np.abs(theta_a - theta_b)) % 180.0
+    return np.minimum(d, 180.0 - d)
+
+
 def test_the_screen_never_drops_a_corner():
     # Pairs of 5-point arms built against the screen's bound: each arm's nearest pick
     # and the shared base point lie on opposite sides of the arm's line, nearly
@@ -273,7 +279,7 @@ def test_the_screen_never_drops_a_corner():
         arms.append((along + 1j * (off - off[:, :1])) * np.exp(1j * theta)[:, None])  # base point at 0
     arms = np.stack(arms)  # (2, n, A + 1)
     theta, max_resid = C._arm_fit(arms)
-    corner = (90.0 - C._line_angle_deg(theta[0], theta[1]) <= DEFAULT.corner_tol_deg) & np.all(max_resid <= rho, axis=0)
+    corner = (90.0 - line_angle_deg(theta[0], theta[1]) <= DEFAULT.corner_tol_deg) & np.all(max_resid <= rho, axis=0)
     assert corner.sum() > 1000
     assert C._square(arms[:, corner, 1], tan_tol).all()
     # The same chords through a screen 1° tighter lose corners: the bound is tight.

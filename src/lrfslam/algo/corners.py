@@ -242,13 +242,6 @@ class FeatureSet:
         return len(self.kind)
 
 
-
-def _line_angle_deg(theta_a: np.ndarray, theta_b: np.ndarray) -> np.ndarray:
-    """Angle between two undirected lines, degrees in [0, 90]."""
-    d = np.degrees(np.abs(theta_a - theta_b)) % 180.0
-    return np.minimum(d, 180.0 - d)
-
-
 def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, d_m: float, width: int) -> np.ndarray:
     """First column in ``[start, stop]`` at least ``d_m`` from ``z[col]``.
 
