@@ -55,25 +55,30 @@ Design choices
   uses odometry.
 
 :class:`ScanTracker` chains matches into odometry against *keyframes*: the
-current scan is matched to the last few keyframes and to every keyframe within
-``map_radius_m`` of the predicted pose (old ones too), merged and thinned to one
+current scan is matched to the last few keyframes, merged and thinned to one
 point per ``map_cell_m`` cell. Matching to a keyframe instead of the previous
-scan stops the error from accumulating while the robot stands or creeps; taking
-in old keyframes when the robot comes back snaps the pose onto what it saw there
-before. The normals are fitted on the merged points, so a wall seen twice out of
-register is thick there and drops out instead of dragging the match. Per metre
-travelled, ``drift_*_sigma_per_m`` is added to the increments' covariance: on
-real data the chained matches drift more than each match's covariance shows
-(docs/slam.md, "Real data: Intel Research Lab").
+scan stops the error from accumulating while the robot stands or creeps. The
+normals are fitted on the merged points, so a wall seen twice out of register
+is thick there and drops out instead of dragging the match.
+
+With ``map_radius_m`` > 0 the keyframes near the predicted pose are taken in
+too, old ones included, so coming back snaps the tracker onto what it saw there
+before: a loop closure of the tracker's own. Off by default: under the EKF,
+whose landmarks close the loop themselves, those snaps arrive as motion and
+correct the same drift twice (Intel relation error 0.068 m with it, 0.040 m
+without; docs/slam.md). Optionally ``drift_*_sigma_per_m`` adds a random walk
+per metre travelled to the increments' covariance, for drift the matches do not
+show (off by default; it was needed with the snaps).
 
 The increments' covariances are meant to be summed by a filter as a random
-walk, which matches against keyframes are not: scans matched to the same
-reference carry its error once, so while the reference stays the same only the
-growth of the match covariance is handed out; and a match that takes in old
-keyframes again (a loop) jumps by the chain's error since then, so that step
-carries the chain's covariance beyond the old keyframe's (``chain_cov``, kept
-with each keyframe). On the simulator this keeps the filter's pose NEES from
-the 15× overconfidence of naive chaining without adding up to a random walk.
+walk, which matches against keyframes are not (see ``ScanTracker._fresh_cov``):
+the match's error relative to its reference is handed out once, as a running
+maximum, and each change of reference adds the part of a keyframe's error it
+brings; a match that takes in old keyframes again (a loop, with
+``map_radius_m``) jumps by the chain's error since then, so that step carries
+the chain's covariance beyond the old keyframe's (``chain_cov``, kept with each
+keyframe). Naive chaining made the filter's pose NEES 15× overconfident at the
+start and then 2× conservative; these keep it in its band on the simulator.
 
 References
 ----------
@@ -204,13 +209,13 @@ class ScanMatchParams:
     keyframe_trans_m: float = 0.3
     keyframe_rot_rad: float = 0.2
     recent_keyframes: int = 3
-    map_radius_m: float = 3.0
+    map_radius_m: float = 0.0
     map_max_keyframes: int = 10
     map_cell_m: float = 0.05
     max_keyframes: int = 20_000
     drift_trans_sigma_per_m: float = 0.0
     # Intel: lets the walls' direction correct the heading (gated 1320 times instead of 1735), docs/slam.md.
-    drift_rot_sigma_per_m: float = 0.01
+    drift_rot_sigma_per_m: float = 0.0
 
     def __post_init__(self) -> None:
         positive = ("max_point_range_m", "normal_radius_m", "wide_gate_m", "narrow_gate_m", "robust_scale_m",
@@ -555,8 +560,8 @@ class ScanTracker:
         self._dropped = 0  # keyframes forgotten so far: keeps the local map's cache key unique
         self._active: tuple[int, ...] = ()  # cache key of _reference
         self._reference: ReferenceScan | None = None
-        # The last fully constrained match: (reference key, covariance in the tracker's frame).
-        self._anchor: tuple[tuple[int, ...], np.ndarray] | None = None
+        # (reference key, match covariance handed out so far, tracker's frame); see _fresh_cov.
+        self._budget: tuple[tuple[int, ...], np.ndarray] | None = None
         self._chosen: frozenset[int] = frozenset()  # keyframe ids (index + _dropped) in the reference
         # Covariance of ``pose`` as the sum of the increments handed out (tracker's frame):
         # what the caller's filter has been told, so the uncertainty a loop closure resolves.
@@ -609,7 +614,7 @@ class ScanTracker:
             cov = rot.T @ cov @ rot
         else:
             increment, cov = u0.copy(), q0.copy()
-            self._anchor = None
+            self._budget = None
             g = _pose_jacobian(self.pose, increment)
             self.chain_cov = g @ self.chain_cov @ g.T + rot @ cov @ rot.T
         self.pose = compose(self.pose, increment)
@@ -623,20 +628,25 @@ class ScanTracker:
     def _fresh_cov(self, result: MatchResult) -> np.ndarray:
         """Covariance of the error this match adds to the chain, in the tracker's frame.
 
-        Matched against the same reference, consecutive poses carry that
-        reference's error once, not once per scan: their errors relative to it
-        are independent draws, so the chain's error is the newest one's, not a
-        sum. The caller adds the increments' covariances as a random walk, so
-        while the reference stays the same only the growth of the match
-        covariance is new; a new reference brings the whole of it. A match
-        that took directions from the odometry guess (a corridor) does
-        accumulate there, so it always counts whole.
+        The chain's error is the reference's plus the match's relative to it, and
+        the caller sums the increments' covariances as a random walk. Matches
+        against the same reference are independent draws around it, so the
+        match's part is handed out once, as a running maximum (``_budget``), not
+        once per scan. A new reference of ``m`` keyframes mostly shares them with
+        the last one: replacing one moves their merged points by about one
+        keyframe's error over ``m``, so it adds ``cov / m``. A match that took
+        directions from the odometry guess (a corridor) accumulates there, so it
+        counts whole and starts the budget afresh.
         """
         key = self._active
-        fresh = result.cov
-        if result.unconstrained == 0 and self._anchor is not None and self._anchor[0] == key:
-            fresh = _psd_part(result.cov - self._anchor[1])
-        self._anchor = (key, result.cov) if result.unconstrained == 0 else None
+        if result.unconstrained or self._budget is None:
+            fresh = result.cov
+        else:
+            fresh = _psd_part(result.cov - self._budget[1])
+            if self._budget[0] != key:
+                fresh = fresh + result.cov / max(len(key), 1)
+        self._budget = None if result.unconstrained else \
+            (key, result.cov if self._budget is None else self._budget[1] + _psd_part(result.cov - self._budget[1]))
         return fresh
 
     def _loop_anchor(self, before: frozenset[int], pose: np.ndarray) -> np.ndarray | None:
@@ -655,7 +665,7 @@ class ScanTracker:
 
     def skip(self, increment) -> None:
         """A scan that will not be matched (lost): move the pose by ``increment`` (3,), e.g. odometry's."""
-        self._anchor = None
+        self._budget = None
         if self.pose is not None:
             self.pose = compose(self.pose, np.asarray(increment, dtype=float))
 
