@@ -65,7 +65,7 @@ With ``map_radius_m`` > 0 the keyframes near the predicted pose are taken in
 too, old ones included, so coming back snaps the tracker onto what it saw there
 before: a loop closure of the tracker's own. Off by default: under the EKF,
 whose landmarks close the loop themselves, those snaps arrive as motion and
-correct the same drift twice (Intel relation error 0.068 m with it, 0.040 m
+correct the same drift twice (Intel relation error 0.068 m with them, 0.042 m
 without; docs/slam.md). Optionally ``drift_*_sigma_per_m`` adds a random walk
 per metre travelled to the increments' covariance, for drift the matches do not
 show (off by default; it was needed with the snaps).
