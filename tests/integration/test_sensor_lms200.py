@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from lrfslam.msgs import codec, topics
-from lrfslam.runtime.bus import parse_attachment
 
 pytestmark = pytest.mark.integration
 

@@ -5,13 +5,12 @@ from __future__ import annotations
 import json
 
 import numpy as np
+from test_steps import build, chain, sim_outputs
 
 from lrfslam.msgs import topics
 from lrfslam.runtime.recording import RecordingWriter
 from lrfslam.runtime.service import run_offline
 from lrfslam.tools import export
-
-from test_steps import build, chain, sim_outputs
 
 
 def test_export_writes_json_and_png(tmp_path):

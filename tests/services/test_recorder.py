@@ -7,12 +7,12 @@ import time
 
 import numpy as np
 import pytest
+from lrfslam.services.recorder import RecorderConfig, RecorderStep
 
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.service import Message, RunContext
-from lrfslam.services.recorder import RecorderConfig, RecorderStep
 
 
 def raw(i: int) -> Message:

@@ -10,7 +10,12 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.recording import ReadReport, RecordingWriter, read_metadata, read_recording
+from lrfslam.runtime.recording import (
+    ReadReport,
+    RecordingWriter,
+    read_metadata,
+    read_recording,
+)
 
 
 def _scan(i: int) -> t.LaserScan:

@@ -73,6 +73,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from lrfslam.algo import association
+from lrfslam.algo.checks import require_finite
 from lrfslam.algo.geometry import compose, wrap_angle
 from lrfslam.algo.wall_direction import wrap_quarter
 from lrfslam.errors import ConfigError, InputError
@@ -205,10 +206,7 @@ class EkfParams:
             "corner_bearing_sigma_rad", "backward_min_view_change_rad", "min_feature_range_m",
             "wall_model_sigma_rad",
         )
-        for name in sigmas:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ConfigError(f"{name} must be finite and >= 0, got {value!r}")
+        require_finite(self, sigmas, positive=False)
         if not (self.corner_range_sigma_m > 0 and self.corner_bearing_sigma_rad > 0):
             # They keep every innovation covariance S positive definite.
             raise ConfigError("corner_range_sigma_m and corner_bearing_sigma_rad must be > 0")
@@ -218,8 +216,7 @@ class EkfParams:
             raise ConfigError(f"backward_sigma_scale must be >= 1, got {self.backward_sigma_scale!r}")
         if not 0 < self.gate_assoc_chi2 <= self.gate_new_chi2:
             raise ConfigError("need 0 < gate_assoc_chi2 <= gate_new_chi2")
-        if not (np.isfinite(self.gate_wall_chi2) and self.gate_wall_chi2 > 0):
-            raise ConfigError(f"gate_wall_chi2 must be finite and > 0, got {self.gate_wall_chi2!r}")
+        require_finite(self, ("gate_wall_chi2",), positive=True)
         for name in ("min_sightings_to_confirm", "tentative_max_age_updates", "jcbb_max_nodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")

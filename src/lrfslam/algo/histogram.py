@@ -33,7 +33,12 @@ from functools import lru_cache
 
 import numpy as np
 
-from lrfslam.algo.mixed_pixels import along_beam, beam_tables, depth_outliers, line_vouched
+from lrfslam.algo.mixed_pixels import (
+    along_beam,
+    beam_tables,
+    depth_outliers,
+    line_vouched,
+)
 from lrfslam.errors import ConfigError
 
 _BIN_MODES = ("fixed", "sliding")

@@ -97,6 +97,7 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial import cKDTree
 
+from lrfslam.algo.checks import require_finite
 from lrfslam.algo.geometry import compose, relative, wrap_angle
 from lrfslam.errors import ConfigError, InputError
 
@@ -214,24 +215,17 @@ class ScanMatchParams:
     map_cell_m: float = 0.05
     max_keyframes: int = 20_000
     drift_trans_sigma_per_m: float = 0.0
-    # Intel: lets the walls' direction correct the heading (gated 1320 times instead of 1735), docs/slam.md.
     drift_rot_sigma_per_m: float = 0.0
 
     def __post_init__(self) -> None:
         positive = ("max_point_range_m", "normal_radius_m", "wide_gate_m", "narrow_gate_m", "robust_scale_m",
                     "max_correction_trans_m", "max_correction_rot_rad", "min_residual_sigma_m", "cov_scale",
                     "max_normal_angle_rad", "map_cell_m")
-        for name in positive:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"scan matching {name} must be finite and > 0, got {value!r}")
+        require_finite(self, positive, positive=True, what="scan matching ")
         non_negative = ("normal_max_thickness", "converged_trans_m", "converged_rot_rad", "min_inlier_ratio",
                         "min_information_ratio", "keyframe_trans_m", "keyframe_rot_rad", "map_radius_m",
                         "drift_trans_sigma_per_m", "drift_rot_sigma_per_m")
-        for name in non_negative:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ConfigError(f"scan matching {name} must be finite and >= 0, got {value!r}")
+        require_finite(self, non_negative, positive=False, what="scan matching ")
         if not 3 <= self.normal_min_neighbours <= self.normal_neighbours:
             raise ConfigError("need 3 <= normal_min_neighbours <= normal_neighbours")
         if self.max_iterations < 1 or self.min_points < 3:

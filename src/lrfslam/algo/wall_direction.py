@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lrfslam.algo.checks import require_finite
 from lrfslam.errors import ConfigError, InputError
 
 QUARTER_TURN_RAD = 0.5 * np.pi
@@ -98,10 +99,7 @@ class WallDirectionParams:
     def __post_init__(self) -> None:
         positive = ("max_gap_m", "split_tol_m", "min_length_m", "point_sigma_floor_m", "align_tol_rad",
                     "min_support_length_m", "sigma_scale")
-        for name in positive:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"{name} must be finite and > 0, got {value!r}")
+        require_finite(self, positive, positive=True)
         if not self.align_tol_rad < 0.25 * np.pi:
             raise ConfigError(f"align_tol_rad must be < pi/4, got {self.align_tol_rad!r}")
         if not 0 < self.min_support_frac <= 1:

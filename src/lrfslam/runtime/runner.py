@@ -27,12 +27,16 @@ from lrfslam.errors import ConfigError, InputError, LrfSlamError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
-
-
 from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
 from lrfslam.runtime.decoding import LogOnce, decode_message
 from lrfslam.runtime.recording import ReadReport, RecordingWriter, read_recording
-from lrfslam.runtime.service import Message, RunContext, ServiceSpec, Source, run_offline
+from lrfslam.runtime.service import (
+    Message,
+    RunContext,
+    ServiceSpec,
+    Source,
+    run_offline,
+)
 
 log = logging.getLogger("lrfslam")
 

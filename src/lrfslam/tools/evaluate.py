@@ -19,7 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from lrfslam.errors import DecodeError, LrfSlamError
-from lrfslam.evaluation.relations import DEFAULT_MAX_STAMP_GAP_S, RelationStats, load_relations, relation_errors
+from lrfslam.evaluation.relations import (
+    DEFAULT_MAX_STAMP_GAP_S,
+    RelationStats,
+    load_relations,
+    relation_errors,
+)
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
 from lrfslam.runtime.recording import read_recording

@@ -37,7 +37,12 @@ from lrfslam.errors import ConfigError, InputError, LrfSlamError
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
 from lrfslam.runtime.decoding import LogOnce, decode_message
-from lrfslam.runtime.recording import ReadReport, RecordedMessage, RecordingWriter, read_recording
+from lrfslam.runtime.recording import (
+    ReadReport,
+    RecordedMessage,
+    RecordingWriter,
+    read_recording,
+)
 from lrfslam.runtime.runner import service_config, setup_logging, step_close
 from lrfslam.runtime.service import Message, RunContext, ServiceSpec, run_offline
 
