@@ -556,7 +556,6 @@ class ScanTracker:
         self._reference: ReferenceScan | None = None
         # (reference key, match covariance handed out so far, tracker's frame); see _fresh_cov.
         self._budget: tuple[tuple[int, ...], np.ndarray] | None = None
-        self._chosen: frozenset[int] = frozenset()  # keyframe ids (index + _dropped) in the reference
         # Covariance of ``pose`` as the sum of the increments handed out (tracker's frame):
         # what the caller's filter has been told, so the uncertainty a loop closure resolves.
         self.chain_cov = np.zeros((3, 3))
@@ -586,11 +585,12 @@ class ScanTracker:
         guess = compose(self.pose, u0)
         # The odometry covariance rotated from the previous robot frame into the tracker's frame.
         rot = _rotation3(self.pose[2])
-        before = self._chosen
+        before = frozenset(self._active)
         result = match(self._local_map(guess), pts, guess, self.params, rot @ q0 @ rot.T)
+        increment = relative(self.pose, result.pose) if result.ok else u0.copy()
+        g = _pose_jacobian(self.pose, increment)
+        chain = g @ self.chain_cov @ g.T
         if result.ok:
-            increment = relative(self.pose, result.pose)
-            chain = _pose_jacobian(self.pose, increment) @ self.chain_cov @ _pose_jacobian(self.pose, increment).T
             cov = self._fresh_cov(result)
             # Drift the fit cannot see (a corridor's along-track guess, real walls
             # that are not lines), as a random walk per metre travelled.
@@ -607,10 +607,9 @@ class ScanTracker:
                 self.chain_cov = chain + cov
             cov = rot.T @ cov @ rot
         else:
-            increment, cov = u0.copy(), q0.copy()
+            cov = q0.copy()
             self._budget = None
-            g = _pose_jacobian(self.pose, increment)
-            self.chain_cov = g @ self.chain_cov @ g.T + rot @ cov @ rot.T
+            self.chain_cov = chain + rot @ cov @ rot.T
         self.pose = compose(self.pose, increment)
         moved = relative(self.keyframes[-1].pose, self.pose)
         # After a failure the recent keyframes no longer fit this pose: start afresh from this scan.
@@ -650,7 +649,7 @@ class ScanTracker:
         those, the surest (smallest trace) anchors the match.
         """
         recent = len(self.keyframes) - self.params.recent_keyframes + self._dropped
-        entered = [i for i in self._chosen - before if i < recent]
+        entered = [i for i in frozenset(self._active) - before if i < recent]
         if not entered:
             return None
         kf = min((self.keyframes[i - self._dropped] for i in entered), key=lambda k: float(np.trace(k.cov)))
@@ -683,7 +682,6 @@ class ScanTracker:
             # Stable sort: equal distances keep keyframe order, so the choice is deterministic.
             chosen |= set(near[np.argsort(dist[near], kind="stable")][: p.map_max_keyframes].tolist())
         key = tuple(sorted(i + self._dropped for i in chosen))
-        self._chosen = frozenset(key)
         if key != self._active or self._reference is None:
             self._active = key
             # Normals from the merged points (see ReferenceScan.build): a consistency
