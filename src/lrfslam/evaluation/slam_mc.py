@@ -52,7 +52,7 @@ from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus, UpdateReport
 from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime import config as config_mod
+from lrfslam.runtime.runner import service_config
 from lrfslam.runtime.service import Message, Output, RunContext
 from lrfslam.sim import OdometryNoise, SimConfig, SimFrame, Simulator
 
@@ -133,11 +133,9 @@ class McConfig:
         )
 
     def stage_config(self, name: str):
-        """The ``name`` service's config: its defaults (or mode preset) with this experiment's ``stage_sets``."""
-        spec = services.spec(name)
+        """The ``name`` service's config as the runner layers it: ``stage_sets``, no file, no environment."""
         sets = [item.partition(".")[2] for item in self.stage_sets if item.partition(".")[0] == name]
-        base = spec.preset(config_mod.peek(spec.config_type, "mode", sets=sets)) if spec.preset else None
-        return config_mod.load(spec.config_type, sets=sets, base=base)
+        return service_config(services.spec(name), argparse.Namespace(sets=sets), {}, {})
 
 
 @dataclass(frozen=True, eq=False)
