@@ -111,7 +111,8 @@ class McConfig:
         """Filter parameters.
 
         "truth": the measurement noise is the one added (corners and, if any, the
-        wall direction), and tiny odometry floors keep P invertible. "extractor": the slam service's defaults. In both the
+        wall direction), and tiny odometry floors keep P invertible. "extractor":
+        the slam service's config (its defaults with ``stage_sets``). In both the
         odometry model is set to the simulated one (the service's defaults already
         are at the simulator's default noise) and the association as configured.
         """
