@@ -1,8 +1,10 @@
 """``lrfslam eval``: accuracy evaluations of recordings.
 
-    lrfslam eval relations FILE.mcap RELATIONS [--max-gap-s S]
+    lrfslam eval relations FILE.mcap RELATIONS [--max-gap-s S] [--scan-matching [--set NAME=VALUE ...]]
         Kümmerle et al. (2009) relation metric of the SLAM estimate (``slam/state``)
-        and of the raw odometry (``odom``) of a recording, as a table.
+        and of the raw odometry (``odom``) of a recording, as a table; with
+        ``--scan-matching`` also of the slam service's scan matching alone, run on
+        the recording's ``scan`` and ``odom`` (NAME: a ``ScanMatchParams`` field).
     lrfslam eval features ...    corner-feature accuracy (lrfslam.evaluation.features)
     lrfslam eval slam ...        SLAM Monte-Carlo evaluation (lrfslam.evaluation.slam_mc)
 """
@@ -18,7 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.errors import DecodeError, LrfSlamError
+from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
 from lrfslam.evaluation.relations import (
     DEFAULT_MAX_STAMP_GAP_S,
     RelationStats,
@@ -27,6 +31,7 @@ from lrfslam.evaluation.relations import (
 )
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
+from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.recording import read_recording
 
 #: Subcommands implemented elsewhere: name -> module whose ``main(argv)`` runs it.
@@ -136,9 +141,21 @@ def main(argv: list[str] | None = None) -> int:
     rel.add_argument("relations", metavar="RELATIONS", help="ground-truth relations file (t1 t2 x y z roll pitch yaw)")
     rel.add_argument("--max-gap-s", type=float, default=DEFAULT_MAX_STAMP_GAP_S, dest="max_gap_s",
                      help=f"stamp-matching tolerance in s (default {DEFAULT_MAX_STAMP_GAP_S})")
+    rel.add_argument("--scan-matching", action="store_true",
+                     help="also score scan matching alone (the slam service's tracker, no filter)")
+    rel.add_argument("--set", dest="sets", action="append", default=[], metavar="NAME=VALUE",
+                     help="with --scan-matching: a scan-matching setting, e.g. max_point_range_m=4")
     args = parser.parse_args(argv)
     try:
         results, undecodable = evaluate_relations(args.recording, args.relations, args.max_gap_s)
+        if args.scan_matching:
+            params = config_mod.load(ScanMatchParams, sets=args.sets)
+            stamps_ns, poses, bad = scan_matched_trajectory(args.recording, params)
+            with open_log(args.relations) as f:
+                relations = load_relations(f)
+            results["scan matching"] = relation_errors(
+                np.array([stamp_s(s) for s in stamps_ns]), poses, relations, args.max_gap_s)
+            undecodable += bad
     except (LrfSlamError, OSError) as exc:
         print(f"lrfslam eval relations: {exc}", file=sys.stderr)
         return 2
