@@ -76,7 +76,9 @@ def read_trajectories(path: str | Path, wanted: Mapping[str, topics.Topic] = TRA
 
 
 def evaluate_relations(path: str | Path, relations_path: str | Path,
-                       max_gap_s: float = DEFAULT_MAX_STAMP_GAP_S) -> tuple[dict[str, RelationStats], int]:
+                       max_gap_s: float = DEFAULT_MAX_STAMP_GAP_S,
+                       extra: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None
+                       ) -> tuple[dict[str, RelationStats], int]:
     """Relation metric of each trajectory of the recording ``path`` present in it.
 
     Parameters
@@ -87,6 +89,8 @@ def evaluate_relations(path: str | Path, relations_path: str | Path,
         Freiburg relations file (plain, .bz2 or .gz).
     max_gap_s : float
         Stamp-matching tolerance (s).
+    extra : mapping, optional
+        More trajectories to score, label -> (stamps s (T,), poses (T, 3)), e.g. scan matching alone.
 
     Returns
     -------
@@ -96,6 +100,7 @@ def evaluate_relations(path: str | Path, relations_path: str | Path,
     with open_log(relations_path) as f:
         relations = load_relations(f)
     trajectories, undecodable = read_trajectories(path)
+    trajectories.update(extra or {})
     return ({label: relation_errors(stamps, poses, relations, max_gap_s)
              for label, (stamps, poses) in trajectories.items() if stamps.size},
             undecodable)
@@ -147,15 +152,13 @@ def main(argv: list[str] | None = None) -> int:
                      help="with --scan-matching: a scan-matching setting, e.g. max_point_range_m=4")
     args = parser.parse_args(argv)
     try:
-        results, undecodable = evaluate_relations(args.recording, args.relations, args.max_gap_s)
+        extra, bad = {}, 0
         if args.scan_matching:
-            params = config_mod.load(ScanMatchParams, sets=args.sets)
-            stamps_ns, poses, bad = scan_matched_trajectory(args.recording, params)
-            with open_log(args.relations) as f:
-                relations = load_relations(f)
-            results["scan matching"] = relation_errors(
-                np.array([stamp_s(s) for s in stamps_ns]), poses, relations, args.max_gap_s)
-            undecodable += bad
+            stamps_ns, poses, bad = scan_matched_trajectory(args.recording,
+                                                            config_mod.load(ScanMatchParams, sets=args.sets))
+            extra["scan matching"] = (np.array([stamp_s(s) for s in stamps_ns]), poses)
+        results, undecodable = evaluate_relations(args.recording, args.relations, args.max_gap_s, extra)
+        undecodable += bad
     except (LrfSlamError, OSError) as exc:
         print(f"lrfslam eval relations: {exc}", file=sys.stderr)
         return 2
