@@ -263,20 +263,17 @@ def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, 
         The column, -1 where none in range.
     """
     zc = z[col][:, None]
-    d2 = d_m * d_m
     # The window may run past the stretch (a hit there is rejected) and past the
     # points (z is padded with NaN, which is never far).
     cand = start[:, None] + np.arange(width)
-    diff = z[cand] - zc
-    far = diff.real * diff.real + diff.imag * diff.imag >= d2
+    far = np.abs(z[cand] - zc) >= d_m
     hit = start + far.argmax(axis=1)
     out = np.where(_ANY(far, axis=1) & (hit <= stop), hit, -1)
     rest = ((out < 0) & (start + width <= stop)).nonzero()[0]
     if len(rest):
         s, e = start[rest] + width, stop[rest]
         cand = np.minimum(s[:, None] + np.arange(int((e - s).max()) + 1), e[:, None])
-        diff = z[cand] - zc[rest]
-        far = diff.real * diff.real + diff.imag * diff.imag >= d2
+        far = np.abs(z[cand] - zc[rest]) >= d_m
         out[rest] = np.where(_ANY(far, axis=1), np.minimum(s + far.argmax(axis=1), e), -1)
     return out
 
@@ -369,12 +366,12 @@ def _pick_tables(dists_m: tuple[float, ...], slack_m: float) -> tuple[np.ndarray
     """Per-parameter constants of the pick search, read-only.
 
     Returns ``d - slack_m`` (A,), the arc-length offsets of the lower bounds, and
-    ``d²`` (A, 1), the squared distances, shaped against (..., A, window).
+    ``d`` (A, 1), the distances, shaped against (..., A, window).
     """
-    offsets, d2 = np.array([d - slack_m for d in dists_m]), np.array([[d * d] for d in dists_m])
+    offsets, d_col = np.array([d - slack_m for d in dists_m]), np.array([[d] for d in dists_m])
     offsets.setflags(write=False)
-    d2.setflags(write=False)
-    return offsets, d2
+    d_col.setflags(write=False)
+    return offsets, d_col
 
 
 def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerParams) -> np.ndarray:
@@ -397,7 +394,7 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     m = len(arc) // 2
     dists = params.arm_dists_m
     euclid = params.arm_metric == "euclidean"
-    offsets, d2 = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0)
+    offsets, d_col = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0)
     # Arc length is never shorter than the distance from the base: a stretch too
     # short in arc length on either side has no farthest pick (step 1).
     fits = arc[end] >= arc + offsets[-1]
@@ -415,25 +412,26 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
         # passes: stage 2 decides it. A hit past the stretch's end is no pick, but
         # then there is no farthest pick either and stage 2 drops the base.
         lb0 = arc.searchsorted(arc[col] + offsets[0])
-        diff = zz[lb0[..., None] + _NEAR_WINDOW] - zb[:, None]
-        # np.square(x) is x * x, and faster on the strided real and imaginary parts.
-        past = np.square(diff.real) + np.square(diff.imag) >= d2[0, 0]
+        past = np.abs(zz[lb0[..., None] + _NEAR_WINDOW] - zb[:, None]) >= dists[0]
         chord = zz[np.where(_any_last(past), lb0 + past.argmax(axis=2), col)] - zb
         i = _square(chord, tan_tol).nonzero()[0]
         col, zb = col[:, i], zb[i]
     # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
     # (the farthest lags its bound most: arc length gathers the most noise there).
     lb = arc.searchsorted(arc[col][..., None] + offsets)  # (2, B, A)
-    diff = zz[lb[..., None] + _FAR_WINDOW] - zb[:, None, None]
-    past = np.square(diff.real) + np.square(diff.imag) >= d2
+    past = np.abs(zz[lb[..., None] + _FAR_WINDOW] - zb[:, None, None]) >= d_col
     pick = lb + past.argmax(axis=3)
     got = _any_last(past)
+    stop = end[col]
+    far = pick[..., -1]
+    # Nearly always every pick lies in its window and the farthest in the stretch.
+    got[..., -1] &= far <= stop
+    if _ALL(got, axis=None):
+        return np.concatenate((col[..., None], pick), axis=2)
     # The farthest pick must lie in the stretch; where its window found nothing and
     # ended inside the stretch, the rest of the stretch is searched.
-    stop = end[col]
-    far, far_lb = pick[..., -1], lb[..., -1]
+    far_lb = lb[..., -1]
     j = ((far_lb + _FAR <= stop) > got[..., -1]).nonzero()
-    got[..., -1] &= far <= stop
     if len(j[0]):
         far[j] = _reach(zz, col[j], far_lb[j] + _FAR, stop[j], dists[-1], _FAR)
         got[..., -1][j] = far[j] >= 0
@@ -528,16 +526,16 @@ def _refine(z: np.ndarray, lo: int, hi: int, j: int, params: CornerParams):
     # them afterwards loses no precision.
     zj = complex(z[j])
     e = z[lo:hi + 1] - zj
-    d2 = np.square(e.real) + np.square(e.imag)
+    dist = np.abs(e)
     k = j - lo
     # The walls end before the last point beyond refine_rmax_m below the base and the
     # first one above it.
-    beyond = (d2 > params.refine_rmax_m**2).nonzero()[0]
+    beyond = (dist > params.refine_rmax_m).nonzero()[0]
     t = int(beyond.searchsorted(k))
     start = int(beyond[t - 1]) + 1 if t else 0
     end = int(beyond[t]) if t < len(beyond) else len(e)
     # Wall members as positions from start, in order: [0, a) below the base, [b, L) above.
-    near = (d2[start:end] >= params.refine_rmin_m**2).nonzero()[0]
+    near = (dist[start:end] >= params.refine_rmin_m).nonzero()[0]
     k -= start
     a = int(near.searchsorted(k))
     b = a + 1 if a < len(near) and near[a] == k else a
@@ -547,7 +545,7 @@ def _refine(z: np.ndarray, lo: int, hi: int, j: int, params: CornerParams):
     # The moment sums of both walls in one call: Σw, Σw² and Σ|w|² laid end to end,
     # summed between the wall bounds (the base's own slot, [a, b), is left out).
     w = e[start:end][near]
-    moments = np.concatenate((w, w * w, d2[start:end][near]))
+    moments = np.concatenate((w, w * w, np.square(dist[start:end][near])))
     sums = np.add.reduceat(moments, (0, a, b, size, size + a, size + b, 2 * size, 2 * size + a, 2 * size + b))
     s = sums.tolist()
     walls = []
@@ -670,7 +668,7 @@ def _backward(ranges_m: np.ndarray, valid: np.ndarray, use: np.ndarray, z_all: n
     # Where a feature can be: a jump between finite points (NaN gaps compare False)
     # or a finite point next to a no-return. A scan has a few (2.3 on average in the
     # simulation), so the rules are applied to them one by one.
-    events = ((np.square(d.real) + np.square(d.imag) > params.jump_m**2) | (fin[:-1] != fin[1:])).nonzero()[0]
+    events = ((np.abs(d) > params.jump_m) | (fin[:-1] != fin[1:])).nonzero()[0]
     margin = params.max_range_m - params.jump_m if params.inf_edge_rule == "margin" else math.inf
     max_removed = params.edge_max_removed
     out: list[int] = []
@@ -741,13 +739,12 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
     z_all = np.where(valid, r, np.nan) * beams.expi
     idx = use.nonzero()[0]
     z = z_all[idx]
-    dz = z[1:] - z[:-1]
-    s2 = np.square(dz.real) + np.square(dz.imag)
+    step = np.abs(z[1:] - z[:-1])
     # Stretches of kept points: a new one starts after a no-return beam (the running
     # count of no-returns changes) or a gap wider than arm_break_gap_m.
     n_invalid = (~valid).cumsum()[idx]
-    brk = (n_invalid[1:] != n_invalid[:-1]) | (s2 > params.arm_break_gap_m**2)
-    feats = [(int(idx[j]), FORWARD, *rest) for j, *rest in _forward(z, np.sqrt(s2), brk, params)]
+    brk = (n_invalid[1:] != n_invalid[:-1]) | (step > params.arm_break_gap_m)
+    feats = [(int(idx[j]), FORWARD, *rest) for j, *rest in _forward(z, step, brk, params)]
     edges = _backward(r, valid, use, z_all, params)
     if params.nms_radius_m > 0 and feats and edges:
         # A convex corner with one wall occluded fires both searches; the forward

@@ -29,7 +29,7 @@ points are handled as complex numbers ``x + iy`` and the fixed-bin path avoids s
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -172,8 +172,9 @@ class DenoiseResult:
         Sensor-frame points in metres; NaN where not ``valid``.
     mixed : ndarray of bool, shape (N,)
         Valid points removed by the mixed-pixel tests before the histogram.
-    hist_counts : ndarray of int, shape (n_bins,)
-        Number of valid segments per fixed direction bin.
+    segment_dirs_deg : ndarray, shape (n_segments,)
+        Directions of the valid segments in degrees, in ``[0, period_deg)``: the
+        histogram's data.
     hist_edges_deg : ndarray, shape (n_bins + 1,)
         Bin edges in degrees, starting at ``-bin_deg / 2``.
     n_segments : int
@@ -184,9 +185,19 @@ class DenoiseResult:
     valid: np.ndarray
     points_xy: np.ndarray
     mixed: np.ndarray
-    hist_counts: np.ndarray
+    segment_dirs_deg: np.ndarray
     hist_edges_deg: np.ndarray
     n_segments: int
+
+    @cached_property
+    def hist_counts(self) -> np.ndarray:
+        """Number of valid segments per fixed direction bin, shape (n_bins,) int.
+
+        Computed on first use: the sliding window does not need it, and nothing on the
+        per-scan path reads it.
+        """
+        return _bin_counts(self.segment_dirs_deg, self.hist_edges_deg[1] - self.hist_edges_deg[0],
+                           len(self.hist_edges_deg) - 1)
 
 
 def valid_returns(ranges_m: np.ndarray, max_range_m: float) -> np.ndarray:
@@ -210,6 +221,16 @@ def _period_shifts(period_deg: float) -> np.ndarray:
     shifts = np.array(((-period_deg,), (0.0,), (period_deg,)))
     shifts.setflags(write=False)
     return shifts
+
+
+def _bin_counts(dirs_deg: np.ndarray, bin_deg: float, n_bins: int) -> np.ndarray:
+    """Histogram of directions ``dirs_deg`` (degrees, >= 0) in the fixed bins, shape (n_bins,) int.
+
+    Bins start at -w/2 so an axis-aligned wall falls mid-bin; the modulo folds the last
+    half bin (e.g. -0.0° folded to 89.99°) back onto bin 0. The directions are >= 0,
+    so the integer conversion (truncation) is the floor.
+    """
+    return np.bincount(((dirs_deg + 0.5 * bin_deg) / bin_deg).astype(np.intp) % n_bins, minlength=n_bins)
 
 
 def _sliding_support(angle_deg: np.ndarray, members: np.ndarray, params: DenoiseParams) -> np.ndarray:
@@ -268,31 +289,26 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
     s = params.stride
     kept = np.zeros(n, dtype=bool)
     if len(idx) <= s:
-        return DenoiseResult(kept, valid, xy, mixed, np.zeros(n_bins, np.intp), edges, 0)
+        return DenoiseResult(kept, valid, xy, mixed, np.empty(0), edges, 0)
 
     z = z_all[idx]
     step = z[1:] - z[:-1]
     # Successive valid points are finite, so "no jump" is the negated comparison.
-    seg_len2 = step.real * step.real + step.imag * step.imag
+    seg_len = np.abs(step)
     if s == 1:
-        seg_ok, d = seg_len2 <= params.jump_m**2, step
+        seg_ok, d = seg_len <= params.jump_m, step
     else:
         # A strided segment is a jump if any of the consecutive steps it spans is one.
-        n_jumps = np.concatenate(([0], (seg_len2 > params.jump_m**2).cumsum()))
+        n_jumps = np.concatenate(([0], (seg_len > params.jump_m).cumsum()))
         seg_ok, d = n_jumps[s:] == n_jumps[:-s], z[s:] - z[:-s]
     ang = np.degrees(np.arctan2(d.imag, d.real)) % params.period_deg
     n_seg = int(np.count_nonzero(seg_ok))
     members = ang[seg_ok]
-    # Bins start at -w/2 so an axis-aligned wall falls mid-bin; the modulo folds the
-    # last half bin (e.g. -0.0° folded to 89.99°) back onto bin 0. ang >= 0, so the
-    # integer conversion (truncation) is the floor.
     if params.bin_mode == "fixed":
+        # As in _bin_counts, for every segment: jumps get a bin too, ignored below.
         bins = ((ang + 0.5 * w) / w).astype(np.intp) % n_bins
-        counts = np.bincount(bins[seg_ok], minlength=n_bins)
-        support = counts[bins]
+        support = np.bincount(bins[seg_ok], minlength=n_bins)[bins]
     else:
-        # Only the members are binned: the histogram is reported, not used.
-        counts = np.bincount(((members + 0.5 * w) / w).astype(np.intp) % n_bins, minlength=n_bins)
         # Supports of jump segments are computed too (fewer calls than masking them
         # out) and ignored below.
         support = _sliding_support(ang, members, params)
@@ -312,4 +328,4 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
         # Missing neighbours (run ends, jumps) do not veto; at least one must pass.
         keep_c = ((after_pass | ~after_ok) & (before_pass | ~before_ok)) & (after_ok | before_ok)
     kept[idx[keep_c]] = True
-    return DenoiseResult(kept, valid, xy, mixed, counts, edges, n_seg)
+    return DenoiseResult(kept, valid, xy, mixed, members, edges, n_seg)
