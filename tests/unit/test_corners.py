@@ -222,8 +222,6 @@ def test_arm_picks_match_a_point_by_point_walk(metric, near, far, monkeypatch):
     # slow paths, wide ones through none.
     monkeypatch.setattr(C, "_NEAR", near)
     monkeypatch.setattr(C, "_FAR", far)
-    monkeypatch.setattr(C, "_NEAR_WINDOW", np.arange(near))
-    monkeypatch.setattr(C, "_FAR_WINDOW", np.arange(far))
     monkeypatch.setattr(C, "_NAN_TAIL", np.full(max(near, far), np.nan + 0j))
     rng = np.random.default_rng(11)
     # No straightness check: no screen, so every base with both arms is returned.

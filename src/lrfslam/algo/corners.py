@@ -88,8 +88,6 @@ _ALL = np.logical_and.reduce
 _SUM = np.add.reduce
 _ZERO_F = np.zeros(1)
 _NAN_TAIL = np.full(_FAR, np.nan + 0j)
-_NEAR_WINDOW = np.arange(_NEAR)
-_FAR_WINDOW = np.arange(_FAR)
 _TRUE = np.ones(1, dtype=bool)
 # Base column j on both sides: -j + (2M - 1) (the lower side, in the reversed half) and j.
 _SIDES = np.array([[-1], [1]])
@@ -306,6 +304,17 @@ def _any_last(b: np.ndarray) -> np.ndarray:
     return _ANY(b, axis=-1)
 
 
+def _windows(zz: np.ndarray, width: int) -> np.ndarray:
+    """Every run of ``width`` successive elements of ``zz``, shape (len - width + 1, width).
+
+    A strided view, no copy: indexing its rows gathers whole windows in one call,
+    where adding a window of offsets to each start would cost a broadcast first.
+    ``zz`` must be contiguous; the view is only read.
+    """
+    step = zz.itemsize
+    return np.ndarray((len(zz) - width + 1, width), zz.dtype, zz, 0, (step, step))
+
+
 def _doubled(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray):
     """The kept points followed by their reverse, for searching both sides at once.
 
@@ -412,14 +421,14 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
         # passes: stage 2 decides it. A hit past the stretch's end is no pick, but
         # then there is no farthest pick either and stage 2 drops the base.
         lb0 = arc.searchsorted(arc[col] + offsets[0])
-        past = np.abs(zz[lb0[..., None] + _NEAR_WINDOW] - zb[:, None]) >= dists[0]
+        past = np.abs(_windows(zz, _NEAR)[lb0] - zb[:, None]) >= dists[0]
         chord = zz[np.where(_any_last(past), lb0 + past.argmax(axis=2), col)] - zb
         i = _square(chord, tan_tol).nonzero()[0]
         col, zb = col[:, i], zb[i]
     # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
     # (the farthest lags its bound most: arc length gathers the most noise there).
     lb = arc.searchsorted(arc[col][..., None] + offsets)  # (2, B, A)
-    past = np.abs(zz[lb[..., None] + _FAR_WINDOW] - zb[:, None, None]) >= d_col
+    past = np.abs(_windows(zz, _FAR)[lb] - zb[:, None, None]) >= d_col
     pick = lb + past.argmax(axis=3)
     got = _any_last(past)
     stop = end[col]
