@@ -749,9 +749,9 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
     idx = use.nonzero()[0]
     z = z_all[idx]
     step = np.abs(z[1:] - z[:-1])
-    # Stretches of kept points: a new one starts after a no-return beam (the running
-    # count of no-returns changes) or a gap wider than arm_break_gap_m.
-    n_invalid = (~valid).cumsum()[idx]
+    # Stretches of kept points: a new one starts after a no-return beam (the count of
+    # no-returns before the point changes) or a gap wider than arm_break_gap_m.
+    n_invalid = (~valid).nonzero()[0].searchsorted(idx)
     brk = (n_invalid[1:] != n_invalid[:-1]) | (step > params.arm_break_gap_m)
     feats = [(int(idx[j]), FORWARD, *rest) for j, *rest in _forward(z, step, brk, params)]
     edges = _backward(r, valid, use, z_all, params)
