@@ -302,8 +302,8 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
         n_jumps = np.concatenate(([0], (seg_len > params.jump_m).cumsum()))
         seg_ok, d = n_jumps[s:] == n_jumps[:-s], z[s:] - z[:-s]
     ang = np.degrees(np.arctan2(d.imag, d.real)) % params.period_deg
-    n_seg = int(np.count_nonzero(seg_ok))
     members = ang[seg_ok]
+    n_seg = len(members)
     if params.bin_mode == "fixed":
         # As in _bin_counts, for every segment: jumps get a bin too, ignored below.
         bins = ((ang + 0.5 * w) / w).astype(np.intp) % n_bins
