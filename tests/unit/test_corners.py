@@ -222,7 +222,7 @@ def test_arm_picks_match_a_point_by_point_walk(metric, near, far, monkeypatch):
     # slow paths, wide ones through none.
     monkeypatch.setattr(C, "_NEAR", near)
     monkeypatch.setattr(C, "_FAR", far)
-    monkeypatch.setattr(C, "_NAN_TAIL", np.full(max(near, far), np.nan + 0j))
+    monkeypatch.setattr(C, "_TAIL", np.full(max(near, far) + 1, complex(C._FAR_AWAY, 0.0)))
     rng = np.random.default_rng(11)
     # No straightness check: no screen, so every base with both arms is returned.
     params = dataclasses.replace(DEFAULT, arm_metric=metric, arm_max_resid_m=None)

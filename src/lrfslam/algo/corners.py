@@ -75,7 +75,7 @@ _INF_EDGE_RULES = ("margin", "any")
 # before searching the rest. Speed only: the screen's nearest pick lies within _NEAR
 # of its bound for 95 % of base points (a miss passes the screen), every pick within
 # _FAR for 85-95 % (the rest are searched for); wider windows cost more per element
-# than they save. At 8 and 16 "a hit in the window" is read off the bytes (_any_last).
+# than they save.
 _NEAR = 8
 _FAR = 16
 # Arc-length lower bounds are taken this much short of the distance, so rounding in
@@ -88,12 +88,14 @@ _ANY = np.logical_or.reduce
 _ALL = np.logical_and.reduce
 _SUM = np.add.reduce
 _ZERO_F = np.zeros(1)
-_NAN_TAIL = np.full(_FAR, np.nan + 0j)
+# Padding after the doubled scan, for search windows that run off its end: points
+# so far away that every distance to them passes, yet finite, so chords to them
+# multiply without overflow or NaN. A pick there lies past every stretch's end.
+_FAR_AWAY = 1e150
+_TAIL = np.full(_FAR + 1, complex(_FAR_AWAY, 0.0))
 _TRUE = np.ones(1, dtype=bool)
 # Base column j on both sides: -j + (2M - 1) (the lower side, in the reversed half) and j.
 _SIDES = np.array([[-1], [1]])
-# Unsigned integers as wide as 1, 2, 4 and 8 bools.
-_WORDS = {1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}
 
 
 @dataclass(frozen=True)
@@ -250,7 +252,7 @@ def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, 
     Parameters
     ----------
     z : ndarray of complex, shape (K + width - 1,)
-        Points, metres, followed by at least ``width - 1`` NaN.
+        Points, metres, followed by at least ``width - 1`` of ``_TAIL``.
     col, start, stop : ndarray of int, shape (P,)
         Base column and inclusive search range of each pair; ``start <= stop < K``.
     d_m : float
@@ -262,8 +264,8 @@ def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, 
         The column, -1 where none in range.
     """
     zc = z[col][:, None]
-    # The window may run past the stretch (a hit there is rejected) and past the
-    # points (z is padded with NaN, which is never far).
+    # The window may run past the stretch and past the points (into the tail, which
+    # is always far): a hit there is past stop and rejected.
     cand = start[:, None] + np.arange(width)
     far = np.abs(z[cand] - zc) >= d_m
     hit = start + far.argmax(axis=1)
@@ -287,23 +289,6 @@ def _square(c: np.ndarray, tan_tol: float) -> np.ndarray:
     # >= 90° - tol  <=>  |dot| <= |cross| tan(tol).
     p = c[0] * c[1].conjugate()
     return np.abs(p.real) <= np.abs(p.imag) * tan_tol
-
-
-def _any_last(b: np.ndarray) -> np.ndarray:
-    """``b.any(axis=-1)`` of a bool array whose last axis is contiguous.
-
-    A bool is a byte 0 or 1, so a window of up to 8 is one unsigned integer that is
-    nonzero exactly when a bool in it is True: one comparison, where a reduction over
-    a short axis costs several times more. Other widths take the reduction.
-    """
-    width = b.shape[-1]
-    if width in _WORDS:
-        return b.view(_WORDS[width])[..., 0] != 0
-    if width == 16:
-        # Two words, each reduced to a bool, then those two bytes as one word: every
-        # operand contiguous, where OR-ing the words would take strided views.
-        return (b.view(np.uint64) != 0).view(np.uint16)[..., 0] != 0
-    return _ANY(b, axis=-1)
 
 
 def _windows(zz: np.ndarray, width: int) -> np.ndarray:
@@ -333,15 +318,15 @@ def _doubled(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray):
 
     Returns
     -------
-    zz : ndarray of complex, shape (2M + _FAR,)
-        The points, then in reverse, then NaN (search windows may run off the end).
+    zz : ndarray of complex, shape (2M + _FAR + 1,)
+        The points, then in reverse, then ``_TAIL`` (search windows may run off the end).
     arc : ndarray, shape (2M,)
         Cumulative arc length along ``zz``, metres.
     end : ndarray of int, shape (2M,)
         Column of the last point of each point's stretch; the seam ends one too.
     """
     n2 = 2 * len(z)
-    zz = np.concatenate((z, z[::-1], _NAN_TAIL))
+    zz = np.concatenate((z, z[::-1], _TAIL))
     arc = np.concatenate((_ZERO_F, step_m, _ZERO_F, step_m[::-1])).cumsum()
     brk2 = np.concatenate((brk, _TRUE, brk[::-1], _TRUE))
     # The first stretch end at or after each column: a running minimum, from the
@@ -373,16 +358,21 @@ def _screen_tan_of(rho_m: float, d_m: float, tol_deg: float) -> float | None:
 
 
 @lru_cache(maxsize=16)
-def _pick_tables(dists_m: tuple[float, ...], slack_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _pick_tables(dists_m: tuple[float, ...], slack_m: float, near: int, far: int):
     """Per-parameter constants of the pick search, read-only.
 
-    Returns ``d - slack_m`` (A,), the arc-length offsets of the lower bounds, and
-    ``d`` (A, 1), the distances, shaped against (..., A, window).
+    Returns ``d - slack_m`` (A,), the arc-length offsets of the lower bounds, and the
+    distance thresholds of the two window searches: ``d[0]`` repeated, shape
+    (near + 1,), and each ``d`` repeated, shape (A, far + 1). Each ends in a
+    sentinel, -inf, which every distance passes: the first pass in a window is then
+    at its last column exactly when none of the window's own columns is far enough.
     """
-    offsets, d_col = np.array([d - slack_m for d in dists_m]), np.array([[d] for d in dists_m])
-    offsets.setflags(write=False)
-    d_col.setflags(write=False)
-    return offsets, d_col
+    offsets = np.array([d - slack_m for d in dists_m])
+    first = np.array([dists_m[0]] * near + [-np.inf])
+    every = np.array([[d] * far + [-np.inf] for d in dists_m])
+    for t in (offsets, first, every):
+        t.setflags(write=False)
+    return offsets, first, every
 
 
 def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerParams) -> np.ndarray:
@@ -405,7 +395,7 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     m = len(arc) // 2
     dists = params.arm_dists_m
     euclid = params.arm_metric == "euclidean"
-    offsets, d_col = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0)
+    offsets, first, every = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0, _NEAR, _FAR)
     # Arc length is never shorter than the distance from the base: a stretch too
     # short in arc length on either side has no farthest pick (step 1).
     fits = arc[end] >= arc + offsets[-1]
@@ -418,21 +408,21 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     tan_tol = _screen_tan(params)
     if tan_tol is not None:
         # Stage 1 (the screen): the nearest pick, in a window of _NEAR columns from its
-        # arc-length bound, where it nearly always is (zz's NaN tail lets the window
-        # run off the end). A side without a hit there gets a zero chord, which
-        # passes: stage 2 decides it. A hit past the stretch's end is no pick, but
-        # then there is no farthest pick either and stage 2 drops the base.
+        # arc-length bound, where it nearly always is (zz's tail lets the window run
+        # off the end). A side without a hit there gets a zero chord, which passes:
+        # stage 2 decides it. A hit past the stretch's end is no pick, but then there
+        # is no farthest pick either and stage 2 drops the base.
         lb0 = arc.searchsorted(arc[col] + offsets[0])
-        past = np.abs(_windows(zz, _NEAR)[lb0] - zb[:, None]) >= dists[0]
-        chord = zz[np.where(_any_last(past), lb0 + past.argmax(axis=2), col)] - zb
+        hit = (np.abs(_windows(zz, _NEAR + 1)[lb0] - zb[:, None]) >= first).argmax(axis=2)
+        chord = zz[np.where(hit < _NEAR, lb0 + hit, col)] - zb
         i = _square(chord, tan_tol).nonzero()[0]
         col, zb = col[:, i], zb[i]
     # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
     # (the farthest lags its bound most: arc length gathers the most noise there).
     lb = arc.searchsorted(arc[col][..., None] + offsets)  # (2, B, A)
-    past = np.abs(_windows(zz, _FAR)[lb] - zb[:, None, None]) >= d_col
-    pick = lb + past.argmax(axis=3)
-    got = _any_last(past)
+    hit = (np.abs(_windows(zz, _FAR + 1)[lb] - zb[:, None, None]) >= every).argmax(axis=3)
+    pick = lb + hit
+    got = hit < _FAR
     stop = end[col]
     far = pick[..., -1]
     # Nearly always every pick lies in its window and the farthest in the stretch.
