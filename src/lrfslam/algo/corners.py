@@ -511,7 +511,8 @@ def _refine(z: np.ndarray, lo: int, hi: int, j: int, params: CornerParams):
     Each wall is every kept point from the base outwards, within the base's stretch,
     up to the first point farther than ``refine_rmax_m`` (so a wall is never followed
     round a second corner), less those nearer than ``refine_rmin_m``. There are only a
-    few candidates per scan, so the fit works on Python scalars after the moment sums.
+    few candidates per scan, with a few dozen points per wall: the fit works on Python
+    scalars.
 
     Parameters
     ----------
@@ -534,37 +535,34 @@ def _refine(z: np.ndarray, lo: int, hi: int, j: int, params: CornerParams):
         farther than ``refine_accept_m`` from the candidate.
     """
     # Coordinates relative to the candidate keep the moment sums small, so centring
-    # them afterwards loses no precision.
-    zj = complex(z[j])
-    e = z[lo:hi + 1] - zj
-    dist = np.abs(e)
+    # them afterwards loses no precision. A wall is a few dozen points: a Python loop
+    # over them costs half the numpy calls that would find its ends and sum it.
+    zj = z[j]
+    e = (z[lo:hi + 1] - zj).tolist()
     k = j - lo
-    # The walls end before the last point beyond refine_rmax_m below the base and the
-    # first one above it.
-    beyond = (dist > params.refine_rmax_m).nonzero()[0]
-    t = int(beyond.searchsorted(k))
-    start = int(beyond[t - 1]) + 1 if t else 0
-    end = int(beyond[t]) if t < len(beyond) else len(e)
-    # Wall members as positions from start, in order: [0, a) below the base, [b, L) above.
-    near = (dist[start:end] >= params.refine_rmin_m).nonzero()[0]
-    k -= start
-    a = int(near.searchsorted(k))
-    b = a + 1 if a < len(near) and near[a] == k else a
-    size = len(near)
-    if min(a, size - b) < params.refine_min_points:
-        return None
-    # The moment sums of both walls in one call: Σw, Σw² and Σ|w|² laid end to end,
-    # summed between the wall bounds (the base's own slot, [a, b), is left out).
-    w = e[start:end][near]
-    moments = np.concatenate((w, w * w, np.square(dist[start:end][near])))
-    sums = np.add.reduceat(moments, (0, a, b, size, size + a, size + b, 2 * size, 2 * size + a, 2 * size + b))
-    s = sums.tolist()
+    rmin, rmax = params.refine_rmin_m, params.refine_rmax_m
+    # Per wall (below the base, then above): count, Σw, Σw² and Σ|w|².
+    sums = []
+    for wall in (e[k - 1::-1] if k else (), e[k + 1:]):
+        n, s1, s2, sa = 0, 0j, 0j, 0.0
+        for w in wall:
+            d = abs(w)
+            if d > rmax:
+                break
+            if d >= rmin:
+                n += 1
+                s1 += w
+                s2 += w * w
+                sa += d * d
+        if n < params.refine_min_points:
+            return None
+        sums.append((n, s1, s2, sa))
     walls = []
-    for n, s1, s2, sa in ((a, s[0], s[3], s[6]), (size - b, s[2], s[5], s[8])):
+    for n, s1, s2, sa in sums:
         c = s1 / n
         # Σ(w - c)² = (sxx - syy) + 2i sxy and Σ|w - c|² = sxx + syy.
         q = s2 - s1 * c
-        tot = sa.real - (s1 * c.conjugate()).real
+        tot = sa - (s1 * c.conjugate()).real
         theta = 0.5 * math.atan2(q.imag, q.real)
         # Residual sum of squares about the line = the smaller scatter eigenvalue;
         # rounding may leave it a hair below 0.
@@ -593,7 +591,7 @@ def _refine(z: np.ndarray, lo: int, hi: int, j: int, params: CornerParams):
     cxy = -(ny2 * nx2 * v1 + ny1 * nx1 * v2) / det2
     cov = [[(ny2 * ny2 * v1 + ny1 * ny1 * v2) / det2, cxy], [cxy, (nx2 * nx2 * v1 + nx1 * nx1 * v2) / det2]]
     d = math.degrees(abs(th1 - th2)) % 180.0
-    return zj + complex(x, y), cov, min(d, 180.0 - d)
+    return complex(zj) + complex(x, y), cov, min(d, 180.0 - d)
 
 
 @lru_cache(maxsize=16)
