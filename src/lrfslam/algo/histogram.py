@@ -196,8 +196,9 @@ class DenoiseResult:
         Computed on first use: the sliding window does not need it, and nothing on the
         per-scan path reads it.
         """
-        return _bin_counts(self.segment_dirs_deg, self.hist_edges_deg[1] - self.hist_edges_deg[0],
-                           len(self.hist_edges_deg) - 1)
+        n_bins = len(self.hist_edges_deg) - 1
+        bins = _fixed_bins(self.segment_dirs_deg, self.hist_edges_deg[1] - self.hist_edges_deg[0], n_bins)
+        return np.bincount(bins, minlength=n_bins)
 
 
 def valid_returns(ranges_m: np.ndarray, max_range_m: float) -> np.ndarray:
@@ -223,14 +224,14 @@ def _period_shifts(period_deg: float) -> np.ndarray:
     return shifts
 
 
-def _bin_counts(dirs_deg: np.ndarray, bin_deg: float, n_bins: int) -> np.ndarray:
-    """Histogram of directions ``dirs_deg`` (degrees, >= 0) in the fixed bins, shape (n_bins,) int.
+def _fixed_bins(dirs_deg: np.ndarray, bin_deg: float, n_bins: int) -> np.ndarray:
+    """Fixed bin of each direction ``dirs_deg`` (degrees, >= 0), same shape, int.
 
     Bins start at -w/2 so an axis-aligned wall falls mid-bin; the modulo folds the last
     half bin (e.g. -0.0° folded to 89.99°) back onto bin 0. The directions are >= 0,
     so the integer conversion (truncation) is the floor.
     """
-    return np.bincount(((dirs_deg + 0.5 * bin_deg) / bin_deg).astype(np.intp) % n_bins, minlength=n_bins)
+    return ((dirs_deg + 0.5 * bin_deg) / bin_deg).astype(np.intp) % n_bins
 
 
 def _sliding_support(angle_deg: np.ndarray, members: np.ndarray, params: DenoiseParams) -> np.ndarray:
@@ -305,8 +306,8 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
     members = ang[seg_ok]
     n_seg = len(members)
     if params.bin_mode == "fixed":
-        # As in _bin_counts, for every segment: jumps get a bin too, ignored below.
-        bins = ((ang + 0.5 * w) / w).astype(np.intp) % n_bins
+        # Every segment gets a bin, jumps too (ignored below).
+        bins = _fixed_bins(ang, w, n_bins)
         support = np.bincount(bins[seg_ok], minlength=n_bins)[bins]
     else:
         # Supports of jump segments are computed too (fewer calls than masking them
