@@ -11,6 +11,7 @@ outputs to ``--out OUT.mcap``.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
 import os
 import signal
@@ -41,6 +42,11 @@ from lrfslam.runtime.service import (
 log = logging.getLogger("lrfslam")
 
 LOG_FORMAT = "%(asctime)s %(levelname)s [{service}] %(name)s: %(message)s"
+
+# A clean stop takes well under a second (the slam checkpoint a few). One still running after
+# this long is stuck somewhere; its thread stacks go to stderr before the engine's SIGKILL
+# (10 s by default) leaves nothing but exit code 137 to go on.
+STOP_STACKS_AFTER_S = 5.0
 
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
@@ -171,9 +177,14 @@ def step_close(step: Any) -> None:
 
 
 def install_signal_handlers(stop: threading.Event) -> None:
-    """SIGTERM and SIGINT set ``stop``; the loop finishes its message and exits cleanly."""
+    """SIGTERM and SIGINT set ``stop``; the loop finishes its message and exits cleanly.
+
+    A stop that has not finished ``STOP_STACKS_AFTER_S`` later prints every thread's stack.
+    """
     def handler(signum, _frame) -> None:
         log.info("received %s, stopping", signal.Signals(signum).name)
+        if not stop.is_set():
+            faulthandler.dump_traceback_later(STOP_STACKS_AFTER_S)
         stop.set()
     signal.signal(signal.SIGTERM, handler)
     signal.signal(signal.SIGINT, handler)
@@ -258,5 +269,11 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             bus.close()
             status_q.undeclare()
             token.undeclare()
-    log.info("%s stopped cleanly", spec.name)
+    stopped_cleanly(spec.name)
     return 0
+
+
+def stopped_cleanly(service: str) -> None:
+    """The end of a clean stop: the stack dump armed by the signal handler is no longer due."""
+    faulthandler.cancel_dump_traceback_later()
+    log.info("%s stopped cleanly", service)

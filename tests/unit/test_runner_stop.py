@@ -1,0 +1,50 @@
+"""A service whose stop hangs says where, before the engine's SIGKILL leaves only exit code 137."""
+
+from __future__ import annotations
+
+import faulthandler
+import os
+import signal
+import threading
+import time
+
+from lrfslam.runtime import runner
+
+
+def hung_in_shutdown(seconds: float) -> None:
+    time.sleep(seconds)
+
+
+def test_a_stop_still_running_later_prints_every_thread_stack(monkeypatch, capfd):
+    monkeypatch.setattr(runner, "STOP_STACKS_AFTER_S", 0.2)
+    previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    stop = threading.Event()
+    try:
+        runner.install_signal_handlers(stop)
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert stop.wait(2), "SIGTERM did not set the stop event"
+        hung_in_shutdown(1.0)
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    err = capfd.readouterr().err
+    assert "most recent call first" in err
+    assert "hung_in_shutdown" in err, err
+
+
+def test_a_prompt_stop_prints_nothing(monkeypatch, capfd):
+    monkeypatch.setattr(runner, "STOP_STACKS_AFTER_S", 0.3)
+    previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    stop = threading.Event()
+    try:
+        runner.install_signal_handlers(stop)
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert stop.wait(2)
+        runner.stopped_cleanly("test")
+        time.sleep(0.6)
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    assert "most recent call first" not in capfd.readouterr().err
