@@ -89,7 +89,7 @@ class SimSource(StepBase):
         frame = next(self.frames)
         self.produced += 1
         seq = frame.index + 1
-        stamp = self.t0_ns + int(round(frame.t_s * 1e9))
+        stamp = self.t0_ns + round(frame.t_s * 1e9)
         lidar = self.sim.config.lidar
         scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad,
                                        lidar.angle_increment_rad, lidar.max_range_m,

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from lrfslam.errors import DecodeError, SchemaVersionError
+from lrfslam.errors import ConfigError, DecodeError, SchemaVersionError
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 
@@ -128,5 +128,5 @@ def test_an_upgrade_path_decodes_an_old_schema(monkeypatch):
 def test_robot_names_are_single_key_chunks():
     assert topics.key("r1", "scan") == "lrf/r1/scan"
     for bad in ("", "a/b", "a*", "a$b", "a b"):
-        with pytest.raises(Exception):
+        with pytest.raises(ConfigError):
             topics.check_robot(bad)

@@ -6,7 +6,7 @@ import pytest
 
 pytest.importorskip("grpc_tools", reason="grpcio-tools is in the test extra")
 
-from lrfslam.tools import gen_schemas  # noqa: E402
+from lrfslam.tools import gen_schemas
 
 
 def test_generated_code_matches_the_schemas(capsys):

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import logging
 import struct
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO, Iterable, Iterator
+from typing import BinaryIO
 
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
@@ -62,7 +63,7 @@ class RecordingWriter:
                  chunk_size_bytes: int = 256 * 1024) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file: BinaryIO = open(self.path, "wb")
+        self._file: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - owned by the writer, closed by close()
         self._writer = Writer(self._file, chunk_size=chunk_size_bytes, compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library=f"{_lib}-python")
         for name, record in (metadata or {}).items():
@@ -111,7 +112,7 @@ class RecordingWriter:
             finally:
                 self._file.close()
 
-    def __enter__(self) -> RecordingWriter:
+    def __enter__(self) -> RecordingWriter:  # noqa: PYI034 - typing.Self needs Python 3.11; we support 3.10
         return self
 
     def __exit__(self, *exc) -> None:
@@ -139,7 +140,7 @@ def read_recording(path: str | Path, topics: Iterable[str] | None = None,
     if not path.exists():
         raise RecordingError(f"recording {path} does not exist")
     report = report if report is not None else ReadReport()
-    f = open(path, "rb")
+    f = open(path, "rb")  # noqa: SIM115 - the generator's finally closes it, also when abandoned
     try:
         reader = make_reader(f)
         if reader.get_summary() is None:

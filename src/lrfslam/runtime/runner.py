@@ -19,8 +19,9 @@ import socket
 import threading
 import time
 from collections import Counter
+from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any
 
 import zenoh
 
@@ -79,8 +80,8 @@ def service_config(spec: ServiceSpec, args: argparse.Namespace, file: Mapping, e
     """Defaults (or the selected preset) < file [<service>] < LRFSLAM_<SERVICE>_* < --set and flags."""
     sets = list(args.sets) + [f"{name}={getattr(args, name)}" for _, name, _ in spec.flags
                               if getattr(args, name, None) is not None]
-    layers = dict(table=file.get(spec.name, {}), env=env,
-                  env_prefix=f"{config_mod.ENV_PREFIX}_{spec.name.upper()}", sets=sets)
+    layers = {"table": file.get(spec.name, {}), "env": env,
+              "env_prefix": f"{config_mod.ENV_PREFIX}_{spec.name.upper()}", "sets": sets}
     base = spec.preset(config_mod.peek(spec.config_type, "mode", **layers)) if spec.preset else None
     return config_mod.load(spec.config_type, base=base, **layers)
 

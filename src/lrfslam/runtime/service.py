@@ -9,8 +9,9 @@ the three can never disagree about what a stage does.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Iterator, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from lrfslam.errors import InputError
 from lrfslam.msgs.topics import Topic
@@ -80,7 +81,7 @@ class ServiceSpec:
     config_type: type
     inputs: tuple[Topic, ...]
     outputs: tuple[Topic, ...]
-    build: Callable[[Any, "RunContext"], Any]
+    build: Callable[[Any, RunContext], Any]
     raw_inputs: bool = False   # receive every key under the robot undecoded (the recorder)
     #: Given the configured ``mode``, the config whose values the layers then override
     #: (the "paper" or "default" parameter preset).
