@@ -662,45 +662,70 @@ def _forward(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray, params: CornerP
     return out
 
 
-def _backward(ranges_m: np.ndarray, valid: np.ndarray, use: np.ndarray, z_all: np.ndarray, params: CornerParams):
-    """Beam indices of jump-edge features, increasing, as a list.
+def _backward(ranges_m: np.ndarray, valid: np.ndarray, idx: np.ndarray, step_m: np.ndarray,
+              n_invalid: np.ndarray, n_no_return: int, brk: np.ndarray, params: CornerParams) -> list[int]:
+    """Jump-edge features, as positions in ``idx``, increasing.
 
-    ``z_all`` (N,) holds the points ``x + iy`` of all beams, NaN where not valid.
+    Backward searching walks the kept points and the no-returns in scan order; points
+    removed by the filter are skipped as if never measured. Every place where it can
+    find a feature is a stretch break of forward searching, so the walk visits those
+    and the two ends of the scan only: a jump between kept points is longer than
+    ``jump_m >= arm_break_gap_m``, and a kept point next to a no-return has a change of
+    ``n_invalid`` on that side (or lies before the first or after the last no-return).
+
+    Parameters
+    ----------
+    ranges_m : ndarray, shape (N,)
+    valid : ndarray of bool, shape (N,)
+        Beams with a return.
+    idx : ndarray of int, shape (M,)
+        Beams of the kept points, increasing.
+    step_m : ndarray, shape (M - 1,)
+        Distances between successive kept points, metres.
+    n_invalid : ndarray of int, shape (M,)
+        Number of no-return beams before each kept point.
+    n_no_return : int
+        Number of no-return beams in the scan.
+    brk : ndarray of bool, shape (M - 1,)
+        Stretch breaks of forward searching.
+    params : CornerParams
     """
-    # The sequence seen by backward searching: kept points and no-returns in scan
-    # order (valid <= use is ~valid | use); points removed by the filter are skipped
-    # as if never measured.
-    seq = (valid <= use).nonzero()[0]
-    fin = use[seq]
-    d = z_all[seq]
-    d = d[1:] - d[:-1]
-    # Where a feature can be: a jump between finite points (NaN gaps compare False)
-    # or a finite point next to a no-return. A scan has a few (2.3 on average in the
-    # simulation), so the rules are applied to them one by one.
-    events = ((np.abs(d) > params.jump_m) | (fin[:-1] != fin[1:])).nonzero()[0]
+    m = len(idx)
+    if not m:
+        return []
     margin = params.max_range_m - params.jump_m if params.inf_edge_rule == "margin" else math.inf
     max_removed = params.edge_max_removed
+    jump = params.jump_m
     out: list[int] = []
-    for p in events.tolist():
-        i, k = int(seq[p]), int(seq[p + 1])
-        fin_i, fin_k = fin[p], fin[p + 1]
-        if fin_i and fin_k:
-            # A jump, unless a longer removed stretch than a mixed pixel or two (a wall
-            # at grazing incidence, a noise cluster) hides what lies between.
-            if max_removed is not None and k - i > max_removed + 1:
-                continue
-            f = i if ranges_m[i] <= ranges_m[k] else k
-        else:
-            # Next to a no-return, any removed return in between shows that the
-            # surface went on, so the edge must be the no-return's neighbour.
-            if max_removed is not None and k - i != 1:
-                continue
-            f = i if fin_i else k
-            if not ranges_m[f] < margin:
-                continue
+
+    def add(p: int) -> None:
         # A point can be the near side of two jumps or a jump and an edge.
-        if not out or out[-1] != f:
-            out.append(f)
+        if not out or out[-1] != p:
+            out.append(p)
+
+    def next_to_no_return(p: int, side: int) -> None:
+        # A finite point beside a no-return is an edge if the hidden surface must lie
+        # more than jump_m behind it. Any removed return in between shows that the
+        # surface went on, so (with the guard on) the no-return must be its neighbour.
+        i = int(idx[p])
+        if (max_removed is None or not valid[i + side]) and ranges_m[i] < margin:
+            add(p)
+
+    if n_invalid[0]:
+        next_to_no_return(0, -1)
+    for p in brk.nonzero()[0].tolist():
+        if n_invalid[p] == n_invalid[p + 1]:
+            if step_m[p] > jump:
+                i, k = int(idx[p]), int(idx[p + 1])
+                # A jump, unless a longer removed stretch than a mixed pixel or two
+                # (a wall at grazing incidence, a noise cluster) hides what lies between.
+                if max_removed is None or k - i <= max_removed + 1:
+                    add(p if ranges_m[i] <= ranges_m[k] else p + 1)
+        else:
+            next_to_no_return(p, 1)
+            next_to_no_return(p + 1, -1)
+    if n_invalid[-1] < n_no_return:
+        next_to_no_return(m - 1, 1)
     return out
 
 
@@ -743,25 +768,25 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
         raise ValueError(f"ranges_m {r.shape}, angles_rad {ang.shape}, kept {kept.shape} must be equal 1-D shapes")
     beams = beam_tables(ang)
     valid = valid_returns(r, params.max_range_m)
-    use = valid & kept
-    # Paper eq. (1) in the robot frame, as complex numbers x + iy; NaN where no return.
-    z_all = np.where(valid, r, np.nan) * beams.expi
-    idx = use.nonzero()[0]
-    z = z_all[idx]
+    idx = (valid & kept).nonzero()[0]
+    # Paper eq. (1) in the robot frame, as complex numbers x + iy.
+    z = r[idx] * beams.expi[idx]
     step = np.abs(z[1:] - z[:-1])
     # Stretches of kept points: a new one starts after a no-return beam (the count of
     # no-returns before the point changes) or a gap wider than arm_break_gap_m.
-    n_invalid = (~valid).nonzero()[0].searchsorted(idx)
+    no_return = (~valid).nonzero()[0]
+    n_invalid = no_return.searchsorted(idx)
     brk = (n_invalid[1:] != n_invalid[:-1]) | (step > params.arm_break_gap_m)
     feats = [(int(idx[j]), FORWARD, *rest) for j, *rest in _forward(z, step, brk, params)]
-    edges = _backward(r, valid, use, z_all, params)
+    edges = [(int(idx[p]), complex(z[p]))
+             for p in _backward(r, valid, idx, step, n_invalid, len(no_return), brk, params)]
     if params.nms_radius_m > 0 and feats and edges:
         # A convex corner with one wall occluded fires both searches; the forward
         # corner is better localised, so the jump edge gives way.
         r2 = params.nms_radius_m**2
         corners = [f[2] for f in feats]
-        edges = [i for i in edges if all(((q := complex(z_all[i]) - c).real ** 2 + q.imag**2) >= r2 for c in corners)]
-    feats += [(i, BACKWARD, complex(z_all[i]), None, math.nan, False) for i in edges]
+        edges = [e for e in edges if all(((q := e[1] - c).real ** 2 + q.imag**2) >= r2 for c in corners)]
+    feats += [(i, BACKWARD, zi, None, math.nan, False) for i, zi in edges]
     if not feats:
         return FeatureSet(np.empty(0, np.int8), np.empty((0, 2)), np.empty((0, 2, 2)), np.empty(0, np.intp),
                           np.empty(0), np.empty(0, bool))
