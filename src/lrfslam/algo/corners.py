@@ -59,11 +59,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
 from lrfslam.algo.histogram import valid_returns
 from lrfslam.algo.mixed_pixels import beam_tables
+from lrfslam.algo.scalars import const
 from lrfslam.errors import ConfigError
 
 FORWARD = np.int8(0)
@@ -94,6 +96,9 @@ _ZERO_F = np.zeros(1)
 _FAR_AWAY = 1e150
 _TAIL = np.full(_FAR + 1, complex(_FAR_AWAY, 0.0))
 _TRUE = np.ones(1, dtype=bool)
+_HALF = const(0.5)
+_MINUS_I = const(-1j)
+_RIGHT_DEG = const(90.0)
 # Base column j on both sides: -j + (2M - 1) (the lower side, in the reversed half) and j.
 _SIDES = np.array([[-1], [1]])
 
@@ -288,7 +293,7 @@ def _square(c: np.ndarray, tan_tol: float) -> np.ndarray:
     # c_lo · conj(c_hi) = dot + i cross, and the angle between the chords' lines is
     # >= 90° - tol  <=>  |dot| <= |cross| tan(tol).
     p = c[0] * c[1].conjugate()
-    return np.abs(p.real) <= np.abs(p.imag) * tan_tol
+    return np.abs(p.real) <= np.abs(p.imag) * const(tan_tol)
 
 
 def _windows(zz: np.ndarray, width: int) -> np.ndarray:
@@ -357,22 +362,34 @@ def _screen_tan_of(rho_m: float, d_m: float, tol_deg: float) -> float | None:
     return math.tan(math.radians(tol)) if tol < 90.0 else None
 
 
-@lru_cache(maxsize=16)
-def _pick_tables(dists_m: tuple[float, ...], slack_m: float, near: int, far: int):
-    """Per-parameter constants of the pick search, read-only.
+class _PickTables(NamedTuple):
+    """Per-parameter constants of the pick search, read-only arrays.
 
-    Returns ``d - slack_m`` (A,), the arc-length offsets of the lower bounds, and the
-    distance thresholds of the two window searches: ``d[0]`` repeated, shape
-    (near + 1,), and each ``d`` repeated, shape (A, far + 1). Each ends in a
-    sentinel, -inf, which every distance passes: the first pass in a window is then
-    at its last column exactly when none of the window's own columns is far enough.
+    The thresholds of the two window searches end in a sentinel, -inf, which every
+    distance passes: the first pass in a window is then at its last column exactly
+    when none of the window's own columns is far enough.
     """
+
+    offsets: np.ndarray       # (A,) d - slack: the arc-length offsets of the lower bounds
+    offset_first: np.ndarray  # 0-d, offsets[0]
+    offset_last: np.ndarray   # 0-d, offsets[-1]
+    first: np.ndarray         # (near + 1,) d[0] repeated, then the sentinel
+    every: np.ndarray         # (A, far + 1) each d repeated, then the sentinel
+    near: np.ndarray          # 0-d, the stage-1 window width
+    far: np.ndarray           # 0-d, the stage-2 window width
+
+
+@lru_cache(maxsize=16)
+def _pick_tables(dists_m: tuple[float, ...], slack_m: float, near: int, far: int) -> _PickTables:
+    """The :class:`_PickTables` of arm distances ``dists_m`` (m), ``slack_m`` and the window widths."""
     offsets = np.array([d - slack_m for d in dists_m])
     first = np.array([dists_m[0]] * near + [-np.inf])
     every = np.array([[d] * far + [-np.inf] for d in dists_m])
-    for t in (offsets, first, every):
+    tables = _PickTables(offsets, np.array(offsets[0]), np.array(offsets[-1]), first, every, np.array(near),
+                         np.array(far))
+    for t in tables:
         t.setflags(write=False)
-    return offsets, first, every
+    return tables
 
 
 def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerParams) -> np.ndarray:
@@ -395,10 +412,11 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     m = len(arc) // 2
     dists = params.arm_dists_m
     euclid = params.arm_metric == "euclidean"
-    offsets, first, every = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0, _NEAR, _FAR)
+    tables = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0, _NEAR, _FAR)
+    offsets = tables.offsets
     # Arc length is never shorter than the distance from the base: a stretch too
     # short in arc length on either side has no farthest pick (step 1).
-    fits = arc[end] >= arc + offsets[-1]
+    fits = arc[end] >= arc + tables.offset_last
     base = (fits[:m] & fits[:m - 1:-1]).nonzero()[0]
     col = _SIDES * base
     col[0] += 2 * m - 1
@@ -412,17 +430,17 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
         # off the end). A side without a hit there gets a zero chord, which passes:
         # stage 2 decides it. A hit past the stretch's end is no pick, but then there
         # is no farthest pick either and stage 2 drops the base.
-        lb0 = arc.searchsorted(arc[col] + offsets[0])
-        hit = (np.abs(_windows(zz, _NEAR + 1)[lb0] - zb[:, None]) >= first).argmax(axis=2)
-        chord = zz[np.where(hit < _NEAR, lb0 + hit, col)] - zb
+        lb0 = arc.searchsorted(arc[col] + tables.offset_first)
+        hit = (np.abs(_windows(zz, _NEAR + 1)[lb0] - zb[:, None]) >= tables.first).argmax(axis=2)
+        chord = zz[np.where(hit < tables.near, lb0 + hit, col)] - zb
         i = _square(chord, tan_tol).nonzero()[0]
         col, zb = col[:, i], zb[i]
     # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
     # (the farthest lags its bound most: arc length gathers the most noise there).
     lb = arc.searchsorted(arc[col][..., None] + offsets)  # (2, B, A)
-    hit = (np.abs(_windows(zz, _FAR + 1)[lb] - zb[:, None, None]) >= every).argmax(axis=3)
+    hit = (np.abs(_windows(zz, _FAR + 1)[lb] - zb[:, None, None]) >= tables.every).argmax(axis=3)
     pick = lb + hit
-    got = hit < _FAR
+    got = hit < tables.far
     stop = end[col]
     far = pick[..., -1]
     # Nearly always every pick lies in its window and the farthest in the stretch.
@@ -480,8 +498,8 @@ def _arm_fit(arm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # Σq² = (sxx - syy) + 2i sxy; rotating by -θ leaves the perpendicular offset in
     # the imaginary part.
     q2 = _SUM(q * q, axis=-1)
-    theta = 0.5 * np.arctan2(q2.imag, q2.real)
-    return theta, np.maximum.reduce(np.abs((q * np.exp(-1j * theta)[..., None]).imag), axis=-1)
+    theta = _HALF * np.arctan2(q2.imag, q2.real)
+    return theta, np.maximum.reduce(np.abs((q * np.exp(_MINUS_I * theta)[..., None]).imag), axis=-1)
 
 
 def _suppress(z: list[complex], score: list[float], radius_m: float) -> list[int]:
@@ -632,10 +650,10 @@ def _forward(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray, params: CornerP
     # The angle between the lines is min(d, 180° - d), d in [0°, 180°] (θ in
     # [-90°, 90°]), so its distance from a right angle is |d - 90°|, exactly.
     d = np.degrees(np.abs(theta[0] - theta[1]))
-    dev = np.abs(d - 90.0)
-    cand = dev <= params.corner_tol_deg
+    dev = np.abs(d - _RIGHT_DEG)
+    cand = dev <= const(params.corner_tol_deg)
     if params.arm_max_resid_m is not None:
-        cand &= np.maximum(max_resid[0], max_resid[1]) <= params.arm_max_resid_m
+        cand &= np.maximum(max_resid[0], max_resid[1]) <= const(params.arm_max_resid_m)
     cand = cand.nonzero()[0]
     if not len(cand):
         return []
@@ -776,7 +794,7 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
     # no-returns before the point changes) or a gap wider than arm_break_gap_m.
     no_return = (~valid).nonzero()[0]
     n_invalid = no_return.searchsorted(idx)
-    brk = (n_invalid[1:] != n_invalid[:-1]) | (step > params.arm_break_gap_m)
+    brk = (n_invalid[1:] != n_invalid[:-1]) | (step > const(params.arm_break_gap_m))
     feats = [(int(idx[j]), FORWARD, *rest) for j, *rest in _forward(z, step, brk, params)]
     edges = [(int(idx[p]), complex(z[p]))
              for p in _backward(r, valid, idx, step, n_invalid, len(no_return), brk, params)]

@@ -39,9 +39,11 @@ from lrfslam.algo.mixed_pixels import (
     depth_outliers,
     line_vouched,
 )
+from lrfslam.algo.scalars import const
 from lrfslam.errors import ConfigError
 
 _BIN_MODES = ("fixed", "sliding")
+_ZERO = const(0.0)
 _KEEP_RULES = ("or", "and")
 _MIXED_MODELS = ("line", "range")
 
@@ -205,7 +207,7 @@ def valid_returns(ranges_m: np.ndarray, max_range_m: float) -> np.ndarray:
     """Beams with a usable return, shape (N,) bool: finite and ``0 < r <= max_range_m``."""
     r = np.asarray(ranges_m, dtype=float)
     # NaN compares False (without a warning), so NaN and ±inf both end up invalid.
-    return (r > 0.0) & (r <= max_range_m)
+    return (r > _ZERO) & (r <= const(max_range_m))
 
 
 @lru_cache(maxsize=8)
@@ -243,7 +245,8 @@ def _sliding_support(angle_deg: np.ndarray, members: np.ndarray, params: Denoise
     # Sort once and lay copies shifted by one period each way either side, so windows
     # that cross 0° count the wrapped segments too (x + 0.0 is x).
     ext = (np.sort(members) + _period_shifts(period)).ravel()
-    return ext.searchsorted(angle_deg + 0.5 * w, side="right") - ext.searchsorted(angle_deg - 0.5 * w, side="left")
+    half = const(0.5 * w)
+    return ext.searchsorted(angle_deg + half, side="right") - ext.searchsorted(angle_deg - half, side="left")
 
 
 def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams) -> DenoiseResult:
@@ -297,12 +300,12 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
     # Successive valid points are finite, so "no jump" is the negated comparison.
     seg_len = np.abs(step)
     if s == 1:
-        seg_ok, d = seg_len <= params.jump_m, step
+        seg_ok, d = seg_len <= const(params.jump_m), step
     else:
         # A strided segment is a jump if any of the consecutive steps it spans is one.
         n_jumps = np.concatenate(([0], (seg_len > params.jump_m).cumsum()))
         seg_ok, d = n_jumps[s:] == n_jumps[:-s], z[s:] - z[:-s]
-    ang = np.degrees(np.arctan2(d.imag, d.real)) % params.period_deg
+    ang = np.degrees(np.arctan2(d.imag, d.real)) % const(params.period_deg)
     members = ang[seg_ok]
     n_seg = len(members)
     if params.bin_mode == "fixed":
@@ -313,7 +316,7 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
         # Supports of jump segments are computed too (fewer calls than masking them
         # out) and ignored below.
         support = _sliding_support(ang, members, params)
-    passes = seg_ok & (support > params.keep_frac * n_seg)
+    passes = seg_ok & (support > const(params.keep_frac * n_seg))
 
     # Segment j joins compressed points j and j + s; gather both sides of each point.
     if params.keep_rule == "or":

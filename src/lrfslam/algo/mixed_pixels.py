@@ -24,6 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lrfslam.algo.scalars import const
+
+_ONE = const(1.0)
+# A subnormal "range" would overflow 1/r; clamped to this, every product stays finite.
+_TINY = const(1e-300)
+
 
 @dataclass(frozen=True)
 class BeamTables:
@@ -198,13 +204,12 @@ def line_vouched(r: np.ndarray, beams: BeamTables, tol_m: float) -> np.ndarray:
     n = len(r)
     rr = np.concatenate((r, r[::-1]))
     s2, s1_before, s1_after = beams.line
-    # A subnormal "range" would overflow 1/r; clamped, every product below stays finite.
-    inv = 1.0 / np.maximum(rr, 1e-300)
+    inv = _ONE / np.maximum(rr, _TINY)
     # The prediction is s1 / num, in front of the scanner only if num > 0; testing
     # |r num - s1| <= tol num needs no division and fails for num <= 0. A NaN (a
     # neighbour without return, or the seam) compares False: no vouching.
     num = inv[1:-1] * s2 - inv[:-2] * s1_before
-    on = np.abs(rr[2:] * num - s1_after) <= tol_m * num
+    on = np.abs(rr[2:] * num - s1_after) <= const(tol_m) * num
     vouched = np.zeros(n, dtype=bool)
     vouched[2:] = on[:n - 2]
     vouched[:n - 2] |= on[:n - 1:-1]
