@@ -711,39 +711,41 @@ def _backward(ranges_m: np.ndarray, valid: np.ndarray, idx: np.ndarray, step_m: 
     m = len(idx)
     if not m:
         return []
+    # The places to look: (p, side) with side ±1 for kept point p beside a no-return
+    # on that side, 0 for a jump from kept point p to p + 1.
+    spots = [(0, -1)] if n_invalid[0] else []
+    for p in brk.nonzero()[0].tolist():
+        if n_invalid[p] == n_invalid[p + 1]:
+            spots.append((p, 0))
+        else:
+            spots += ((p, 1), (p + 1, -1))
+    if n_invalid[-1] < n_no_return:
+        spots.append((m - 1, 1))
     margin = params.max_range_m - params.jump_m if params.inf_edge_rule == "margin" else math.inf
     max_removed = params.edge_max_removed
-    jump = params.jump_m
     out: list[int] = []
-
-    def add(p: int) -> None:
+    for p, side in spots:
+        i = int(idx[p])
+        if side:
+            # A finite point beside a no-return is an edge if the hidden surface must
+            # lie more than jump_m behind it. Any removed return in between shows that
+            # the surface went on, so (with the guard on) the no-return must be its
+            # neighbour.
+            if (max_removed is not None and valid[i + side]) or not ranges_m[i] < margin:
+                continue
+        else:
+            if not step_m[p] > params.jump_m:
+                continue
+            k = int(idx[p + 1])
+            # A jump, unless a longer removed stretch than a mixed pixel or two (a wall
+            # at grazing incidence, a noise cluster) hides what lies between.
+            if max_removed is not None and k - i > max_removed + 1:
+                continue
+            if ranges_m[k] < ranges_m[i]:
+                p += 1
         # A point can be the near side of two jumps or a jump and an edge.
         if not out or out[-1] != p:
             out.append(p)
-
-    def next_to_no_return(p: int, side: int) -> None:
-        # A finite point beside a no-return is an edge if the hidden surface must lie
-        # more than jump_m behind it. Any removed return in between shows that the
-        # surface went on, so (with the guard on) the no-return must be its neighbour.
-        i = int(idx[p])
-        if (max_removed is None or not valid[i + side]) and ranges_m[i] < margin:
-            add(p)
-
-    if n_invalid[0]:
-        next_to_no_return(0, -1)
-    for p in brk.nonzero()[0].tolist():
-        if n_invalid[p] == n_invalid[p + 1]:
-            if step_m[p] > jump:
-                i, k = int(idx[p]), int(idx[p + 1])
-                # A jump, unless a longer removed stretch than a mixed pixel or two
-                # (a wall at grazing incidence, a noise cluster) hides what lies between.
-                if max_removed is None or k - i <= max_removed + 1:
-                    add(p if ranges_m[i] <= ranges_m[k] else p + 1)
-        else:
-            next_to_no_return(p, 1)
-            next_to_no_return(p + 1, -1)
-    if n_invalid[-1] < n_no_return:
-        next_to_no_return(m - 1, 1)
     return out
 
 
