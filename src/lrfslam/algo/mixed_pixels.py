@@ -29,6 +29,8 @@ from lrfslam.algo.scalars import const
 _ONE = const(1.0)
 # A subnormal "range" would overflow 1/r; clamped to this, every product stays finite.
 _TINY = const(1e-300)
+_NAN2 = np.full(2, np.nan)
+_NAN2.setflags(write=False)
 
 
 @dataclass(frozen=True)
@@ -45,10 +47,11 @@ class BeamTables:
         ``sin(θ_{k+1} - θ_k)``.
     sin2 : ndarray, shape (N - 2,)
         ``sin(θ_{k+2} - θ_k)`` (empty for N < 2).
-    line : tuple of 3 ndarray, shape (2N - 2,) each
+    line : tuple of 3 ndarray, shape (2N,) each
         The sines of :func:`off_line` for the scan followed by its reverse (empty for
-        N < 3): element ``t`` serves the point ``t + 2`` of that doubled sequence, with
-        the two points before it; the two elements across the seam are NaN. A tuple,
+        N < 3): element ``u`` serves the point ``u`` of that doubled sequence, with the
+        two points before it; the first two elements and the two after the seam, which
+        have no such points, are NaN. A tuple,
         not a 2-D array: unpacking an array's rows costs more than the rest of a step.
     step_rad : float
         Median ``|θ_{k+1} - θ_k|``, radians (0 for N < 2).
@@ -94,9 +97,9 @@ def _tables(a: np.ndarray) -> BeamTables:
     if len(a) >= 3:
         # Reversing the scan flips the sign of every sine; off_line's test is written
         # for increasing bearings, so the reversed half reuses the forward values.
-        seam = np.full(2, np.nan)
-        line = (np.concatenate((s2, seam, s2[::-1])), np.concatenate((s1[1:], seam, s1[:-1][::-1])),
-                np.concatenate((s1[:-1], seam, s1[1:][::-1])))
+        nan2 = np.full(2, np.nan)
+        line = (np.concatenate((nan2, s2, nan2, s2[::-1])), np.concatenate((nan2, s1[1:], nan2, s1[:-1][::-1])),
+                np.concatenate((nan2, s1[:-1], nan2, s1[1:][::-1])))
     else:
         line = (np.empty(0), np.empty(0), np.empty(0))
     for t in (cos, sin, expi, s1, s2, *line):
@@ -202,7 +205,9 @@ def line_vouched(r: np.ndarray, beams: BeamTables, tol_m: float) -> np.ndarray:
     over the scan followed by its reverse (``beams.line``).
     """
     n = len(r)
-    rr = np.concatenate((r, r[::-1]))
+    # Element u + 2 is point u of the scan followed by its reverse; the two before the
+    # first have no return.
+    rr = np.concatenate((_NAN2, r, r[::-1]))
     s2, s1_before, s1_after = beams.line
     inv = _ONE / np.maximum(rr, _TINY)
     # The prediction is s1 / num, in front of the scanner only if num > 0; testing
@@ -210,10 +215,9 @@ def line_vouched(r: np.ndarray, beams: BeamTables, tol_m: float) -> np.ndarray:
     # neighbour without return, or the seam) compares False: no vouching.
     num = inv[1:-1] * s2 - inv[:-2] * s1_before
     on = np.abs(rr[2:] * num - s1_after) <= const(tol_m) * num
-    vouched = np.zeros(n, dtype=bool)
-    vouched[2:] = on[:n - 2]
-    vouched[:n - 2] |= on[:n - 1:-1]
-    return vouched
+    # on[u] tests point u of the scan and its reverse against the two before it: the
+    # side before in the first half, the side after in the second.
+    return on[:n] | on[:n - 1:-1]
 
 
 def depth_outliers(ranges_m: np.ndarray, valid: np.ndarray, tol_m: float) -> np.ndarray:
