@@ -443,10 +443,13 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     got = hit < tables.far
     stop = end[col]
     far = pick[..., -1]
-    # Nearly always every pick lies in its window and the farthest in the stretch.
-    got[..., -1] &= far <= stop
     if _ALL(got, axis=None):
-        return np.concatenate((col[..., None], pick), axis=2)
+        # Nearly always every pick lies in its window: a base keeps its arms if both
+        # farthest picks lie in their stretches.
+        inside = far <= stop
+        arms = np.concatenate((col[..., None], pick), axis=2)
+        return arms if _ALL(inside, axis=None) else arms[:, (inside[0] & inside[1]).nonzero()[0]]
+    got[..., -1] &= far <= stop
     # The farthest pick must lie in the stretch; where its window found nothing and
     # ended inside the stretch, the rest of the stretch is searched.
     far_lb = lb[..., -1]
