@@ -236,9 +236,7 @@ def test_arm_picks_match_a_point_by_point_walk(metric, near, far, monkeypatch):
         ends = np.concatenate((breaks - 1, [m - 1]))
         first, last = starts[run], ends[run]
         z = p[:, 0] + 1j * p[:, 1]
-        brk = np.zeros(m - 1, dtype=bool)
-        brk[breaks - 1] = True
-        got = arms_by_scan_column(C._arm_picks(*C._doubled(z, np.abs(np.diff(z)), brk), params), m)
+        got = arms_by_scan_column(C._arm_picks(*C._doubled(z, np.abs(np.diff(z)), (breaks - 1).tolist()), params), m)
         expect = naive_picks(p, first, last, params.arm_dists_m, metric == "euclidean")
         full = np.flatnonzero(np.all(expect >= 0, axis=(1, 2)))
         assert sorted(got) == full.tolist()

@@ -95,7 +95,6 @@ _ZERO_F = np.zeros(1)
 # multiply without overflow or NaN. A pick there lies past every stretch's end.
 _FAR_AWAY = 1e150
 _TAIL = np.full(_FAR + 1, complex(_FAR_AWAY, 0.0))
-_TRUE = np.ones(1, dtype=bool)
 _HALF = const(0.5)
 _MINUS_I = const(-1j)
 _RIGHT_DEG = const(90.0)
@@ -307,7 +306,7 @@ def _windows(zz: np.ndarray, width: int) -> np.ndarray:
     return np.ndarray((len(zz) - width + 1, width), zz.dtype, zz, 0, (step, step))
 
 
-def _doubled(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray):
+def _doubled(z: np.ndarray, step_m: np.ndarray, breaks: list[int]):
     """The kept points followed by their reverse, for searching both sides at once.
 
     The lower side of base j is the upper side of column 2M - 1 - j.
@@ -318,8 +317,8 @@ def _doubled(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray):
         Kept points in scan order, metres.
     step_m : ndarray, shape (M - 1,)
         Distances between successive points, metres.
-    brk : ndarray of bool, shape (M - 1,)
-        True where a new stretch starts after the point.
+    breaks : list of int
+        Points after which a new stretch starts, increasing.
 
     Returns
     -------
@@ -330,13 +329,15 @@ def _doubled(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray):
     end : ndarray of int, shape (2M,)
         Column of the last point of each point's stretch; the seam ends one too.
     """
-    n2 = 2 * len(z)
+    last = 2 * len(z) - 1
     zz = np.concatenate((z, z[::-1], _TAIL))
     arc = np.concatenate((_ZERO_F, step_m, _ZERO_F, step_m[::-1])).cumsum()
-    brk2 = np.concatenate((brk, _TRUE, brk[::-1], _TRUE))
-    # The first stretch end at or after each column: a running minimum, from the
-    # right, of the end columns (the last column is one).
-    return zz, arc, np.minimum.accumulate(np.where(brk2, np.arange(n2), n2)[::-1])[::-1]
+    # A scan has a stretch or two (2.4 on average in the simulation): their ends are
+    # listed in Python and repeated over their columns. Stretch [s, e] is columns
+    # last - e to last - s in the reversed half.
+    starts, ends = [0, *(p + 1 for p in breaks)], [*breaks, last // 2]
+    sizes = [e - s + 1 for s, e in zip(starts, ends)]
+    return zz, arc, np.repeat(ends + [last - s for s in reversed(starts)], sizes + sizes[::-1])
 
 
 def _screen_tan(params: CornerParams) -> float | None:
@@ -621,7 +622,7 @@ def _refit_bound(dists_m: tuple[float, ...], rmax_m: float) -> int | None:
     return next((a for a, d in enumerate(dists_m) if d > rmax_m), None)
 
 
-def _forward(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray, params: CornerParams):
+def _forward(z: np.ndarray, step_m: np.ndarray, breaks: list[int], params: CornerParams):
     """Forward searching on kept points.
 
     Parameters
@@ -630,8 +631,9 @@ def _forward(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray, params: CornerP
         Kept points in scan order, metres.
     step_m : ndarray, shape (M - 1,)
         Distances between successive points, metres.
-    brk : ndarray of bool, shape (M - 1,)
-        True where a new stretch starts after the point: an arm never crosses it.
+    breaks : list of int
+        Points after which a new stretch starts, increasing: an arm never crosses
+        from one stretch to the next.
     params : CornerParams
 
     Returns
@@ -644,7 +646,7 @@ def _forward(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray, params: CornerP
     m = len(z)
     if m < 2 * len(params.arm_dists_m) + 1:
         return []
-    zz, arc, end = _doubled(z, step_m, brk)
+    zz, arc, end = _doubled(z, step_m, breaks)
     arms = _arm_picks(zz, arc, end, params)
     if not arms.shape[1]:
         return []
@@ -684,7 +686,7 @@ def _forward(z: np.ndarray, step_m: np.ndarray, brk: np.ndarray, params: CornerP
 
 
 def _backward(ranges_m: np.ndarray, valid: np.ndarray, idx: np.ndarray, step_m: np.ndarray,
-              n_invalid: np.ndarray, n_no_return: int, brk: np.ndarray, params: CornerParams) -> list[int]:
+              n_invalid: np.ndarray, n_no_return: int, breaks: list[int], params: CornerParams) -> list[int]:
     """Jump-edge features, as positions in ``idx``, increasing.
 
     Backward searching walks the kept points and the no-returns in scan order; points
@@ -707,8 +709,8 @@ def _backward(ranges_m: np.ndarray, valid: np.ndarray, idx: np.ndarray, step_m: 
         Number of no-return beams before each kept point.
     n_no_return : int
         Number of no-return beams in the scan.
-    brk : ndarray of bool, shape (M - 1,)
-        Stretch breaks of forward searching.
+    breaks : list of int
+        Stretch breaks of forward searching: kept points after which a new stretch starts.
     params : CornerParams
     """
     m = len(idx)
@@ -717,7 +719,7 @@ def _backward(ranges_m: np.ndarray, valid: np.ndarray, idx: np.ndarray, step_m: 
     # The places to look: (p, side) with side ±1 for kept point p beside a no-return
     # on that side, 0 for a jump from kept point p to p + 1.
     spots = [(0, -1)] if n_invalid[0] else []
-    for p in brk.nonzero()[0].tolist():
+    for p in breaks:
         if n_invalid[p] == n_invalid[p + 1]:
             spots.append((p, 0))
         else:
@@ -799,10 +801,10 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
     # no-returns before the point changes) or a gap wider than arm_break_gap_m.
     no_return = (~valid).nonzero()[0]
     n_invalid = no_return.searchsorted(idx)
-    brk = (n_invalid[1:] != n_invalid[:-1]) | (step > const(params.arm_break_gap_m))
-    feats = [(int(idx[j]), FORWARD, *rest) for j, *rest in _forward(z, step, brk, params)]
+    breaks = ((n_invalid[1:] != n_invalid[:-1]) | (step > const(params.arm_break_gap_m))).nonzero()[0].tolist()
+    feats = [(int(idx[j]), FORWARD, *rest) for j, *rest in _forward(z, step, breaks, params)]
     edges = [(int(idx[p]), complex(z[p]))
-             for p in _backward(r, valid, idx, step, n_invalid, len(no_return), brk, params)]
+             for p in _backward(r, valid, idx, step, n_invalid, len(no_return), breaks, params)]
     if params.nms_radius_m > 0 and feats and edges:
         # A convex corner with one wall occluded fires both searches; the forward
         # corner is better localised, so the jump edge gives way.
