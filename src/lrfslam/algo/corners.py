@@ -59,6 +59,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from operator import itemgetter
 from typing import NamedTuple
 
 import numpy as np
@@ -245,6 +246,19 @@ class FeatureSet:
 
     def __len__(self) -> int:
         return len(self.kind)
+
+
+def _no_features() -> FeatureSet:
+    """The FeatureSet of a scan without features, read-only (one shared by all such scans)."""
+    empty = FeatureSet(np.empty(0, np.int8), np.empty((0, 2)), np.empty((0, 2, 2)), np.empty(0, np.intp),
+                       np.empty(0), np.empty(0, bool))
+    for a in (empty.kind, empty.xy_m, empty.cov_m2, empty.beam, empty.angle_deg, empty.refined):
+        a.setflags(write=False)
+    return empty
+
+
+_NO_FEATURES = _no_features()
+_BEAM = itemgetter(0)
 
 
 def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, d_m: float, width: int) -> np.ndarray:
@@ -813,20 +827,21 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
         edges = [e for e in edges if all(((q := e[1] - c).real ** 2 + q.imag**2) >= r2 for c in corners)]
     feats += [(i, BACKWARD, zi, None, math.nan, False) for i, zi in edges]
     if not feats:
-        return FeatureSet(np.empty(0, np.int8), np.empty((0, 2)), np.empty((0, 2, 2)), np.empty(0, np.intp),
-                          np.empty(0), np.empty(0, bool))
+        return _NO_FEATURES
     # A handful of features per scan: assembled in Python, sorted by beam (corners
-    # before edges on the same beam).
-    feats.sort(key=lambda f: f[0])
-    feats = [f if f[3] is not None else (*f[:3], _point_cov(float(r[f[0]]), float(ang[f[0]]), beams.step_rad,
-                                                             params.range_sigma_m), *f[4:])
-             for f in feats]
-    beam, kind, xy, cov, angle, refined = zip(*feats)
+    # before edges on the same beam), the numbers of each in one row of one array.
+    feats.sort(key=_BEAM)
+    rows = []
+    for i, _, xy, cov, angle, _ in feats:
+        (c00, c01), (c10, c11) = cov or _point_cov(float(r[i]), float(ang[i]), beams.step_rad, params.range_sigma_m)
+        rows.append((xy.real, xy.imag, c00, c01, c10, c11, angle))
+    values = np.array(rows)
+    beam, kind, _, _, _, refined = zip(*feats)
     return FeatureSet(
         kind=np.array(kind, dtype=np.int8),
-        xy_m=np.array(xy).view(np.float64).reshape(-1, 2),
-        cov_m2=np.array(cov, dtype=float),
+        xy_m=values[:, :2],
+        cov_m2=values[:, 2:6].reshape(-1, 2, 2),
         beam=np.array(beam, dtype=np.intp),
-        angle_deg=np.array(angle, dtype=float),
+        angle_deg=values[:, 6],
         refined=np.array(refined, dtype=bool),
     )
