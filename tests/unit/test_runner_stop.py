@@ -8,14 +8,14 @@ import signal
 import threading
 import time
 
+import pytest
+
 from lrfslam.runtime import runner
 
 
-def hung_in_shutdown(seconds: float) -> None:
-    time.sleep(seconds)
-
-
-def test_a_stop_still_running_later_prints_every_thread_stack(monkeypatch, capfd):
+@pytest.fixture
+def sigtermed(monkeypatch):
+    """The runner's signal handlers installed and SIGTERM received; the stop event."""
     monkeypatch.setattr(runner, "STOP_STACKS_AFTER_S", 0.2)
     previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
     stop = threading.Event()
@@ -23,28 +23,25 @@ def test_a_stop_still_running_later_prints_every_thread_stack(monkeypatch, capfd
         runner.install_signal_handlers(stop)
         os.kill(os.getpid(), signal.SIGTERM)
         assert stop.wait(2), "SIGTERM did not set the stop event"
-        hung_in_shutdown(1.0)
+        yield stop
     finally:
         faulthandler.cancel_dump_traceback_later()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def hung_in_shutdown(seconds: float) -> None:
+    time.sleep(seconds)
+
+
+def test_a_stop_still_running_later_prints_every_thread_stack(sigtermed, capfd):
+    hung_in_shutdown(1.0)
     err = capfd.readouterr().err
     assert "most recent call first" in err
     assert "hung_in_shutdown" in err, err
 
 
-def test_a_prompt_stop_prints_nothing(monkeypatch, capfd):
-    monkeypatch.setattr(runner, "STOP_STACKS_AFTER_S", 0.3)
-    previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
-    stop = threading.Event()
-    try:
-        runner.install_signal_handlers(stop)
-        os.kill(os.getpid(), signal.SIGTERM)
-        assert stop.wait(2)
-        runner.stopped_cleanly("test")
-        time.sleep(0.6)
-    finally:
-        faulthandler.cancel_dump_traceback_later()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+def test_a_prompt_stop_prints_nothing(sigtermed, capfd):
+    runner.stopped_cleanly("test")
+    time.sleep(0.6)
     assert "most recent call first" not in capfd.readouterr().err
