@@ -14,8 +14,12 @@ from lrfslam.runtime import runner
 
 
 @pytest.fixture
-def sigtermed(monkeypatch):
-    """The runner's signal handlers installed and SIGTERM received; the stop event."""
+def sigtermed(monkeypatch, capfd):
+    """The runner's signal handlers installed and SIGTERM received; the stop event.
+
+    ``capfd`` first: the stack dump is armed on the stderr of the moment, which must be
+    the one the tests read.
+    """
     monkeypatch.setattr(runner, "STOP_STACKS_AFTER_S", 0.2)
     previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
     stop = threading.Event()
