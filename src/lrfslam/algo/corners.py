@@ -707,8 +707,9 @@ def _backward(ranges_m: np.ndarray, valid: np.ndarray, idx: np.ndarray, step_m: 
     removed by the filter are skipped as if never measured. Every place where it can
     find a feature is a stretch break of forward searching, so the walk visits those
     and the two ends of the scan only: a jump between kept points is longer than
-    ``jump_m >= arm_break_gap_m``, and a kept point next to a no-return has a change of
-    ``n_invalid`` on that side (or lies before the first or after the last no-return).
+    ``jump_m >= arm_break_gap_m``, and between a kept point and its kept neighbour
+    across a no-return ``n_invalid`` changes; the no-returns before the first kept
+    point and after the last are the scan's ends.
 
     Parameters
     ----------
