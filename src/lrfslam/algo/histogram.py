@@ -43,9 +43,9 @@ from lrfslam.algo.scalars import const
 from lrfslam.errors import ConfigError
 
 _BIN_MODES = ("fixed", "sliding")
-_ZERO = const(0.0)
 _KEEP_RULES = ("or", "and")
 _MIXED_MODELS = ("line", "range")
+_ZERO = const(0.0)
 
 
 @dataclass(frozen=True)
@@ -316,7 +316,7 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
         # Supports of jump segments are computed too (fewer calls than masking them
         # out) and ignored below.
         support = _sliding_support(ang, members, params)
-    passes = seg_ok & (support > const(params.keep_frac * n_seg))
+    passes = seg_ok & (support > params.keep_frac * n_seg)
 
     # Segment j joins compressed points j and j + s; gather both sides of each point.
     if params.keep_rule == "or":

@@ -5,7 +5,8 @@ call; a 0-d array it takes as it is. At the few hundred elements of a scan that
 conversion is a fifth to a third of the call (measured here: ``a > 0.5`` 0.82 µs,
 ``a > np.array(0.5)`` 0.47 µs for 150 doubles), and the per-scan algorithms make a few
 dozen such calls. Results are the same: a float64 0-d array promotes exactly as a
-Python float does with float64 and complex128 arrays.
+Python float does with float64 and complex128 arrays. Only for values fixed by the
+configuration: one that changes every scan would just churn :func:`const`'s cache.
 """
 
 from __future__ import annotations

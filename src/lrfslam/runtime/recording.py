@@ -12,7 +12,7 @@ import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, Self
 
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
@@ -112,7 +112,7 @@ class RecordingWriter:
             finally:
                 self._file.close()
 
-    def __enter__(self) -> RecordingWriter:  # noqa: PYI034 - typing.Self needs Python 3.11; we support 3.10
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:
