@@ -86,9 +86,9 @@ _FAR = 16
 _ARC_SLACK_M = 1e-9
 # Added to the chord screen's bound so rounding can never drop a true corner.
 _SCREEN_SLACK_DEG = 1e-6
-# ndarray.any/.all/.sum go through Python wrappers; the ufunc reductions do not.
+# ndarray.any/.sum go through Python wrappers; the ufunc reductions do not. "All true" is a
+# count_nonzero: over a whole array that needs no iterator.
 _ANY = np.logical_or.reduce
-_ALL = np.logical_and.reduce
 _SUM = np.add.reduce
 _ZERO_F = np.zeros(1)
 # Padding after the doubled scan, for search windows that run off its end: points
@@ -99,6 +99,7 @@ _TAIL = np.full(_FAR + 1, complex(_FAR_AWAY, 0.0))
 _HALF = const(0.5)
 _MINUS_I = const(-1j)
 _RIGHT_DEG = const(90.0)
+_INF = const(math.inf)
 # Base column j on both sides: -j + (2M - 1) (the lower side, in the reversed half) and j.
 _SIDES = np.array([[-1], [1]])
 
@@ -351,7 +352,8 @@ def _doubled(z: np.ndarray, step_m: np.ndarray, breaks: list[int]):
     # last - e to last - s in the reversed half.
     starts, ends = [0, *(p + 1 for p in breaks)], [*breaks, last // 2]
     sizes = [e - s + 1 for s, e in zip(starts, ends)]
-    return zz, arc, np.repeat(ends + [last - s for s in reversed(starts)], sizes + sizes[::-1])
+    # The method, not np.repeat: that wrapper converts list arguments on a slow path (7 µs against 1).
+    return zz, arc, np.array(ends + [last - s for s in reversed(starts)]).repeat(sizes + sizes[::-1])
 
 
 def _screen_tan(params: CornerParams) -> float | None:
@@ -380,15 +382,17 @@ def _screen_tan_of(rho_m: float, d_m: float, tol_deg: float) -> float | None:
 class _PickTables(NamedTuple):
     """Per-parameter constants of the pick search, read-only arrays.
 
-    The thresholds of the two window searches end in a sentinel, -inf, which every
-    distance passes: the first pass in a window is then at its last column exactly
-    when none of the window's own columns is far enough.
+    Each search window ends in a sentinel column that every distance passes: the first
+    pass in a window is then at its last column exactly when none of the window's own
+    columns is far enough. The screen's sentinel is in its distances (set to inf, so
+    the threshold is one 0-d array); the picks' is in their thresholds (-inf), which
+    differ from pick to pick anyway.
     """
 
     offsets: np.ndarray       # (A,) d - slack: the arc-length offsets of the lower bounds
     offset_first: np.ndarray  # 0-d, offsets[0]
     offset_last: np.ndarray   # 0-d, offsets[-1]
-    first: np.ndarray         # (near + 1,) d[0] repeated, then the sentinel
+    first: np.ndarray         # 0-d, d[0]
     every: np.ndarray         # (A, far + 1) each d repeated, then the sentinel
     near: np.ndarray          # 0-d, the stage-1 window width
     far: np.ndarray           # 0-d, the stage-2 window width
@@ -398,7 +402,7 @@ class _PickTables(NamedTuple):
 def _pick_tables(dists_m: tuple[float, ...], slack_m: float, near: int, far: int) -> _PickTables:
     """The :class:`_PickTables` of arm distances ``dists_m`` (m), ``slack_m`` and the window widths."""
     offsets = np.array([d - slack_m for d in dists_m])
-    first = np.array([dists_m[0]] * near + [-np.inf])
+    first = np.array(dists_m[0])
     every = np.array([[d] * far + [-np.inf] for d in dists_m])
     tables = _PickTables(offsets, np.array(offsets[0]), np.array(offsets[-1]), first, every, np.array(near),
                          np.array(far))
@@ -438,6 +442,8 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     if not euclid:
         return np.concatenate((col[..., None], arc.searchsorted(arc[col][..., None] + offsets)), axis=2)
     zb = zz[base]
+    # One view serves both stages: the screen reads the first _NEAR + 1 columns.
+    windows = _windows(zz, _FAR + 1)
     tan_tol = _screen_tan(params)
     if tan_tol is not None:
         # Stage 1 (the screen): the nearest pick, in a window of _NEAR columns from its
@@ -446,24 +452,26 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
         # stage 2 decides it. A hit past the stretch's end is no pick, but then there
         # is no farthest pick either and stage 2 drops the base.
         lb0 = arc.searchsorted(arc[col] + tables.offset_first)
-        hit = (np.abs(_windows(zz, _NEAR + 1)[lb0] - zb[:, None]) >= tables.first).argmax(axis=2)
+        dist = np.abs(windows[lb0, :_NEAR + 1] - zb[:, None])
+        dist[..., -1] = _INF
+        hit = (dist >= tables.first).argmax(axis=2)
         chord = zz[np.where(hit < tables.near, lb0 + hit, col)] - zb
         i = _square(chord, tan_tol).nonzero()[0]
         col, zb = col[:, i], zb[i]
     # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
     # (the farthest lags its bound most: arc length gathers the most noise there).
     lb = arc.searchsorted(arc[col][..., None] + offsets)  # (2, B, A)
-    hit = (np.abs(_windows(zz, _FAR + 1)[lb] - zb[:, None, None]) >= tables.every).argmax(axis=3)
+    hit = (np.abs(windows[lb] - zb[:, None, None]) >= tables.every).argmax(axis=3)
     pick = lb + hit
     got = hit < tables.far
     stop = end[col]
     far = pick[..., -1]
-    if _ALL(got, axis=None):
+    if np.count_nonzero(got) == got.size:
         # Nearly always every pick lies in its window: a base keeps its arms if both
         # farthest picks lie in their stretches.
         inside = far <= stop
         arms = np.concatenate((col[..., None], pick), axis=2)
-        return arms if _ALL(inside, axis=None) else arms[:, (inside[0] & inside[1]).nonzero()[0]]
+        return arms if np.count_nonzero(inside) == inside.size else arms[:, (inside[0] & inside[1]).nonzero()[0]]
     got[..., -1] &= far <= stop
     # The farthest pick must lie in the stretch; where its window found nothing and
     # ended inside the stretch, the rest of the stretch is searched.
@@ -478,7 +486,7 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     # ran past the stretch met it first); the few outside their window are searched
     # for up to it.
     got = got[:, has, :-1]
-    if not _ALL(got, axis=None):
+    if np.count_nonzero(got) != got.size:
         missed, far, lb = ~got, arms[..., -1], lb[:, has]
         for a in range(len(dists) - 1):
             j = missed[..., a].nonzero()

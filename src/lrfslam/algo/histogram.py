@@ -244,7 +244,9 @@ def _sliding_support(angle_deg: np.ndarray, members: np.ndarray, params: Denoise
     w, period = params.bin_deg, params.period_deg
     # Sort once and lay copies shifted by one period each way either side, so windows
     # that cross 0° count the wrapped segments too (x + 0.0 is x).
-    ext = (np.sort(members) + _period_shifts(period)).ravel()
+    srt = members.copy()  # np.sort is this behind a Python wrapper
+    srt.sort()
+    ext = (srt + _period_shifts(period)).ravel()
     half = const(0.5 * w)
     return ext.searchsorted(angle_deg + half, side="right") - ext.searchsorted(angle_deg - half, side="left")
 
