@@ -100,8 +100,6 @@ _HALF = const(0.5)
 _MINUS_I = const(-1j)
 _RIGHT_DEG = const(90.0)
 _INF = const(math.inf)
-# Base column j on both sides: -j + (2M - 1) (the lower side, in the reversed half) and j.
-_SIDES = np.array([[-1], [1]])
 
 
 @dataclass(frozen=True)
@@ -310,15 +308,26 @@ def _square(c: np.ndarray, tan_tol: float) -> np.ndarray:
     return np.abs(p.real) <= np.abs(p.imag) * const(tan_tol)
 
 
-def _windows(zz: np.ndarray, width: int) -> np.ndarray:
-    """Every run of ``width`` successive elements of ``zz``, shape (len - width + 1, width).
+@lru_cache(maxsize=8)
+def _window_dtype(width: int, itemsize: int) -> np.dtype:
+    """An opaque element of ``width`` items of ``itemsize`` bytes."""
+    return np.dtype((np.void, width * itemsize))
 
-    A strided view, no copy: indexing its rows gathers whole windows in one call,
-    where adding a window of offsets to each start would cost a broadcast first.
-    ``zz`` must be contiguous; the view is only read.
+
+def _windows(zz: np.ndarray, width: int) -> np.ndarray:
+    """Every run of ``width`` successive elements of ``zz`` as one opaque element, shape (len - width + 1,).
+
+    An overlapping view, no copy. Indexing it copies each window as one block on
+    numpy's one-dimensional gather path, a third of the cost of indexing the rows of
+    a 2-D strided view (which moves them element by element); :func:`_gather` reads
+    the result as points. ``zz`` must be contiguous; the view is only read.
     """
-    step = zz.itemsize
-    return np.ndarray((len(zz) - width + 1, width), zz.dtype, zz, 0, (step, step))
+    return np.ndarray((len(zz) - width + 1,), _window_dtype(width, zz.itemsize), zz, 0, (zz.itemsize,))
+
+
+def _gather(windows: np.ndarray, at: np.ndarray, width: int) -> np.ndarray:
+    """The complex windows of :func:`_windows` starting at columns ``at`` (shape S), shape S + (width,)."""
+    return windows[at].view(np.complex128).reshape(*at.shape, width)
 
 
 def _doubled(z: np.ndarray, step_m: np.ndarray, breaks: list[int]):
@@ -437,13 +446,13 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     # short in arc length on either side has no farthest pick (step 1).
     fits = arc[end] >= arc + tables.offset_last
     base = (fits[:m] & fits[:m - 1:-1]).nonzero()[0]
-    col = _SIDES * base
-    col[0] += 2 * m - 1
+    # Both sides in one flat run, lower then upper: flat arrays keep the gathers and
+    # arithmetic below on numpy's one-dimensional paths (no broadcasting iterator).
+    col = np.concatenate((2 * m - 1 - base, base))
     if not euclid:
-        return np.concatenate((col[..., None], arc.searchsorted(arc[col][..., None] + offsets)), axis=2)
-    zb = zz[base]
-    # One view serves both stages: the screen reads the first _NEAR + 1 columns.
-    windows = _windows(zz, _FAR + 1)
+        return np.concatenate((col[:, None], arc.searchsorted(arc[col][:, None] + offsets)), axis=1).reshape(
+            2, len(base), len(dists) + 1)
+    zb = zz[col]
     tan_tol = _screen_tan(params)
     if tan_tol is not None:
         # Stage 1 (the screen): the nearest pick, in a window of _NEAR columns from its
@@ -452,42 +461,47 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
         # stage 2 decides it. A hit past the stretch's end is no pick, but then there
         # is no farthest pick either and stage 2 drops the base.
         lb0 = arc.searchsorted(arc[col] + tables.offset_first)
-        dist = np.abs(windows[lb0, :_NEAR + 1] - zb[:, None])
-        dist[..., -1] = _INF
-        hit = (dist >= tables.first).argmax(axis=2)
+        dist = np.abs(_gather(_windows(zz, _NEAR + 1), lb0, _NEAR + 1) - zb[:, None])
+        dist[:, -1] = _INF
+        hit = (dist >= tables.first).argmax(axis=1)
         chord = zz[np.where(hit < tables.near, lb0 + hit, col)] - zb
-        i = _square(chord, tan_tol).nonzero()[0]
-        col, zb = col[:, i], zb[i]
+        ok = _square(chord.reshape(2, len(base)), tan_tol)
+        ok = np.concatenate((ok, ok))
+        col, zb = col[ok], zb[ok]
     # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
     # (the farthest lags its bound most: arc length gathers the most noise there).
-    lb = arc.searchsorted(arc[col][..., None] + offsets)  # (2, B, A)
-    hit = (np.abs(windows[lb] - zb[:, None, None]) >= tables.every).argmax(axis=3)
+    lb = arc.searchsorted(arc[col][:, None] + offsets)  # (2B, A)
+    hit = (np.abs(_gather(_windows(zz, _FAR + 1), lb, _FAR + 1) - zb[:, None, None]) >= tables.every).argmax(axis=2)
     pick = lb + hit
     got = hit < tables.far
     stop = end[col]
-    far = pick[..., -1]
+    far = pick[:, -1]
     if np.count_nonzero(got) == got.size:
         # Nearly always every pick lies in its window: a base keeps its arms if both
         # farthest picks lie in their stretches.
         inside = far <= stop
-        arms = np.concatenate((col[..., None], pick), axis=2)
-        return arms if np.count_nonzero(inside) == inside.size else arms[:, (inside[0] & inside[1]).nonzero()[0]]
-    got[..., -1] &= far <= stop
+        arms = np.concatenate((col[:, None], pick), axis=1).reshape(2, len(col) // 2, len(dists) + 1)
+        if np.count_nonzero(inside) == inside.size:
+            return arms
+        inside = inside.reshape(2, -1)
+        return arms[:, (inside[0] & inside[1]).nonzero()[0]]
+    got[:, -1] &= far <= stop
     # The farthest pick must lie in the stretch; where its window found nothing and
     # ended inside the stretch, the rest of the stretch is searched.
-    far_lb = lb[..., -1]
-    j = ((far_lb + _FAR <= stop) > got[..., -1]).nonzero()
-    if len(j[0]):
+    far_lb = lb[:, -1]
+    j = ((far_lb + _FAR <= stop) > got[:, -1]).nonzero()[0]
+    if len(j):
         far[j] = _reach(zz, col[j], far_lb[j] + _FAR, stop[j], dists[-1], _FAR)
-        got[..., -1][j] = far[j] >= 0
-    has = (got[0, :, -1] & got[1, :, -1]).nonzero()[0]
-    arms = np.concatenate((col[..., None], pick), axis=2)[:, has]
+        got[j, -1] = far[j] >= 0
+    has = got[:, -1].reshape(2, -1)
+    has = (has[0] & has[1]).nonzero()[0]
+    arms = np.concatenate((col[:, None], pick), axis=1).reshape(2, len(col) // 2, len(dists) + 1)[:, has]
     # With the farthest pick every nearer one exists, at or before it (a window that
     # ran past the stretch met it first); the few outside their window are searched
     # for up to it.
-    got = got[:, has, :-1]
+    got = got.reshape(2, -1, len(dists))[:, has, :-1]
     if np.count_nonzero(got) != got.size:
-        missed, far, lb = ~got, arms[..., -1], lb[:, has]
+        missed, far, lb = ~got, arms[..., -1], lb.reshape(2, -1, len(dists))[:, has]
         for a in range(len(dists) - 1):
             j = missed[..., a].nonzero()
             if len(j[0]):
