@@ -274,7 +274,7 @@ def test_the_screen_never_drops_a_corner():
         off = np.concatenate((-a, a, b2, np.zeros((n, 1)), -b2), axis=1)  # Σoff = 0, Σ along·off = 0
         arms.append((along + 1j * (off - off[:, :1])) * np.exp(1j * theta)[:, None])  # base point at 0
     arms = np.stack(arms)  # (2, n, A + 1)
-    theta, max_resid = C._arm_fit(arms)
+    theta, max_resid = (v.reshape(2, n) for v in C._arm_fit(arms.reshape(2 * n, -1).T))
     corner = (90.0 - line_angle_deg(theta[0], theta[1]) <= DEFAULT.corner_tol_deg) & np.all(max_resid <= rho, axis=0)
     assert corner.sum() > 1000
     assert C._square(arms[:, corner, 1], tan_tol).all()

@@ -511,7 +511,7 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
 
 @lru_cache(maxsize=8)
 def _centring(p: int) -> np.ndarray:
-    """``I - 1/p``, shape (p, p), complex, read-only: ``x @ it`` subtracts the mean of each row."""
+    """``I - 1/p``, shape (p, p), complex, read-only: ``it @ x`` subtracts the mean of each column."""
     c = (np.eye(p) - 1.0 / p).astype(complex)
     c.setflags(write=False)
     return c
@@ -522,24 +522,25 @@ def _arm_fit(arm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    arm : ndarray of complex, shape (..., P)
-        Points ``x + iy`` of each arm along the last axis, metres.
+    arm : ndarray of complex, shape (P, K)
+        Points ``x + iy`` of each of K arms down its column, metres.
 
     Returns
     -------
-    theta : ndarray, shape (...)
+    theta : ndarray, shape (K,)
         Line direction, radians.
-    max_resid : ndarray, shape (...)
+    max_resid : ndarray, shape (K,)
         Largest perpendicular distance of a point from its line, metres.
     """
-    # Centred by one product with a constant matrix, I - 1/P: a third of the time of
-    # a mean taken, divided and broadcast back.
-    q = arm @ _centring(arm.shape[-1])
+    # Arms down the columns: the centring is one matrix product (with I - 1/P), and
+    # the sums and the maximum over an arm's points are reductions across P rows,
+    # which numpy runs as P long loops rather than K short ones.
+    q = _centring(len(arm)) @ arm
     # Σq² = (sxx - syy) + 2i sxy; rotating by -θ leaves the perpendicular offset in
     # the imaginary part.
-    q2 = _SUM(q * q, axis=-1)
+    q2 = _SUM(q * q, axis=0)
     theta = _HALF * np.arctan2(q2.imag, q2.real)
-    return theta, np.maximum.reduce(np.abs((q * np.exp(_MINUS_I * theta)[..., None]).imag), axis=-1)
+    return theta, np.maximum.reduce(np.abs((q * np.exp(_MINUS_I * theta)).imag), axis=0)
 
 
 def _suppress(z: list[complex], score: list[float], radius_m: float) -> list[int]:
@@ -686,21 +687,23 @@ def _forward(z: np.ndarray, step_m: np.ndarray, breaks: list[int], params: Corne
     arms = _arm_picks(zz, arc, end, params)
     if not arms.shape[1]:
         return []
-    arm = zz[arms]
+    n = arms.shape[1]
+    # One arm per column, the lower sides first.
+    arm = zz[arms.reshape(2 * n, -1).T]
     theta, max_resid = _arm_fit(arm)
     # The angle between the lines is min(d, 180° - d), d in [0°, 180°] (θ in
     # [-90°, 90°]), so its distance from a right angle is |d - 90°|, exactly.
-    d = np.degrees(np.abs(theta[0] - theta[1]))
+    d = np.degrees(np.abs(theta[:n] - theta[n:]))
     dev = np.abs(d - _RIGHT_DEG)
     cand = dev <= const(params.corner_tol_deg)
     if params.arm_max_resid_m is not None:
-        cand &= np.maximum(max_resid[0], max_resid[1]) <= const(params.arm_max_resid_m)
+        cand &= np.maximum(max_resid[:n], max_resid[n:]) <= const(params.arm_max_resid_m)
     cand = cand.nonzero()[0]
     if not len(cand):
         return []
     # Upper-side base columns are scan columns; lower-side picks are in the reversed half.
-    lower, upper = arms[:, cand].tolist()
-    cols = [a[0] for a in upper]
+    arms = arms.take(cand, axis=1)
+    cols = arms[1, :, 0].tolist()
     d, dev = d[cand].tolist(), dev[cand].tolist()
     # With the Euclidean metric, a pick farther than refine_rmax_m bounds each refit
     # wall (the wall stops at the first point that far out); otherwise the whole
@@ -709,9 +712,10 @@ def _forward(z: np.ndarray, step_m: np.ndarray, breaks: list[int], params: Corne
     if params.arm_metric != "euclidean" or bound is None:
         ends = [(2 * m - 1 - int(end[2 * m - 1 - j]), int(end[j])) for j in cols]
     else:
-        ends = [(2 * m - 1 - lo[bound + 1], hi[bound + 1]) for lo, hi in zip(lower, upper)]
+        lower, upper = arms[:, :, bound + 1].tolist()
+        ends = [(2 * m - 1 - lo, hi) for lo, hi in zip(lower, upper)]
     out = []
-    for i in sorted(_suppress(arm[1, cand, 0].tolist(), dev, params.nms_radius_m)):
+    for i in sorted(_suppress(arm[0, n:][cand].tolist(), dev, params.nms_radius_m)):
         j = cols[i]
         fit = _refine(z, *ends[i], j, params) if params.refine_corner else None
         if fit is None:
