@@ -81,6 +81,10 @@ _INF_EDGE_RULES = ("margin", "any")
 # than they save.
 _NEAR = 8
 _FAR = 16
+# Arms (base points times two sides) whose pick thresholds are laid out in full: past
+# the screen a scan has 20 or so, without it (the paper mode) 100 or so; a full-size
+# comparison is the cheaper one.
+_EVERY_ROWS = 256
 # Arc-length lower bounds are taken this much short of the distance, so rounding in
 # the cumulative sum can never start a Euclidean search past its answer.
 _ARC_SLACK_M = 1e-9
@@ -395,14 +399,16 @@ class _PickTables(NamedTuple):
     pass in a window is then at its last column exactly when none of the window's own
     columns is far enough. The screen's sentinel is in its distances (set to inf, so
     the threshold is one 0-d array); the picks' is in their thresholds (-inf), which
-    differ from pick to pick anyway.
+    differ from pick to pick anyway. Those thresholds are laid out for ``_EVERY_ROWS``
+    arms, so that the comparison with up to that many is elementwise (numpy's plain
+    loop) rather than broadcast (its iterator, which costs more than the comparing).
     """
 
     offsets: np.ndarray       # (A,) d - slack: the arc-length offsets of the lower bounds
     offset_first: np.ndarray  # 0-d, offsets[0]
     offset_last: np.ndarray   # 0-d, offsets[-1]
     first: np.ndarray         # 0-d, d[0]
-    every: np.ndarray         # (A, far + 1) each d repeated, then the sentinel
+    every: np.ndarray         # (_EVERY_ROWS, A, far + 1) each d repeated, then the sentinel
     near: np.ndarray          # 0-d, the stage-1 window width
     far: np.ndarray           # 0-d, the stage-2 window width
 
@@ -412,7 +418,7 @@ def _pick_tables(dists_m: tuple[float, ...], slack_m: float, near: int, far: int
     """The :class:`_PickTables` of arm distances ``dists_m`` (m), ``slack_m`` and the window widths."""
     offsets = np.array([d - slack_m for d in dists_m])
     first = np.array(dists_m[0])
-    every = np.array([[d] * far + [-np.inf] for d in dists_m])
+    every = np.array([[[d] * far + [-np.inf] for d in dists_m]] * _EVERY_ROWS)
     tables = _PickTables(offsets, np.array(offsets[0]), np.array(offsets[-1]), first, every, np.array(near),
                          np.array(far))
     for t in tables:
@@ -471,7 +477,8 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
     # (the farthest lags its bound most: arc length gathers the most noise there).
     lb = arc.searchsorted(arc[col][:, None] + offsets)  # (2B, A)
-    hit = (np.abs(_gather(_windows(zz, _FAR + 1), lb, _FAR + 1) - zb[:, None, None]) >= tables.every).argmax(axis=2)
+    every = tables.every[:len(col)] if len(col) <= _EVERY_ROWS else tables.every[0]
+    hit = (np.abs(_gather(_windows(zz, _FAR + 1), lb, _FAR + 1) - zb[:, None, None]) >= every).argmax(axis=2)
     pick = lb + hit
     got = hit < tables.far
     stop = end[col]
