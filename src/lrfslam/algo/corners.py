@@ -323,15 +323,11 @@ def _windows(zz: np.ndarray, width: int) -> np.ndarray:
 
     An overlapping view, no copy. Indexing it copies each window as one block on
     numpy's one-dimensional gather path, a third of the cost of indexing the rows of
-    a 2-D strided view (which moves them element by element); :func:`_gather` reads
-    the result as points. ``zz`` must be contiguous; the view is only read.
+    a 2-D strided view (which moves them element by element). Indexed with an
+    index array of shape S + (1,), the result viewed as ``zz.dtype`` is the windows,
+    shape S + (width,). ``zz`` must be contiguous; the view is only read.
     """
     return np.ndarray((len(zz) - width + 1,), _window_dtype(width, zz.itemsize), zz, 0, (zz.itemsize,))
-
-
-def _gather(windows: np.ndarray, at: np.ndarray, width: int) -> np.ndarray:
-    """The complex windows of :func:`_windows` starting at columns ``at`` (shape S), shape S + (width,)."""
-    return windows[at].view(np.complex128).reshape(*at.shape, width)
 
 
 def _doubled(z: np.ndarray, step_m: np.ndarray, breaks: list[int]):
@@ -409,18 +405,16 @@ class _PickTables(NamedTuple):
     offset_last: np.ndarray   # 0-d, offsets[-1]
     first: np.ndarray         # 0-d, d[0]
     every: np.ndarray         # (_EVERY_ROWS, A, far + 1) each d repeated, then the sentinel
-    near: np.ndarray          # 0-d, the stage-1 window width
     far: np.ndarray           # 0-d, the stage-2 window width
 
 
 @lru_cache(maxsize=16)
-def _pick_tables(dists_m: tuple[float, ...], slack_m: float, near: int, far: int) -> _PickTables:
-    """The :class:`_PickTables` of arm distances ``dists_m`` (m), ``slack_m`` and the window widths."""
+def _pick_tables(dists_m: tuple[float, ...], slack_m: float, far: int) -> _PickTables:
+    """The :class:`_PickTables` of arm distances ``dists_m`` (m), ``slack_m`` and the stage-2 window width."""
     offsets = np.array([d - slack_m for d in dists_m])
     first = np.array(dists_m[0])
     every = np.array([[[d] * far + [-np.inf] for d in dists_m]] * _EVERY_ROWS)
-    tables = _PickTables(offsets, np.array(offsets[0]), np.array(offsets[-1]), first, every, np.array(near),
-                         np.array(far))
+    tables = _PickTables(offsets, np.array(offsets[0]), np.array(offsets[-1]), first, every, np.array(far))
     for t in tables:
         t.setflags(write=False)
     return tables
@@ -446,7 +440,7 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     m = len(arc) // 2
     dists = params.arm_dists_m
     euclid = params.arm_metric == "euclidean"
-    tables = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0, _NEAR, _FAR)
+    tables = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0, _FAR)
     offsets = tables.offsets
     # Arc length is never shorter than the distance from the base: a stretch too
     # short in arc length on either side has no farthest pick (step 1).
@@ -459,6 +453,7 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
         return np.concatenate((col[:, None], arc.searchsorted(arc[col][:, None] + offsets)), axis=1).reshape(
             2, len(base), len(dists) + 1)
     zb = zz[col]
+    windows = _windows(zz, _FAR + 1)
     tan_tol = _screen_tan(params)
     if tan_tol is not None:
         # Stage 1 (the screen): the nearest pick, in a window of _NEAR columns from its
@@ -467,10 +462,14 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
         # stage 2 decides it. A hit past the stretch's end is no pick, but then there
         # is no farthest pick either and stage 2 drops the base.
         lb0 = arc.searchsorted(arc[col] + tables.offset_first)
-        dist = np.abs(_gather(_windows(zz, _NEAR + 1), lb0, _NEAR + 1) - zb[:, None])
+        chords = _windows(zz, _NEAR + 1)[lb0[:, None]].view(np.complex128)
+        chords -= zb[:, None]
+        dist = np.abs(chords)
+        # The window's last column is its sentinel: far enough, and a zero chord.
         dist[:, -1] = _INF
+        chords[:, -1] = 0.0
         hit = (dist >= tables.first).argmax(axis=1)
-        chord = zz[np.where(hit < tables.near, lb0 + hit, col)] - zb
+        chord = chords.ravel()[np.arange(0, chords.size, _NEAR + 1) + hit]
         ok = _square(chord.reshape(2, len(base)), tan_tol)
         ok = np.concatenate((ok, ok))
         col, zb = col[ok], zb[ok]
@@ -478,7 +477,7 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: CornerP
     # (the farthest lags its bound most: arc length gathers the most noise there).
     lb = arc.searchsorted(arc[col][:, None] + offsets)  # (2B, A)
     every = tables.every[:len(col)] if len(col) <= _EVERY_ROWS else tables.every[0]
-    hit = (np.abs(_gather(_windows(zz, _FAR + 1), lb, _FAR + 1) - zb[:, None, None]) >= every).argmax(axis=2)
+    hit = (np.abs(windows[lb[..., None]].view(np.complex128) - zb[:, None, None]) >= every).argmax(axis=2)
     pick = lb + hit
     got = hit < tables.far
     stop = end[col]

@@ -46,6 +46,7 @@ _BIN_MODES = ("fixed", "sliding")
 _KEEP_RULES = ("or", "and")
 _MIXED_MODELS = ("line", "range")
 _ZERO = const(0.0)
+_NAN = const(np.nan)
 
 
 @dataclass(frozen=True)
@@ -275,7 +276,7 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
     valid = valid_returns(r, params.max_range_m)
     # Paper eq. (1) with pose 0; NaN where no return. The complex z = x + iy moves
     # both coordinates in one array operation; points_xy is a view of it.
-    rv = np.where(valid, r, np.nan)
+    rv = np.where(valid, r, _NAN)
     z_all = rv * beams.expi
     xy = z_all.view(np.float64).reshape(n, 2)
     if params.mixed_tol_m > 0 and n >= 3:
@@ -318,7 +319,9 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
         # Supports of jump segments are computed too (fewer calls than masking them
         # out) and ignored below.
         support = _sliding_support(ang, members, params)
-    passes = seg_ok & (support > params.keep_frac * n_seg)
+    # support > keep_frac * n_seg for an integer support: compared with the floor, the
+    # integers never have to be converted to floats.
+    passes = seg_ok & (support > int(params.keep_frac * n_seg))
 
     # Segment j joins compressed points j and j + s; gather both sides of each point.
     if params.keep_rule == "or":
@@ -333,5 +336,5 @@ def denoise(ranges_m: np.ndarray, angles_rad: np.ndarray, params: DenoiseParams)
         before_ok = np.concatenate((pad_pass, seg_ok))
         # Missing neighbours (run ends, jumps) do not veto; at least one must pass.
         keep_c = ((after_pass | ~after_ok) & (before_pass | ~before_ok)) & (after_ok | before_ok)
-    kept[idx[keep_c]] = True
+    kept[idx] = keep_c
     return DenoiseResult(kept, valid, xy, mixed, members, edges, n_seg)
