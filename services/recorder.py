@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.recording import RecordingWriter
@@ -47,7 +48,7 @@ class RecorderStep(StepBase):
         log.info("recording to %s", self.path)
 
     def on_message(self, msg: Message):
-        if not self.cfg.include_health and msg.name.startswith("health/"):
+        if not self.cfg.include_health and topics.is_health(msg.name):
             return ()
         stamp = msg.stamp_ns or time.time_ns()
         try:

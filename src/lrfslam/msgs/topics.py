@@ -49,12 +49,17 @@ def health(service: str) -> Topic:
     return Topic(f"health/{service}", c.SERVICE_STATUS)
 
 
+def is_health(name: str) -> bool:
+    """Whether relative key ``name`` is a service's periodic status."""
+    return name.startswith("health/")
+
+
 def by_name(name: str) -> Topic:
     """Topic for a relative key (data topics and ``health/<service>``)."""
     for topic in DATA_TOPICS:
         if topic.name == name:
             return topic
-    if name.startswith("health/"):
+    if is_health(name):
         return health(name.split("/", 1)[1])
     raise KeyError(name)
 
@@ -84,11 +89,36 @@ def everything(robot: str) -> str:
     return f"{ROOT}/{robot}/**"
 
 
+#: Stands for "every service" (or "every robot") in the key expressions below.
+ANY = "*"
+
+
 def alive(robot: str, service: str) -> str:
-    """Liveliness token of a running service."""
+    """Liveliness token of a running service (``service=ANY``: every service's)."""
     return f"{ROOT}/{robot}/alive/{service}"
 
 
 def status(robot: str, service: str) -> str:
-    """Status queryable of a running service."""
+    """Status queryable of a running service (``service=ANY``: every service's)."""
     return f"{ROOT}/{robot}/svc/{service}/status"
+
+
+def health_key(robot: str, service: str) -> str:
+    """Absolute key of ``service``'s periodic status (``service=ANY``: every service's)."""
+    return key(robot, health(service).name)
+
+
+def robot_and_service(key_expr: str) -> tuple[str, str]:
+    """``(robot, service)`` of an :func:`alive`, :func:`status` or :func:`health_key` key.
+
+    Raises
+    ------
+    KeyError
+        ``key_expr`` is none of those.
+    """
+    parts = str(key_expr).split("/")
+    if len(parts) == 4 and parts[0] == ROOT and parts[2] in ("alive", "health"):
+        return parts[1], parts[3]
+    if len(parts) == 5 and parts[0] == ROOT and parts[2] == "svc" and parts[4] == "status":
+        return parts[1], parts[3]
+    raise KeyError(key_expr)

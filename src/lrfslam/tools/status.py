@@ -29,14 +29,13 @@ def query_status(session: zenoh.Session, robot: str, timeout_s: float) -> tuple[
                                                                                list[t.ServiceStatus]]:
     """Live (robot, service) pairs from liveliness, and every status reply."""
     alive: set[tuple[str, str]] = set()
-    for reply in session.liveliness().get(f"{topics.ROOT}/{robot}/alive/*", timeout=timeout_s):
+    for reply in session.liveliness().get(topics.alive(robot, topics.ANY), timeout=timeout_s):
         if reply.ok is not None:
-            parts = str(reply.ok.key_expr).split("/")
-            alive.add((parts[1], parts[3]))
+            alive.add(topics.robot_and_service(str(reply.ok.key_expr)))
     statuses = []
     # Services reply on the query's own (wildcard) key, so the default consolidation would keep
     # one reply of the five; every queryable must be asked and every reply kept.
-    for reply in session.get(f"{topics.ROOT}/{robot}/svc/*/status", timeout=timeout_s,
+    for reply in session.get(topics.status(robot, topics.ANY), timeout=timeout_s,
                              target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE):
         if reply.ok is None:
             continue

@@ -90,7 +90,7 @@ class Observer:
 
     def on_health(self, sample: zenoh.Sample) -> None:
         with self.lock:
-            self.health[str(sample.key_expr).rsplit("/", 1)[-1]] = sample.payload.to_bytes()
+            self.health[topics.robot_and_service(str(sample.key_expr))[1]] = sample.payload.to_bytes()
 
     def last_state_stamp(self) -> int:
         with self.lock:
@@ -110,9 +110,9 @@ def wait_alive(session: zenoh.Session, robot: str, names: list[str], timeout_s: 
     deadline = time.monotonic() + timeout_s
     seen: set[str] = set()
     while time.monotonic() < deadline and not set(names) <= seen:
-        for reply in session.liveliness().get(f"{topics.ROOT}/{robot}/alive/*", timeout=1.0):
+        for reply in session.liveliness().get(topics.alive(robot, topics.ANY), timeout=1.0):
             if reply.ok is not None:
-                seen.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+                seen.add(topics.robot_and_service(str(reply.ok.key_expr))[1])
         time.sleep(0.1)
     return seen & set(names)
 
@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     with session:
         subs = [session.declare_subscriber(topics.key(args.robot, topics.TRUTH.name), observer.on_truth),
                 session.declare_subscriber(topics.key(args.robot, topics.SLAM_STATE.name), observer.on_state),
-                session.declare_subscriber(topics.key(args.robot, "health/*"), observer.on_health)]
+                session.declare_subscriber(topics.health_key(args.robot, topics.ANY), observer.on_health)]
         for name in START_ORDER[:-1]:
             children[name].start()
         ready = wait_alive(session, args.robot, list(START_ORDER[:-1]), 30.0)
@@ -280,7 +280,7 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
         per_topic = Counter(m.topic for m in read_recording(recording))
         lines.append(f"recording: {recording} ({recording.stat().st_size / 1e6:.1f} MB, "
                      f"{sum(per_topic.values())} messages: "
-                     + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not k.startswith("health/"))
+                     + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not topics.is_health(k))
                      + ")")
     else:
         lines.append(f"recording: {recording} was not written")
