@@ -17,6 +17,10 @@ class ConfigError(LrfSlamError):
     """A configuration value is unknown, of the wrong type, or out of range."""
 
 
+class MissingExtraError(ConfigError):
+    """A command needs an optional dependency (an extra of the distribution) that is not installed."""
+
+
 class InputError(LrfSlamError):
     """Bad input data: the message, file line or telegram is skipped and counted."""
 

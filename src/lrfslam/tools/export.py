@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from lrfslam.algo.geometry import compose, relative
+from lrfslam.errors import MissingExtraError
+from lrfslam.extras import require
 from lrfslam.msgs import codec, topics
 from lrfslam.runtime.recording import read_recording
 
@@ -74,9 +77,8 @@ def ellipse(mean: np.ndarray, cov: np.ndarray, n: int = 48) -> np.ndarray:
 
 
 def plot(data: dict, png: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    require("matplotlib", "plot", "the map picture (map.png)").use("Agg")
+    plt = require("matplotlib.pyplot", "plot", "the map picture (map.png)")
 
     have_truth = bool(data["truth"])
     anchor = anchor_of(data["states"], data["truth"]) if have_truth else np.zeros(3)
@@ -120,10 +122,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lrfslam export", description=__doc__.splitlines()[0])
     parser.add_argument("recording", type=Path, help="recording (or --replay output) with slam/state")
     parser.add_argument("-o", "--out-dir", type=Path, default=Path("."), help="folder for map.json and map.png")
+    parser.add_argument("--no-png", action="store_true", help="write map.json only (no plotting extra needed)")
     args = parser.parse_args(argv)
     data = collect(args.recording)
     args.out_dir.mkdir(parents=True, exist_ok=True)
     (args.out_dir / "map.json").write_text(json.dumps(to_json(data), indent=1))
-    plot(data, args.out_dir / "map.png")
+    if args.no_png:
+        print(f"wrote {args.out_dir / 'map.json'}")
+        return 0
+    try:
+        plot(data, args.out_dir / "map.png")
+    except MissingExtraError as exc:
+        print(f"lrfslam export: wrote {args.out_dir / 'map.json'}; {exc} (or pass --no-png)", file=sys.stderr)
+        return 2
     print(f"wrote {args.out_dir / 'map.json'} and {args.out_dir / 'map.png'}")
     return 0
