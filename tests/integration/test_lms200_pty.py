@@ -25,7 +25,7 @@ import pytest
 import serial
 
 from lrfslam.drivers.lms200 import protocol as p
-from lrfslam.drivers.lms200.emulated_device import SimScanSource
+from lrfslam.drivers.lms200.device_model import SimScanSource
 from lrfslam.drivers.lms200.port import Lms200, Lms200Timeouts
 
 HANG_GUARD_S = 30.0

@@ -14,8 +14,8 @@ from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.runner import service_config
 from lrfslam.runtime.service import Message, Output, RunContext, run_offline
+from lrfslam.sim.floor_plans import l_corner
 from lrfslam.sim.lidar import LidarModel, simulate_scan
-from lrfslam.sim.worlds import l_corner
 
 CTX = RunContext("r1", replay=True)
 

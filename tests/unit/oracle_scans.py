@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from lrfslam.evaluation.features import hallway_poses, random_room, room_poses
+from lrfslam.sim.floor_plans import hallway_loop
 from lrfslam.sim.lidar import LidarModel, simulate_scan
-from lrfslam.sim.worlds import hallway_loop
 
 
 def simulated(n_hallway: int, n_rooms: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:

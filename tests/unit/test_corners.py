@@ -15,9 +15,9 @@ from lrfslam.algo.corners import BACKWARD, FORWARD, CornerParams, extract_featur
 from lrfslam.algo.geometry import from_frame, to_frame
 from lrfslam.algo.histogram import DenoiseParams, denoise
 from lrfslam.errors import ConfigError
+from lrfslam.sim.floor_plans import corridor_end, doorway_room, l_corner, straight_wall
 from lrfslam.sim.lidar import LidarModel, raycast, simulate_scan
 from lrfslam.sim.world import World, closed_polygon, polyline
-from lrfslam.sim.worlds import corridor_end, doorway_room, l_corner, straight_wall
 
 ANGLES = np.radians(np.arange(-90.0, 91.0))
 PAPER, DEFAULT = CornerParams.paper(), CornerParams.default()

@@ -13,10 +13,10 @@ from hypothesis.extra.numpy import arrays
 from lrfslam.algo.histogram import DenoiseParams, denoise, valid_returns
 from lrfslam.algo.mixed_pixels import along_beam, beam_tables, depth_outliers, off_line
 from lrfslam.errors import ConfigError
+from lrfslam.sim.floor_plans import corridor_end, hallway_loop, straight_wall, waypoints
 from lrfslam.sim.lidar import LidarModel, raycast, simulate_scan
 from lrfslam.sim.trajectory import loop_path
 from lrfslam.sim.world import World, polyline
-from lrfslam.sim.worlds import corridor_end, hallway_loop, straight_wall, waypoints
 
 ANGLES = np.radians(np.arange(-90.0, 91.0))
 PAPER, DEFAULT = DenoiseParams.paper(), DenoiseParams.default()

@@ -16,9 +16,9 @@ from lrfslam.algo.scan_match import (
     match,
 )
 from lrfslam.errors import ConfigError, InputError
+from lrfslam.sim.floor_plans import build_world, straight_wall
 from lrfslam.sim.lidar import LidarModel, simulate_scan
 from lrfslam.sim.simulator import SimConfig, Simulator
-from lrfslam.sim.worlds import build_world, straight_wall
 
 P = ScanMatchParams()
 EXACT = LidarModel(range_sigma_m=0.0, quantum_m=0.0, mixed_pixel_prob=0.0)

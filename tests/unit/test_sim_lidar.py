@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lrfslam.errors import ConfigError
+from lrfslam.sim.floor_plans import doorway_room, hallway_loop, straight_wall
 from lrfslam.sim.lidar import LidarModel, raycast, simulate_scan
-from lrfslam.sim.worlds import doorway_room, hallway_loop, straight_wall
 
 ANGLES = LidarModel().angles_rad()
 

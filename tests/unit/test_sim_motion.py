@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 
 from lrfslam.algo.geometry import relative, wrap_angle
 from lrfslam.errors import ConfigError
+from lrfslam.sim.floor_plans import hallway_loop, hallway_loop_path
 from lrfslam.sim.odometry import OdometryNoise, integrate_odometry, noisy_increment
 from lrfslam.sim.trajectory import LoopTrajectory, loop_path
-from lrfslam.sim.worlds import hallway_loop, hallway_loop_path
 
 SQUARE = np.array([(2.0, 0.0), (4.0, 0.0), (4.0, 4.0), (0.0, 4.0), (0.0, 0.0)])
 

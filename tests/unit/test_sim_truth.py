@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lrfslam.algo.geometry import from_frame
+from lrfslam.sim.floor_plans import corridor_end, doorway_room, hallway_loop, l_corner
 from lrfslam.sim.truth import (
     corners_in_robot_frame,
     eligible_corners,
@@ -15,7 +16,6 @@ from lrfslam.sim.truth import (
     visible_points,
 )
 from lrfslam.sim.world import World, closed_polygon
-from lrfslam.sim.worlds import corridor_end, doorway_room, hallway_loop, l_corner
 
 ORIGIN = (0.0, 0.0, 0.0)
 

@@ -10,8 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lrfslam.errors import ConfigError
-from lrfslam.sim.world import World, closed_polygon, polyline
-from lrfslam.sim.worlds import (
+from lrfslam.sim.floor_plans import (
     build_world,
     corridor_end,
     doorway_room,
@@ -21,6 +20,7 @@ from lrfslam.sim.worlds import (
     straight_wall,
     waypoints,
 )
+from lrfslam.sim.world import World, closed_polygon, polyline
 
 
 def test_l_corner_has_one_concave_corner_at_the_vertex():

@@ -13,9 +13,9 @@ from lrfslam.algo.wall_direction import (
 )
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.sim import SimConfig, Simulator
+from lrfslam.sim.floor_plans import corridor_end, l_corner
 from lrfslam.sim.lidar import LidarModel, simulate_scan
 from lrfslam.sim.world import World, polyline
-from lrfslam.sim.worlds import corridor_end, l_corner
 
 EXACT = LidarModel(range_sigma_m=0.0, quantum_m=0.0, mixed_pixel_prob=0.0)
 

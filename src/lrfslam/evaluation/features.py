@@ -30,11 +30,11 @@ import numpy as np
 from lrfslam.algo.corners import FORWARD, CornerParams, FeatureSet, extract_features
 from lrfslam.algo.geometry import from_frame, to_frame
 from lrfslam.algo.histogram import DenoiseParams, DenoiseResult, denoise
+from lrfslam.sim.floor_plans import hallway_loop, waypoints
 from lrfslam.sim.lidar import LidarModel, SimScan, simulate_scan
 from lrfslam.sim.trajectory import loop_path
 from lrfslam.sim.truth import eligible_corners, jump_edge_vertices, visible_corners
 from lrfslam.sim.world import World, closed_polygon
-from lrfslam.sim.worlds import hallway_loop, waypoints
 
 #: Detections farther than this from every truth point are false (notes §2).
 MATCH_RADIUS_M = 0.10

@@ -1,7 +1,7 @@
 """Pure simulator of a SICK LMS200 robot driving round an indoor segment map.
 
-``world``/``worlds`` hold the maps and their corner ground truth, ``lidar`` the
-ray caster and scanner error model, ``trajectory`` and ``odometry`` the true and
+``world`` (wall segments and their corner ground truth) and ``floor_plans`` (the
+built-in worlds) hold the maps, ``lidar`` the ray caster and scanner error model, ``trajectory`` and ``odometry`` the true and
 measured motion, ``truth`` per-pose corner visibility, and ``simulator`` ties them
 into an endless, seeded stream of frames.
 """

@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lrfslam.algo.geometry import compose, relative
+from lrfslam.sim.floor_plans import build_world, waypoints
 from lrfslam.sim.lidar import LidarModel, SimScan, simulate_scan
 from lrfslam.sim.odometry import OdometryNoise, noisy_increment
 from lrfslam.sim.trajectory import LoopTrajectory, loop_path
 from lrfslam.sim.truth import corners_in_robot_frame, visible_corners
 from lrfslam.sim.world import MapCorners, World
-from lrfslam.sim.worlds import build_world, waypoints
 
 
 @dataclass(frozen=True)
@@ -28,7 +28,7 @@ class SimConfig:
     Attributes
     ----------
     world_name : str
-        A name from :func:`lrfslam.sim.worlds.world_names`.
+        A name from :func:`lrfslam.sim.floor_plans.world_names`.
     lidar : LidarModel
     odometry : OdometryNoise
     speed_mps : float

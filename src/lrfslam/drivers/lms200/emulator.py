@@ -19,7 +19,7 @@ like an LMS200 on the other end of that port (protocol note §9):
   (note §6);
 * scans come from :mod:`lrfslam.sim`; scan ``k`` depends only on
   ``(--world, --seed, variant, k)``, see
-  :class:`~lrfslam.drivers.lms200.emulated_device.SimScanSource`;
+  :class:`~lrfslam.drivers.lms200.device_model.SimScanSource`;
 * optional faults on streamed scans: garbage before a telegram, one flipped
   bit, a truncated telegram (each a percentage of telegrams).
 
@@ -53,7 +53,7 @@ from typing import TextIO
 import numpy as np
 
 from lrfslam.drivers.lms200 import protocol as p
-from lrfslam.drivers.lms200.emulated_device import (
+from lrfslam.drivers.lms200.device_model import (
     EmulatedLms200,
     ScanSource,
     SimScanSource,
@@ -385,7 +385,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--units-initial", choices=("mm", "cm"), default="mm",
                         help="units in the stored configuration (default mm)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated scans and of the faults")
-    parser.add_argument("--world", default="hallway_loop", help="simulated world (lrfslam.sim.worlds)")
+    parser.add_argument("--world", default="hallway_loop", help="simulated world (lrfslam.sim.floor_plans)")
     parser.add_argument("--rate-limit", action=argparse.BooleanOptionalAction, default=True,
                         help="pace output at baud/10 bytes per second (default on)")
     parser.add_argument("--reply-delay-ms", type=float, default=5.0,

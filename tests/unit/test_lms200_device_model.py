@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lrfslam.drivers.lms200 import protocol as p
-from lrfslam.drivers.lms200.emulated_device import (
+from lrfslam.drivers.lms200.device_model import (
     TYPE_STRING,
     EmulatedLms200,
     SimScanSource,

@@ -178,7 +178,7 @@ class SimScanSource:
     Parameters
     ----------
     world_name : str
-        A :func:`lrfslam.sim.worlds.world_names` entry.
+        A :func:`lrfslam.sim.floor_plans.world_names` entry.
     seed : int
     """
 
