@@ -1,0 +1,72 @@
+"""Rooms import only downward: the table in docs/architecture.md, checked on every module.
+
+A room is a top-level package of ``lrfslam`` (``algo``, ``msgs``, ``runtime`` …; ``services``
+is the top-level ``services/`` folder). Imports inside functions count too: a lazy import
+is still a dependency.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+SRC = ROOT / "src" / "lrfslam"
+
+# Each room and the rooms it may import (besides itself and the package root ``lrfslam``).
+BASE = {"errors"}
+MAY_IMPORT: dict[str, set[str]] = {
+    "errors": set(),
+    "extras": BASE,
+    "algo": BASE,
+    "io": BASE,
+    "msgs": BASE,
+    "sim": BASE | {"algo"},
+    "drivers": BASE | {"sim", "algo"},
+    "runtime": BASE | {"msgs", "extras"},
+    "services": BASE | {"runtime", "msgs", "algo", "sim", "drivers", "io", "extras"},
+    "evaluation": BASE | {"services", "runtime", "msgs", "algo", "sim", "io", "extras"},
+    "tools": BASE | {"evaluation", "services", "runtime", "msgs", "algo", "sim", "drivers", "io", "extras"},
+    "cli": BASE | {"services", "runtime", "tools"},
+}
+
+
+def modules() -> list[tuple[str, Path]]:
+    """(room, path) of every module of the distribution."""
+    found = [(p.relative_to(SRC).parts[0].removesuffix(".py"), p) for p in SRC.rglob("*.py")
+             if p.parent != SRC or p.stem != "__init__"]
+    return found + [("services", p) for p in (ROOT / "services").glob("*.py")]
+
+
+def rooms_imported(source: str) -> set[str]:
+    """Rooms of ``lrfslam`` that ``source`` imports (absolute imports only; the package uses no others)."""
+    rooms = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module] + ([f"{node.module}.{a.name}" for a in node.names] if node.module == "lrfslam"
+                                     else [])
+        else:
+            continue
+        rooms |= {name.split(".")[1] for name in names if name.startswith("lrfslam.")}
+    return rooms - {"__name__", "__version__"}
+
+
+def test_every_room_is_in_the_table():
+    assert {room for room, _ in modules()} <= set(MAY_IMPORT)
+
+
+@pytest.mark.parametrize(("room", "path"), modules(), ids=lambda v: v if isinstance(v, str) else v.name)
+def test_imports_go_downward(room, path):
+    wrong = rooms_imported(path.read_text(encoding="utf-8")) - MAY_IMPORT[room] - {room}
+    assert not wrong, f"{path.relative_to(ROOT)} ({room}) imports {sorted(wrong)}"
+
+
+def test_the_checker_sees_lazy_and_package_imports():
+    source = ("from lrfslam import services\n"
+              "def f():\n    import lrfslam.tools.up\n"
+              "from lrfslam.msgs import topics\n")
+    assert rooms_imported(source) == {"services", "tools", "msgs"}
