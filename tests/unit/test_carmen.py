@@ -16,7 +16,6 @@ from lrfslam.algo.geometry import beam_angles
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.io.carmen import (
     CARMEN_FLASER_MAX_RANGE_M,
-    KNOWN_NO_RETURN_M,
     CarmenIssue,
     CarmenLineError,
     CarmenReader,
@@ -78,10 +77,10 @@ def test_flaser_fields_land_in_the_right_places():
         rec.ranges_m[0] = 1.0  # read-only
 
 
-def test_no_return_threshold_override_for_aces():
+def test_no_return_threshold_override():
     line = flaser_line("FLASER", [49.99, 50.0, 3.0])
     assert np.isfinite(parse_line(line).ranges_m[1])
-    rec = parse_line(line, no_return_min_m=KNOWN_NO_RETURN_M["aces"])
+    rec = parse_line(line, no_return_min_m=50.0)
     np.testing.assert_array_equal(rec.ranges_m, [49.99, np.inf, 3.0])
     with pytest.raises(ConfigError):
         CarmenReader([line], no_return_min_m=0.0)

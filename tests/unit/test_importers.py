@@ -9,13 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lrfslam.algo.geometry import compose
 from lrfslam.errors import ConfigError
 from lrfslam.io.carmen import CarmenReader, LaserRecord
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_metadata, read_recording
-from lrfslam.tools import importers
+from lrfslam.tools import importers, info
 from lrfslam.tools.evaluate import evaluate_relations, stamp_s
 from lrfslam.tools.importers import import_carmen, stamp_ns
 
@@ -35,10 +36,11 @@ def laser_records(path):
         return [r for r in CarmenReader(f) if isinstance(r, LaserRecord)]
 
 
-def flaser(ranges, pose, stamp):
+def flaser(ranges, pose, stamp, laser=None):
     values = " ".join(f"{r:.2f}" for r in ranges)
     p = " ".join(f"{v:.6f}" for v in pose)
-    return f"FLASER {len(ranges)} {values} {p} {p} {stamp:.6f} nohost 0.0"
+    lp = p if laser is None else " ".join(f"{v:.6f}" for v in laser)
+    return f"FLASER {len(ranges)} {values} {lp} {p} {stamp:.6f} nohost 0.0"
 
 
 def test_stamp_ns_is_the_logged_decimal_and_converts_back_exactly():
@@ -69,12 +71,14 @@ def test_intel_head_scans_and_odometry(tmp_path):
         np.testing.assert_array_equal(scan.ranges_m, rec.ranges_m.astype(np.float32))
         np.testing.assert_array_equal(scan.status, np.where(np.isinf(rec.ranges_m), t.BEAM_NO_RETURN, t.BEAM_VALID))
         assert (scan.angle_min_rad, scan.angle_increment_rad) == (np.float32(-math.pi / 2), np.float32(math.radians(1)))
-        assert scan.source == "carmen:FLASER" and scan.range_max_m == 80.0
+        assert scan.source == "carmen:FLASER" and scan.range_max_m == np.float32(81.83)  # the log's code
         np.testing.assert_array_equal(odom.pose, rec.odom_pose)
     first = scans[0][0]
     assert first.ranges_m[89] == math.inf and first.status[89] == t.BEAM_NO_RETURN  # logged as 81.83
-    assert read_metadata(out)["lrfslam"] == {"robot": "intel", "importer": importers.IMPORTER,
-                                             "source_file": "intel_head.clf", "no_return_min_m": ""}
+    assert read_metadata(out)["lrfslam"] == {
+        "robot": "intel", "importer": importers.IMPORTER, "source_file": "intel_head.clf",
+        "beams": "180 beams at 1.00 deg from -90.0 deg (10 lines)", "no_return_m": "81.83",
+        "no_return_from": "the log: 7.94 % of readings are exactly this value", "laser_mount": "0.0000 0.0000 0.00000"}
 
 
 def test_compressed_log_gives_the_same_messages(tmp_path):
@@ -140,7 +144,8 @@ def test_max_range_sets_the_no_return_threshold(tmp_path):
     first = decoded(tmp_path / "m.mcap", topics.SCAN)[0][0]
     np.testing.assert_array_equal(first.ranges_m, np.float32([1.0, 2.0, np.inf, np.inf, np.inf]))
     assert first.range_max_m == 2.5
-    assert read_metadata(tmp_path / "m.mcap")["lrfslam"]["no_return_min_m"] == "2.5"
+    meta = read_metadata(tmp_path / "m.mcap")["lrfslam"]
+    assert (meta["no_return_m"], meta["no_return_from"]) == ("2.5", "--max-range-m")
 
 
 def test_bad_arguments_fail_cleanly(tmp_path, capsys):
@@ -167,3 +172,57 @@ def test_intel_import_reproduces_the_odometry_baseline(tmp_path):
     assert (odom.n_used, odom.max_match_gap_s) == (2984, 0.0)
     assert odom.trans_abs_m.mean == pytest.approx(7.37, abs=0.005)
     assert odom.trans_abs_m.std == pytest.approx(14.35, abs=0.005)
+
+
+def test_the_no_return_code_is_read_from_the_log_not_its_name(tmp_path):
+    # A 50 m code as ACES writes it, in a file named like nothing known.
+    rng = np.random.default_rng(3)
+    lines = [flaser(np.where(rng.random(180) < 0.05, 50.0, rng.uniform(0.5, 20.0, 180)), (0.1 * k, 0.0, 0.0),
+                    10.0 + 0.1 * k) for k in range(20)]
+    log = tmp_path / "building.clf"
+    log.write_text("\n".join(lines) + "\n")
+    result = import_carmen(log, tmp_path / "b.mcap")
+    assert result.sensor["no_return_m"] == "50.0" and result.sensor["no_return_from"].startswith("the log")
+    assert result.sensor["beams"].startswith("180 beams at 1.00 deg from -90.0 deg")
+    for scan, _, _ in decoded(tmp_path / "b.mcap", topics.SCAN):
+        assert np.all(np.isinf(scan.ranges_m) == (scan.status == t.BEAM_NO_RETURN))
+        assert np.all(scan.ranges_m[np.isfinite(scan.ranges_m)] <= 20.0)
+    assert read_metadata(tmp_path / "b.mcap")["lrfslam"]["no_return_m"] == "50.0"
+
+
+def test_a_log_without_a_repeated_maximum_keeps_carmens_rule(tmp_path):
+    log = tmp_path / "plain.clf"
+    log.write_text("\n".join(flaser([1.0 + 0.01 * k, 2.0, 3.0], (0.0, 0.0, 0.0), 1.0 + k) for k in range(5)) + "\n")
+    assert import_carmen(log, tmp_path / "p.mcap").sensor["no_return_m"] == ""
+
+
+def test_the_laser_mounting_moves_the_odometry_to_the_laser(tmp_path):
+    # Laser 0.3 m ahead of and 0.1 m left of the robot centre, turned 0.05 rad, as the lines' poses say.
+    mount = np.array([0.3, 0.1, 0.05])
+    poses = [np.array([k * 0.2, 0.05 * k, 0.1 * k]) for k in range(6)]
+    lines = [flaser([1.0, 2.0], pose, 1.0 + k, laser=compose(pose, mount)) for k, pose in enumerate(poses)]
+    log = tmp_path / "mounted.clf"
+    log.write_text("\n".join(lines) + "\n")
+    result = import_carmen(log, tmp_path / "m.mcap")
+    np.testing.assert_allclose([float(v) for v in result.sensor["laser_mount"].split()], mount, atol=1e-4)
+    odoms = [o.pose for o, _, _ in decoded(tmp_path / "m.mcap", topics.ODOM)]
+    np.testing.assert_allclose(odoms, [compose(p, mount) for p in poses], atol=1e-5)
+
+
+def test_the_front_laser_offset_parameter_applies_when_the_lines_do_not(tmp_path):
+    lines = ["PARAM robot_frontlaser_offset 0.25 nohost 0"]
+    lines += [flaser([1.0, 2.0], (0.0, 0.0, 0.5 * k), 1.0 + k) for k in range(3)]
+    log = tmp_path / "param.clf"
+    log.write_text("\n".join(lines) + "\n")
+    import_carmen(log, tmp_path / "p.mcap")
+    odoms = [o.pose for o, _, _ in decoded(tmp_path / "p.mcap", topics.ODOM)]
+    np.testing.assert_allclose(odoms, [compose((0.0, 0.0, 0.5 * k), (0.25, 0.0, 0.0)) for k in range(3)],
+                               atol=1e-9)
+
+
+def test_info_shows_what_the_log_says_of_its_laser(tmp_path):
+    out = tmp_path / "head.mcap"
+    import_carmen(HEAD, out)
+    text = info.describe(out)
+    assert "laser:     180 beams, 1.00 deg apart, -90.0 to +89.0 deg, range max 81.83 m" in text
+    assert "no return (m): 81.83" in text and "laser mount (x m, y m, theta rad): 0.0000 0.0000 0.00000" in text

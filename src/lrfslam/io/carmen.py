@@ -21,9 +21,10 @@ radians and seconds throughout.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,10 +34,14 @@ from lrfslam.errors import ConfigError, InputError
 #: longest range mode); a reading at or beyond it is a "no return".
 CARMEN_FLASER_MAX_RANGE_M = 80.0
 
-#: Value each known log writes for "no return" (m). All but ACES lie beyond
-#: :data:`CARMEN_FLASER_MAX_RANGE_M`, so the default already maps them to inf;
-#: ACES saturates at 50 m, so parse it with ``no_return_min_m=KNOWN_NO_RETURN_M["aces"]``.
-KNOWN_NO_RETURN_M = {"intel": 81.83, "fr079": 81.91, "mit-csail": 81.91, "aces": 50.0}
+#: A log's largest reading is its "no return" code when at least this share of all
+#: readings (and :data:`NO_RETURN_MIN_COUNT` of them) are exactly that value: a
+#: measured range repeats to the centimetre on that many beams only when the sensor
+#: writes one number for "nothing seen" (Intel 81.83 m on 2.8 % of its beams, MIT
+#: CSAIL 81.91 m on 3.3 %, ACES 50.0 m on 0.84 %; the next largest readings there
+#: occur once to three times).
+NO_RETURN_MIN_SHARE = 1e-3
+NO_RETURN_MIN_COUNT = 10
 
 #: Message names this parser turns into records.
 LASER_MESSAGES = ("FLASER", "RLASER", "ROBOTLASER1", "ROBOTLASER2")
@@ -353,7 +358,7 @@ def parse_line(line: str, line_no: int = 0, *, no_return_min_m: float | None = N
     no_return_min_m : float, optional
         Readings ``>= no_return_min_m`` (m) become ``np.inf``. Default: 80 m for
         FLASER/RLASER (CARMEN's value) and the line's ``maximum_range`` for
-        ROBOTLASERk. See :data:`KNOWN_NO_RETURN_M`.
+        ROBOTLASERk. :func:`survey` finds the code a log writes.
 
     Returns
     -------
@@ -420,6 +425,7 @@ class CarmenReader:
         self._lines = lines.splitlines() if isinstance(lines, str) else lines
         self._no_return_min_m = no_return_min_m
         self._skipped: Counter[str] = Counter()
+        self._params: dict[str, str] = {}
         self._lines_read = 0
         # One generator per reader: the input (often a file) can be read only once.
         self._records = self._run()
@@ -431,6 +437,11 @@ class CarmenReader:
     def skipped(self) -> dict[str, int]:
         """Lines skipped so far, by message name (``"#"`` comments, ``""`` blank)."""
         return dict(self._skipped)
+
+    @property
+    def params(self) -> dict[str, str]:
+        """``PARAM name value`` lines read so far (the lines still count as skipped)."""
+        return dict(self._params)
 
     @property
     def lines_read(self) -> int:
@@ -449,7 +460,10 @@ class CarmenReader:
                 yield CarmenIssue(line_no, line.split(maxsplit=1)[0], exc.reason)
                 continue
             if record is None:
-                self._skipped[_skip_key(line)] += 1
+                key = _skip_key(line)
+                self._skipped[key] += 1
+                if key == "PARAM" and len(tokens := line.split()) >= 3:
+                    self._params[tokens[1]] = tokens[2]
             else:
                 yield record
 
@@ -496,3 +510,116 @@ def laser_trajectory(items: Iterable[object], *, pose: str = "odom") -> tuple[np
             stamps.append(item.stamp_s)
             rows.append(item.odom_pose if pose == "odom" else item.laser_pose)
     return np.array(stamps, dtype=float), np.array(rows, dtype=float).reshape(-1, 3)
+
+
+#: How far (m, rad) the lines' laser-in-robot poses may scatter and still be one rigid mounting.
+MOUNT_TOLERANCE = (0.01, 0.01)
+
+#: CARMEN's parameter for the front laser's forward offset from the robot centre (m).
+FRONT_LASER_OFFSET_PARAM = "robot_frontlaser_offset"
+
+
+@dataclass(frozen=True, eq=False)
+class LaserSurvey:
+    """What one pass over a log says about its laser: the facts an importer must not guess.
+
+    Attributes
+    ----------
+    scans : int
+        Laser lines read.
+    beam_counts : dict of int to int
+        Lines per number of beams.
+    readings : int
+        Range readings over all lines.
+    max_reading_m : float
+        Largest reading (m); NaN without readings.
+    max_reading_count : int
+        Readings exactly equal to ``max_reading_m``.
+    line_mount : ndarray, shape (3,)
+        Median over the lines of the laser pose in the robot frame,
+        ``(x_m, y_m, theta_rad)``, from each line's laser and odometry poses;
+        zero when the lines disagree (9 in 10 within :data:`MOUNT_TOLERANCE`
+        of the median), as in a log whose laser poses a SLAM run rewrote.
+    params : dict of str to str
+        The log's ``PARAM`` lines.
+    """
+
+    scans: int
+    beam_counts: dict[int, int]
+    readings: int
+    max_reading_m: float
+    max_reading_count: int
+    line_mount: np.ndarray
+    params: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def no_return_m(self) -> float | None:
+        """The value the log writes for "no return" (m), or None when it writes none.
+
+        The largest reading is that code when it repeats on at least
+        :data:`NO_RETURN_MIN_SHARE` of all readings (and :data:`NO_RETURN_MIN_COUNT`).
+        """
+        count = self.max_reading_count
+        if count >= NO_RETURN_MIN_COUNT and count >= NO_RETURN_MIN_SHARE * self.readings:
+            return self.max_reading_m
+        return None
+
+    @property
+    def mount(self) -> np.ndarray:
+        """Laser pose in the robot frame ``(x_m, y_m, theta_rad)``, shape (3,).
+
+        The lines' laser poses say it when they differ from the odometry poses;
+        where they coincide, a non-zero ``robot_frontlaser_offset`` parameter (a
+        forward offset the logger did not apply) says it.
+        """
+        if np.any(np.abs(self.line_mount) > 1e-4):
+            return self.line_mount.copy()
+        try:
+            forward = float(self.params.get(FRONT_LASER_OFFSET_PARAM, "0"))
+        except ValueError:
+            forward = 0.0
+        return np.array([forward if math.isfinite(forward) else 0.0, 0.0, 0.0])
+
+
+def laser_in_robot_frame(laser_pose: np.ndarray, odom_pose: np.ndarray) -> np.ndarray:
+    """Pose (3,) of the laser in the robot frame, from both poses (3,) in the world frame."""
+    c, s = math.cos(odom_pose[2]), math.sin(odom_pose[2])
+    dx, dy = laser_pose[0] - odom_pose[0], laser_pose[1] - odom_pose[1]
+    dtheta = (laser_pose[2] - odom_pose[2] + math.pi) % (2.0 * math.pi) - math.pi
+    return np.array([c * dx + s * dy, -s * dx + c * dy, dtheta])
+
+
+def survey(lines: Iterable[str] | str) -> LaserSurvey:
+    """One pass over a CLF's lines: beam counts, the "no return" code, the laser mounting.
+
+    Malformed lines are ignored here (the import pass reports them).
+    """
+    reader = CarmenReader(lines, no_return_min_m=math.inf)
+    beam_counts: Counter[int] = Counter()
+    readings = top_count = 0
+    top = -math.inf
+    mounts: list[np.ndarray] = []
+    for item in reader:
+        if not isinstance(item, LaserRecord):
+            continue
+        ranges = item.ranges_m
+        beam_counts[item.n_beams] += 1
+        readings += ranges.size
+        if ranges.size:
+            line_max = float(ranges.max())
+            if line_max > top:
+                top, top_count = line_max, 0
+            if line_max == top:
+                top_count += int(np.count_nonzero(ranges == top))
+        mounts.append(laser_in_robot_frame(item.laser_pose, item.odom_pose))
+    line_mount = np.zeros(3)
+    if mounts:
+        per_line = np.array(mounts)
+        median = np.median(per_line, axis=0)
+        off = np.abs(per_line - median)
+        rigid = (np.hypot(off[:, 0], off[:, 1]) <= MOUNT_TOLERANCE[0]) & (off[:, 2] <= MOUNT_TOLERANCE[1])
+        if np.mean(rigid) >= 0.9:
+            line_mount = median
+    return LaserSurvey(scans=sum(beam_counts.values()), beam_counts=dict(beam_counts), readings=readings,
+                       max_reading_m=top if readings else math.nan, max_reading_count=top_count,
+                       line_mount=line_mount, params=reader.params)

@@ -16,6 +16,19 @@ disagree with each other by up to 0.9 s. The pose on a laser line is by
 construction the robot pose at that scan, so a reader gets, for every scan stamp,
 exactly its pose; ODOM lines are counted and left out.
 
+What the importer reads from the log rather than guess (a first pass,
+:func:`~lrfslam.io.carmen.survey`), stored in the recording's ``lrfslam``
+metadata, printed, and shown by ``lrfslam info``:
+
+* the "no return" code: the largest reading, when it repeats on many beams
+  (Intel writes 81.83 m, ACES 50.0 m); ``--max-range-m`` overrides it;
+* the beam layout: beams per line and the angles CARMEN implies for them;
+* the laser's mounting on the robot: from the laser and odometry poses each line
+  holds (or the ``robot_frontlaser_offset`` parameter). The ranges are measured
+  from the laser, so the odometry is written for the laser too (odometry pose ⊕
+  mounting): the pipeline estimates the laser's path, the frame in which the
+  scans are consistent. Intel, ACES and MIT CSAIL mount it at the robot's centre.
+
 Recordings are read back in log-time order, so a scan whose stamp runs backwards
 is replayed at its stamp's place, with its own pose: the odometry stream stays
 monotonic and consistent, but the motion between consecutive scans zigzags (on
@@ -25,6 +38,7 @@ Intel the file-order path of 508 m becomes 661 m in stamp order).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections import Counter
 from collections.abc import Callable
@@ -32,10 +46,20 @@ from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
-from lrfslam.errors import LrfSlamError
-from lrfslam.io.carmen import CarmenIssue, CarmenReader, LaserRecord, OdomRecord
+from lrfslam.algo.geometry import compose
+from lrfslam.errors import InputError, LrfSlamError
+from lrfslam.io.carmen import (
+    CarmenIssue,
+    CarmenReader,
+    LaserRecord,
+    LaserSurvey,
+    OdomRecord,
+    flaser_beam_geometry,
+    survey,
+)
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -64,6 +88,9 @@ class CarmenImport:
         Malformed lines (skipped), in file order.
     stamp_backsteps : int
         Laser lines whose stamp is earlier than the previous laser line's.
+    sensor : dict of str to str
+        What the log says of its laser, as stored in the metadata: ``beams``,
+        ``no_return_m`` and where it came from, ``laser_mount``.
     """
 
     scans: int
@@ -71,6 +98,31 @@ class CarmenImport:
     skipped: dict[str, int] = field(default_factory=dict)
     issues: tuple[CarmenIssue, ...] = ()
     stamp_backsteps: int = 0
+    sensor: dict[str, str] = field(default_factory=dict)
+
+
+def sensor_facts(found: LaserSurvey, no_return_min_m: float | None) -> dict[str, str]:
+    """The laser facts of a surveyed log, as the recording's metadata keeps them (text)."""
+    layouts = []
+    for n, lines in sorted(found.beam_counts.items()):
+        try:
+            start, step = flaser_beam_geometry(n)
+            layouts.append(f"{n} beams at {math.degrees(step):.2f} deg from {math.degrees(start):+.1f} deg "
+                           f"({lines} lines)")
+        except InputError:
+            layouts.append(f"{n} beams ({lines} lines)")
+    if no_return_min_m is not None:
+        no_return, source = no_return_min_m, "--max-range-m"
+    elif found.no_return_m is not None:
+        share = 100.0 * found.max_reading_count / max(found.readings, 1)
+        no_return, source = found.no_return_m, f"the log: {share:.2f} % of readings are exactly this value"
+    else:
+        no_return, source = None, "none written; CARMEN's 80 m rule (ROBOTLASER: the line's maximum range)"
+    mount = found.mount
+    return {"beams": "; ".join(layouts) or "none",
+            "no_return_m": "" if no_return is None else repr(float(no_return)),
+            "no_return_from": source,
+            "laser_mount": f"{mount[0]:.4f} {mount[1]:.4f} {mount[2]:.5f}"}
 
 
 def stamp_ns(stamp_s: float) -> int:
@@ -97,9 +149,10 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
     robot : str
         Robot namespace stored in the recording's metadata.
     no_return_min_m : float, optional
-        Readings at or beyond this range (m) are "no return" (+inf); default as
-        :class:`~lrfslam.io.carmen.CarmenReader` (80 m FLASER, the line's maximum
-        range for ROBOTLASERk).
+        Readings at or beyond this range (m) are "no return" (+inf); default: the
+        code the log writes (:attr:`~lrfslam.io.carmen.LaserSurvey.no_return_m`),
+        else as :class:`~lrfslam.io.carmen.CarmenReader` (80 m FLASER, the line's
+        maximum range for ROBOTLASERk).
     on_issue : callable, optional
         Called with each malformed line as it is met (it is skipped either way).
     progress : bool
@@ -122,11 +175,16 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
     issues: list[CarmenIssue] = []
     odom_lines = scans = backsteps = 0
     previous_ns: int | None = None
-    metadata = {"lrfslam": {"robot": robot, "importer": IMPORTER, "source_file": log_path.name,
-                            "no_return_min_m": "" if no_return_min_m is None else repr(no_return_min_m)}}
+    with open_log(log_path) as lines:
+        found = survey(lines)
+    facts = sensor_facts(found, no_return_min_m)
+    no_return = float(facts["no_return_m"]) if facts["no_return_m"] else None
+    mount = found.mount
+    mounted = bool(np.any(mount != 0.0))   # else the logged poses pass through bit for bit
+    metadata = {"lrfslam": {"robot": robot, "importer": IMPORTER, "source_file": log_path.name, **facts}}
     with open_log(log_path) as lines, RecordingWriter(out_path, metadata) as writer, \
             tqdm(desc=f"import {log_path.name}", unit=" lines", disable=not progress, file=sys.stderr) as bar:
-        reader = CarmenReader(lines, no_return_min_m=no_return_min_m)
+        reader = CarmenReader(lines, no_return_min_m=no_return)
         for item in reader:
             bar.update(reader.lines_read - bar.n)
             if isinstance(item, OdomRecord):
@@ -148,14 +206,14 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
             scan = t.LaserScan.from_ranges(ns, scans, item.ranges_m, item.angle_min_rad,
                                            item.angle_increment_rad, item.max_range_m,
                                            source=f"carmen:{item.source}")
-            odom = t.Odometry(ns, scans, item.odom_pose)
+            odom = t.Odometry(ns, scans, compose(item.odom_pose, mount) if mounted else item.odom_pose)
             for topic, value in ((topics.SCAN, scan), (topics.ODOM, odom)):
                 writer.write(topic.name, topic.schema, topic.codec.encode(value), ns, ns, scans)
         bar.update(reader.lines_read - bar.n)
         skipped = Counter(reader.skipped)
     if odom_lines:
         skipped["ODOM"] += odom_lines
-    return CarmenImport(scans, scans, dict(skipped), tuple(issues), backsteps)
+    return CarmenImport(scans, scans, dict(skipped), tuple(issues), backsteps, facts)
 
 
 def _print_issue(count: list[int]) -> Callable[[CarmenIssue], None]:
@@ -176,8 +234,9 @@ def main(argv: list[str] | None = None) -> int:
     carmen.add_argument("-o", "--out", required=True, metavar="FILE.mcap", help="recording to write")
     carmen.add_argument("--robot", default=BusConfig.robot, help="robot namespace stored in the metadata")
     carmen.add_argument("--max-range-m", type=float, default=None, dest="max_range_m",
-                        help="readings at or beyond this range (m) are 'no return' "
-                             "(default 80 m for FLASER, the line's maximum range for ROBOTLASER)")
+                        help="readings at or beyond this range (m) are 'no return' (default: the value the "
+                             "log writes for it, found by a first pass; else 80 m for FLASER, the line's "
+                             "maximum range for ROBOTLASER)")
     carmen.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     shown = [0]
@@ -194,4 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.log} -> {args.out}: {result.scans} scans, {result.odom} odom, "
           f"{sum(result.skipped.values())} lines skipped ({skipped or 'none'}), "
           f"{len(result.issues)} malformed, {result.stamp_backsteps} backward stamps")
+    sensor = result.sensor
+    print(f"  laser: {sensor['beams']}; no return = {sensor['no_return_m'] or '-'} m "
+          f"({sensor['no_return_from']}); mounted at {sensor['laser_mount']} (x m, y m, theta rad)")
     return 0
