@@ -14,6 +14,7 @@ from lrfslam.algo.geometry import compose, relative
 from lrfslam.evaluation.relations import (
     RelationIssue,
     RelationsInputError,
+    errors_by_span,
     load_relations,
     match_stamps,
     relation_errors,
@@ -170,3 +171,19 @@ def test_metric_ignores_the_world_frame_and_matches_abs_sqr(truth, noise, transf
         assert sqr.mean == pytest.approx(abs_.mean**2 + abs_.std**2, rel=1e-9, abs=1e-12)
     perfect = relation_errors(stamps, truth, rel)
     assert perfect.trans_abs_m.max < 1e-9 and perfect.rot_abs_deg.max < 1e-7
+
+
+def test_errors_are_split_by_the_time_each_relation_spans():
+    # A straight 1 m/s path; the estimate drifts 1 cm per second, so a relation's error is 0.01 * span.
+    stamps = np.arange(0.0, 61.0)
+    truth = np.column_stack((stamps, np.zeros_like(stamps), np.zeros_like(stamps)))
+    estimate = truth * [1.01, 0.0, 0.0]
+    rel = relations_from([(0, 1, 1, 0, 0), (3, 4, 1, 0, 0), (10, 20, 10, 0, 0), (0, 40, 40, 0, 0),
+                          (5, 65, 60, 0, 0)])   # the last one's second stamp is beyond the trajectory
+    stats = relation_errors(stamps, estimate, rel, max_stamp_gap_s=0.6)
+    by_span = errors_by_span(stats, rel)
+    assert list(by_span) == ["< 2 s", "2-30 s", ">= 30 s"]
+    (n_short, short), (n_mid, mid), (n_long, long_) = by_span.values()
+    assert (n_short, n_mid, n_long) == (2, 1, 1)
+    assert short.mean == pytest.approx(0.01)
+    assert mid.mean == pytest.approx(0.10) and long_.mean == pytest.approx(0.40)

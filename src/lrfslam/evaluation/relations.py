@@ -317,3 +317,35 @@ def relation_errors(
         rot_err_deg=_frozen(rot_all),
         matched=_frozen(matched),
     )
+
+
+#: Relation spans reported apart (s): local accuracy, mid-range drift, loops. Half-open [lo, hi).
+SPANS_S: tuple[tuple[float, float], ...] = ((0.0, 2.0), (2.0, 30.0), (30.0, float("inf")))
+
+
+def span_label(span: tuple[float, float]) -> str:
+    """``"< 2 s"``, ``"2-30 s"``, ``">= 30 s"`` for the spans of :data:`SPANS_S`."""
+    lo, hi = span
+    if lo <= 0.0:
+        return f"< {hi:g} s"
+    if np.isinf(hi):
+        return f">= {lo:g} s"
+    return f"{lo:g}-{hi:g} s"
+
+
+def errors_by_span(stats: RelationStats, relations: Relations,
+                   spans: tuple[tuple[float, float], ...] = SPANS_S) -> dict[str, tuple[int, ErrorSummary]]:
+    """Translational error (m) of the evaluated relations, split by the time they span.
+
+    Returns
+    -------
+    dict of str to (int, ErrorSummary)
+        Per :func:`span_label`: relations evaluated in that span, and their
+        translational error summary (NaN when none).
+    """
+    span_s = np.abs(relations.stamp2_s - relations.stamp1_s)
+    out = {}
+    for lo, hi in spans:
+        used = stats.matched & (span_s >= lo) & (span_s < hi)
+        out[span_label((lo, hi))] = (int(np.count_nonzero(used)), _summary(stats.trans_err_m[used]))
+    return out
