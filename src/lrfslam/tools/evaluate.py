@@ -1,5 +1,9 @@
 """``lrfslam eval``: accuracy evaluations of recordings.
 
+    lrfslam eval relations --all DIR [--work DIR] [--set STAGE.NAME=VALUE ...]
+        Every CARMEN log in the folders under DIR through the whole pipeline with one
+        configuration; one table of relation errors (overall and by span) for those
+        with relations, a map for those without (lrfslam.tools.eval_logs).
     lrfslam eval relations FILE.mcap RELATIONS [--max-gap-s S] [--scan-matching [--set NAME=VALUE ...]]
         Kümmerle et al. (2009) relation metric of the SLAM estimate (``slam/state``)
         and of the raw odometry (``odom``) of a recording, as a table; with
@@ -142,15 +146,34 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="{relations,features,slam}")
     rel = sub.add_parser("relations", help="relation metric of the SLAM estimate and of raw odometry")
-    rel.add_argument("recording", metavar="FILE.mcap", help="recording with slam/state and odom")
-    rel.add_argument("relations", metavar="RELATIONS", help="ground-truth relations file (t1 t2 x y z roll pitch yaw)")
+    rel.add_argument("recording", metavar="FILE.mcap", nargs="?", help="recording with slam/state and odom")
+    rel.add_argument("relations", metavar="RELATIONS", nargs="?",
+                     help="ground-truth relations file (t1 t2 x y z roll pitch yaw)")
+    rel.add_argument("--all", metavar="DIR", type=Path, dest="all_logs",
+                     help="every CARMEN log in the folders under DIR (e.g. ../shared/datasets): import, "
+                          "run the pipeline with one configuration, score those with relations, one table")
+    rel.add_argument("--work", metavar="DIR", type=Path, default=Path("recordings") / "eval",
+                     help="with --all: where the imported logs, pipeline outputs and maps go")
+    rel.add_argument("--config", metavar="FILE", help="with --all: TOML config file for every stage")
     rel.add_argument("--max-gap-s", type=float, default=DEFAULT_MAX_STAMP_GAP_S, dest="max_gap_s",
                      help=f"stamp-matching tolerance in s (default {DEFAULT_MAX_STAMP_GAP_S})")
     rel.add_argument("--scan-matching", action="store_true",
                      help="also score scan matching alone (the slam service's tracker, no filter)")
     rel.add_argument("--set", dest="sets", action="append", default=[], metavar="NAME=VALUE",
-                     help="with --scan-matching: a scan-matching setting, e.g. max_point_range_m=4")
+                     help="with --scan-matching: a scan-matching setting, e.g. max_point_range_m=4; "
+                          "with --all: a stage's setting for every log, e.g. slam.scan_matching=false")
     args = parser.parse_args(argv)
+    if args.all_logs is not None:
+        if args.recording or args.relations or args.scan_matching:
+            parser.error("--all takes no recording, relations file or --scan-matching")
+        from lrfslam.tools import eval_logs
+        try:
+            return eval_logs.main_all(args.all_logs, args.work, args.sets, args.config)
+        except (LrfSlamError, OSError) as exc:
+            print(f"lrfslam eval relations: {exc}", file=sys.stderr)
+            return 2
+    if not (args.recording and args.relations):
+        parser.error("give a recording and its relations file, or --all DIR")
     try:
         extra, bad = {}, 0
         if args.scan_matching:

@@ -1,0 +1,160 @@
+"""``lrfslam eval relations --all DIR``: every log under DIR through the whole pipeline, one table.
+
+Each sub-folder of DIR holding a CARMEN log (``*.clf``, ``*.clf.gz``, ``*.clf.bz2``) is a
+log; a ``*.relations`` file beside it makes it scored. Every log is imported (the importer
+reads the no-return code, beam layout and laser mounting from the log itself), run through
+``lrfslam pipeline`` with **one** configuration — the defaults, or ``--config`` / ``--set``
+given once for all — and scored with the Kümmerle relation metric, overall and per relation
+span. A log without relations runs end to end and gets its map drawn (``lrfslam export``).
+
+Rows per scored log: the SLAM estimate as published at each scan (``slam/state``), scan
+matching alone (the slam stage's tracker without the filter), and raw odometry.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lrfslam.algo.scan_match import ScanMatchParams
+from lrfslam.errors import ConfigError
+from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
+from lrfslam.evaluation.relations import (
+    RelationStats,
+    errors_by_span,
+    load_relations,
+    relation_errors,
+)
+from lrfslam.io.textfile import open_log
+from lrfslam.msgs import topics
+from lrfslam.runtime import config as config_mod
+from lrfslam.runtime.recording import read_recording
+from lrfslam.tools import pipeline
+from lrfslam.tools.evaluate import read_trajectories, stamp_s
+from lrfslam.tools.importers import import_carmen
+
+LOG_SUFFIXES = (".clf", ".clf.gz", ".clf.bz2")
+
+
+@dataclass(frozen=True)
+class Log:
+    """One log found under the datasets folder."""
+
+    name: str
+    path: Path
+    relations: Path | None
+
+
+@dataclass
+class LogResult:
+    """What one log gave: timings, counts, and the scores of each trajectory (if it has relations)."""
+
+    log: Log
+    scans: int = 0
+    landmarks: int = 0
+    pipeline_s: float = 0.0
+    scores: dict[str, RelationStats] = field(default_factory=dict)
+    by_span: dict[str, dict[str, tuple[int, object]]] = field(default_factory=dict)
+    sensor: dict[str, str] = field(default_factory=dict)
+    map_png: Path | None = None
+
+
+def find_logs(root: Path) -> list[Log]:
+    """The logs under ``root`` (one per sub-folder, sorted by name)."""
+    logs = []
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        files = sorted(p for p in folder.iterdir() if p.name.endswith(LOG_SUFFIXES))
+        if not files:
+            continue
+        relations = sorted(folder.glob("*.relations*"))
+        logs.append(Log(folder.name, files[0], relations[0] if relations else None))
+    if not logs:
+        raise ConfigError(f"no CARMEN log (*.clf[.gz|.bz2]) in any folder under {root}")
+    return logs
+
+
+def run_log(log: Log, work: Path, stages: list[pipeline.Stage], draw_map: bool = True) -> LogResult:
+    """Import ``log``, run ``stages`` over it, and score what it has ground truth for."""
+    work.mkdir(parents=True, exist_ok=True)
+    imported, out = work / f"{log.name}.mcap", work / f"{log.name}.run.mcap"
+    found = import_carmen(log.path, imported, robot=log.name.replace(" ", "_"))
+    result = LogResult(log, scans=found.scans, sensor=found.sensor)
+    started = time.perf_counter()
+    pipeline.run_pipeline(stages, log.name.replace(" ", "_"), imported, out)
+    result.pipeline_s = time.perf_counter() - started
+    result.landmarks = _final_landmarks(out)
+    if log.relations is not None:
+        with open_log(log.relations) as f:
+            relations = load_relations(f)
+        trajectories, _ = read_trajectories(out)
+        slam_cfg = next((s.config for s in stages if s.spec.name == "slam"), None)
+        match_params = slam_cfg.scan_match if slam_cfg is not None else ScanMatchParams()
+        stamps_ns, poses, _ = scan_matched_trajectory(imported, match_params)
+        trajectories["scan matching alone"] = (np.array([stamp_s(s) for s in stamps_ns]), poses)
+        for label in ("slam estimate", "scan matching alone", "raw odometry"):
+            stamps, poses = trajectories[label]
+            if stamps.size:
+                stats = relation_errors(stamps, poses, relations)
+                result.scores[label] = stats
+                result.by_span[label] = errors_by_span(stats, relations)
+    elif draw_map:
+        from lrfslam.tools import (
+            export,  # only here: it draws with the optional plotting extra
+        )
+        export.main([str(out), "-o", str(work / f"{log.name}-map")])
+        result.map_png = work / f"{log.name}-map" / "map.png"
+    return result
+
+
+def _final_landmarks(path: Path) -> int:
+    last = None
+    for rec in read_recording(path, [topics.SLAM_STATE.name]):
+        last = rec
+    if last is None:
+        return 0
+    return int(np.count_nonzero(topics.SLAM_STATE.codec.decode(last.data, last.schema).landmark_confirmed))
+
+
+def markdown(results: Iterable[LogResult]) -> str:
+    """One table row per (log, trajectory): relation error overall and by span, and the time per scan."""
+    results = list(results)
+    spans = next((list(r.by_span[k]) for r in results for k in r.by_span), [])
+    head = (["log", "trajectory", "relations", "trans. m (mean ± std)", "rot. deg"] + [f"{s} m (n)" for s in spans]
+            + ["ms / scan"])
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in results:
+        per_scan = f"{1e3 * r.pipeline_s / max(r.scans, 1):.2f}"
+        if not r.scores:
+            cells = [r.log.name, f"(no relations) {r.scans} scans, {r.landmarks} landmarks", "-", "-", "-"]
+            lines.append("| " + " | ".join(cells + ["-"] * len(spans) + [per_scan]) + " |")
+            continue
+        for label, s in r.scores.items():
+            cells = [r.log.name, label, str(s.n_used), f"{s.trans_abs_m.mean:.3f} ± {s.trans_abs_m.std:.3f}",
+                     f"{s.rot_abs_deg.mean:.2f}"]
+            cells += [f"{e.mean:.3f} ({n})" for n, e in r.by_span[label].values()]
+            lines.append("| " + " | ".join(cells + [per_scan if label == "slam estimate" else ""]) + " |")
+    return "\n".join(lines)
+
+
+def evaluate_all(root: Path, work: Path, sets: list[str], file: Mapping, env: Mapping[str, str],
+                 draw_maps: bool = True) -> list[LogResult]:
+    """Every log under ``root`` with the same stages and configuration."""
+    stages = pipeline.build_stages(pipeline.DEFAULT_STAGES, sets, file, env)
+    return [run_log(log, work / log.name, stages, draw_maps) for log in find_logs(root)]
+
+
+def main_all(root: Path, work: Path, sets: list[str], config_file: str | None) -> int:
+    """``lrfslam eval relations --all``: print the table (Markdown) and where the outputs are."""
+    results = evaluate_all(root, work, sets, config_mod.read_file(config_file), os.environ)
+    print(markdown(results))
+    for r in results:
+        facts = r.sensor
+        print(f"{r.log.name}: {r.scans} scans in {r.pipeline_s:.1f} s; laser {facts.get('beams', '?')}, "
+              f"no return {facts.get('no_return_m') or '-'} m"
+              + (f"; map {r.map_png}" if r.map_png else ""))
+    return 0

@@ -1,0 +1,64 @@
+"""``lrfslam eval relations --all``: every log of a datasets folder, one configuration, one table."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lrfslam.algo.geometry import relative
+from lrfslam.errors import ConfigError
+from lrfslam.io.carmen import iter_records, laser_trajectory
+from lrfslam.io.textfile import open_log
+from lrfslam.tools import eval_logs, evaluate
+
+HEAD = Path(__file__).resolve().parents[1] / "data" / "intel_head.clf"
+
+
+@pytest.fixture
+def datasets(tmp_path):
+    """Two logs: one with relations made from its own odometry, one without."""
+    root = tmp_path / "datasets"
+    (root / "scored").mkdir(parents=True)
+    (root / "unscored").mkdir()
+    (root / "notes").mkdir()   # a folder without a log is not a log
+    shutil.copy(HEAD, root / "scored" / "head.clf")
+    shutil.copy(HEAD, root / "unscored" / "head.clf")
+    with open_log(HEAD) as f:
+        stamps, poses = laser_trajectory(iter_records(f))
+    rows = []
+    for i, j in ((0, 1), (2, 5), (0, 9)):
+        dx, dy, dth = relative(poses[i], poses[j])
+        rows.append(" ".join(repr(float(v)) for v in (stamps[i], stamps[j], dx, dy, 0, 0, 0, dth)))
+    (root / "scored" / "head.relations").write_text("\n".join(rows) + "\n")
+    return root
+
+
+def test_every_log_runs_with_one_configuration_and_the_scored_ones_get_a_table(datasets, tmp_path):
+    results = eval_logs.evaluate_all(datasets, tmp_path / "work", [], {}, {}, draw_maps=False)
+    assert [r.log.name for r in results] == ["scored", "unscored"]
+    scored, unscored = results
+    assert scored.scans == unscored.scans == 10 and not unscored.scores
+    assert set(scored.scores) == {"slam estimate", "scan matching alone", "raw odometry"}
+    # The relations are the odometry's own: its error is zero; every relation is used.
+    odom = scored.scores["raw odometry"]
+    assert odom.n_used == 3 and odom.trans_abs_m.max == pytest.approx(0.0, abs=1e-6)
+    assert sum(n for n, _ in scored.by_span["raw odometry"].values()) == 3   # the head spans under 2 s
+    table = eval_logs.markdown(results)
+    assert "| scored | raw odometry | 3 | 0.000 ± 0.000 |" in table
+    assert "| unscored | (no relations) 10 scans" in table
+    assert np.isfinite(scored.scores["slam estimate"].trans_abs_m.mean)
+
+
+def test_a_folder_without_logs_is_an_error(tmp_path):
+    with pytest.raises(ConfigError, match="no CARMEN log"):
+        eval_logs.find_logs(tmp_path)
+
+
+def test_the_command_prints_one_table(datasets, tmp_path, capsys):
+    assert evaluate.main(["relations", "--all", str(datasets), "--work", str(tmp_path / "w"),
+                          "--set", "feature.mode=paper"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("| scored |") == 3 and "map" in out
