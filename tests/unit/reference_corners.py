@@ -9,15 +9,15 @@ Original module docstring follows.
 
 Corner features: forward and backward searching (paper §IV).
 
-Forward searching (notes §5.4): from each base point, walk outward in scan order on
-both sides and pick the first point at Euclidean distance ≥ 0.3, 0.6, 0.9 and 1.2 m.
+Forward searching (docs/paper-reading.md, 'Forward searching'): from each base
+point, walk outward in scan order on both sides and pick the first point at Euclidean distance ≥ 0.3, 0.6, 0.9 and 1.2 m.
 A total-least-squares (TLS) line is fitted to each arm (base point + its picks); the
 base point is a corner when the two lines are at a right angle within
 ``corner_tol_deg``. Points removed by the histogram filter are skipped; an arm fails
 when it meets a no-return beam or a gap wider than ``arm_break_gap_m``.
 
-Backward searching (notes §5.5): along the kept points in scan order, two successive
-finite points more than ``jump_m`` apart make the nearer one a feature (an occluding
+Backward searching (docs/paper-reading.md, 'Backward searching'): along the kept
+points in scan order, two successive finite points more than ``jump_m`` apart make the nearer one a feature (an occluding
 edge). A finite point next to a no-return beam is a feature only if
 ``r < max_range_m - jump_m``: then the hidden surface is guaranteed to be more than
 ``jump_m`` behind it.
@@ -62,7 +62,7 @@ _FIRST_WINDOW = 8
 
 @dataclass(frozen=True)
 class CornerParams:
-    """Knobs of forward and backward searching (notes §5.7).
+    """Knobs of forward and backward searching (docs/paper-reading.md, 'Parameter defaults').
 
     Parameters
     ----------

@@ -17,7 +17,7 @@ keeps the data whose direction bin holds "over 15 percent". Indoor walls are str
 so wall segments pile up in a few bins while isolated noise points produce segments in
 random directions.
 
-Reading used here (notes §5.2–§5.3):
+Reading used here (docs/paper-reading.md, 'Angle histogram'):
 
 * eq. (2) is an *undirected* line direction: ``atan2(dy, dx) mod period``; the
   histogram is circular, so there is no singularity at ``dy = 0``;
@@ -48,7 +48,7 @@ _KEEP_RULES = ("or", "and")
 
 @dataclass(frozen=True)
 class DenoiseParams:
-    """Knobs of the angle-histogram filter (notes §5.7).
+    """Knobs of the angle-histogram filter (docs/paper-reading.md, 'Parameter defaults').
 
     Parameters
     ----------

@@ -186,7 +186,10 @@ def test_covariances_are_symmetric_positive_definite():
 
 
 def naive_picks(p, first, last, dists, euclidean):
-    """The notes' reading, one point at a time: first point at >= d, walking outward."""
+    """First point at >= d, walking outward, one point at a time.
+
+    The reading of docs/paper-reading.md, 'Picking the arm points'.
+    """
     m = len(p)
     out = np.full((m, 2, len(dists)), -1)
     for j in range(m):

@@ -61,7 +61,11 @@ def measure(x, i):
 
 
 def filterpy_update(x, P, z, R, i):
-    """One update through filterpy's dense EKF (notes §3.3: (2,1) z, wrapped residual)."""
+    """One update through filterpy's dense EKF.
+
+    ``z`` as a (2, 1) column and a wrapped bearing residual, as filterpy needs
+    (docs/paper-reading.md, 'filterpy and a growing state').
+    """
     ekf = ExtendedKalmanFilter(dim_x=x.size, dim_z=2)
     ekf.x = x.reshape(-1, 1).copy()
     ekf.P = P.copy()

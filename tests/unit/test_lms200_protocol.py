@@ -1,7 +1,9 @@
 """LMS200 protocol: CRC and builders against published telegrams, B0 decoding, parser resynchronisation.
 
-Hex telegrams are from notes/lms200-protocol.md §1.6 (checked there against SICK's
-listing, OLIN scripts and real units); B0 vectors V1-V7 are copied into tests/data/lms200/.
+Hex telegrams are published ones: examples from SICK's Telegram Listing (8007954/Q501),
+telegrams other projects send to real units, and replies recorded from them
+(docs/lms200-protocol.md, 'CRC'). The B0 vectors V1-V7 are in tests/data/lms200/
+(docs/lms200-protocol.md, 'Test vectors').
 """
 
 from __future__ import annotations

@@ -3,8 +3,9 @@
 Where a beam's footprint straddles a depth edge the scanner returns a range between
 the two surfaces: a point floating in empty space on the beam. The angle histogram
 is a weak filter for these, because down a corridor they line up with the walls
-(notes §5.3), so local tests remove them first. All leave the edge points of the
-surfaces themselves alone, which backward searching needs.
+(docs/paper-reading.md, 'Mixed pixels'), so local tests remove them first. All
+leave the edge points of the surfaces themselves alone, which backward searching
+needs.
 
 * :func:`off_line` (the default): a point must lie on the straight line through its
   two neighbours on one side. A flat wall satisfies this exactly at any incidence,

@@ -164,7 +164,7 @@ class ScanMatchParams:
         Floor of the estimated per-point residual standard deviation (m): a
         near-perfect fit must not make the scan infinitely certain.
     cov_scale : float
-        Factor on the scan's Gauss–Newton covariance (see the module notes).
+        Factor on the scan's Gauss–Newton covariance (see **Covariance** in the module docstring).
     keyframe_trans_m, keyframe_rot_rad : float
         :class:`ScanTracker` makes the current scan a keyframe once it is this
         far (m) or turned this much (rad) from the last keyframe.

@@ -3,7 +3,7 @@
 For many poses in the hallway loop and in random rotated rooms, simulate LMS200
 scans at several noise levels, run the angle-histogram filter and forward/backward
 searching in the paper-literal and default configurations (and ablations of the
-default), and score them against the map (notes §2):
+default), and score them against the map (docs/paper-reading.md, 'Evaluating features'):
 
 * precision: forward detections within ``radius_m`` of a map corner (one-to-one,
   nearest first); recall against the *eligible* corners (both walls visible over the
@@ -36,7 +36,8 @@ from lrfslam.sim.trajectory import loop_path
 from lrfslam.sim.truth import eligible_corners, jump_edge_vertices, visible_corners
 from lrfslam.sim.world import World, closed_polygon
 
-#: Detections farther than this from every truth point are false (notes §2).
+#: Detections farther than this from every truth point are false
+#: (docs/paper-reading.md, 'Matching and scores').
 MATCH_RADIUS_M = 0.10
 #: A jump edge within this of a convex corner or free wall end is stationary.
 PHANTOM_RADIUS_M = 0.15

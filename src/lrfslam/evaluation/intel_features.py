@@ -4,8 +4,8 @@ Runs the angle-histogram filter and forward/backward searching (paper-literal an
 default configurations) on every FLASER scan of the raw CARMEN log (180 beams at 1°,
 cut at 4 m) and reports features per scan and their repeatability.
 
-Repeatability (notes §2, as in FLIRT/FALKO): for scan pairs ``(k, k + d)``, bring
-both detection sets into one frame with the relative pose, keep those inside the
+Repeatability (as in FLIRT/FALKO; docs/paper-reading.md, 'Matching and scores'):
+for scan pairs ``(k, k + d)``, bring both detection sets into one frame with the relative pose, keep those inside the
 other scan's field of view and range, and count mutual one-to-one matches within
 ``radius_m``; repeatability = Σ matches / Σ min(#A, #B) over all pairs.
 

@@ -1,7 +1,7 @@
 """Per-pose ground truth for feature evaluation: which map corners the scanner can see.
 
-Definitions follow the evaluation protocol of the reading notes (§2): a corner is
-*visible* when it is inside the field of view, within range and not occluded; it is
+Definitions follow docs/paper-reading.md, 'Ground truth on a simulated map': a
+corner is *visible* when it is inside the field of view, within range and not occluded; it is
 *eligible* for the forward search when, in addition, both of its walls are visible at
 every arm distance the search measures.
 """

@@ -4,7 +4,7 @@ and the simulated scans it measures.
 No I/O and no clock: :mod:`.emulator` owns the pseudo-terminal, the pacing and
 the timing. It covers the commands :mod:`.port` sends plus 30h 01h (one scan
 on request); any other request is answered with 92h, as a real unit answers a
-logically invalid command (note §2.1).
+logically invalid command (docs/lms200-protocol.md, 'Commands and replies').
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ from lrfslam.drivers.lms200 import protocol as p
 from lrfslam.sim.lidar import LidarModel, simulate_scan
 from lrfslam.sim.simulator import SimConfig, Simulator
 
-# ASCII type string, 21 characters as in the TL example (note §2.3).
+# ASCII type string, 21 characters, as in TL's example (TL p.65).
 TYPE_STRING = b"LMS200;301063;V02.10 "
 _BAUD_BY_CODE = {code: baud for baud, code in p.BAUD_CODES.items()}
 _MODE_OK, _MODE_REFUSED = 0x00, 0x01  # A0h result byte
 _REJECTED, _ACCEPTED = 0x00, 0x01  # BBh / F7h result byte
-MIRROR_TURN_S = 0.01332  # one mirror revolution, 75 Hz (TL §3.4)
+MIRROR_TURN_S = 0.01332  # one mirror revolution, 75 Hz (TL p.19)
 _TURNS_PER_SCAN = {100: 1, 50: 2, 25: 4}  # resolution (1/100°) -> interlaced mirror turns per scan
 
 # Ranges of scan number k for a variant, metres, +inf = no return.
@@ -36,7 +36,7 @@ class Reaction:
     """What the emulated LMS does about one request, after its ACK.
 
     ``replies`` go out in order; ``send_scan`` appends one B0 of the newest
-    scan; ``new_baud`` takes effect once all of it has been sent (§3: the LMS
+    scan; ``new_baud`` takes effect once all of it has been sent (the LMS
     answers at the old rate, then switches).
     """
 

@@ -3,7 +3,7 @@
     python -m lrfslam.drivers.lms200.emulator [--link PATH] [--dump-ranges FILE] ...
 
 Prints the pty slave path on stdout (again after every replug), then behaves
-like an LMS200 on the other end of that port (protocol note §9):
+like an LMS200 on the other end of that port (docs/lms200-protocol.md, 'Emulator'):
 
 * powers on at ``--baud-initial`` and sends the 90h power-on telegram;
 * ACKs (06h) each valid request and answers it after ``--reply-delay-ms``;
@@ -16,7 +16,7 @@ like an LMS200 on the other end of that port (protocol note §9):
 * in continuous mode a scan completes every mirror cycle (13.32 ms per turn,
   2 turns at 0.5°, 4 at 0.25°) and the first cycle to end while the line is
   idle is sent: 181 values stream at ≈9.4 Hz at 38400 Bd and 75 Hz at 500 kBd
-  (note §6);
+  (docs/lms200-protocol.md, 'Scan rate per baud rate');
 * scans come from :mod:`lrfslam.sim`; scan ``k`` depends only on
   ``(--world, --seed, variant, k)``, see
   :class:`~lrfslam.drivers.lms200.device_model.SimScanSource`;
@@ -95,7 +95,7 @@ class PtyLine:
     def __init__(self, link: Path | None) -> None:
         self.master, self._slave = os.openpty()
         # Raw at once: echo would loop the driver's bytes back, ICRNL would turn 0Dh into
-        # 0Ah, IXON would eat 11h/13h and ISIG would turn 03h into SIGINT (note §7.11).
+        # 0Ah, IXON would eat 11h/13h and ISIG would turn 03h into SIGINT.
         tty.setraw(self._slave)
         attrs = termios.tcgetattr(self._slave)
         attrs[4] = attrs[5] = termios.B9600  # a fresh serial port's default speed

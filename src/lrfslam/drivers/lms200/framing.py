@@ -4,7 +4,7 @@ PURE: bytes in, bytes/objects out; stdlib only. No serial port, no clock, no log
 Timing (the inter-byte stall rule) is the caller's job: it calls
 :meth:`TelegramParser.on_stall` when its line has been quiet too long.
 
-Frame layout, identical in both directions (protocol note §1.1)::
+Frame layout, identical in both directions (docs/lms200-protocol.md, 'Framing')::
 
     STX(0x02) ADDR LEN_lo LEN_hi CMD DATA... [STATUS] CRC_lo CRC_hi
 
@@ -29,7 +29,7 @@ _CRC_POLY = 0x8005
 
 
 def crc16(data: bytes | bytearray | memoryview) -> int:
-    """SICK's CRC-16 variant over ``data`` (protocol note §1.5).
+    """SICK's CRC-16 variant over ``data`` (docs/lms200-protocol.md, 'CRC').
 
     Not CRC-16/BUYPASS: each step XORs in the previous byte as the high half
     of the word, so a generic 0x8005 table gives wrong results.
@@ -94,7 +94,8 @@ def build_request(payload: bytes, address: int = 0) -> bytes:
 def build_reply(payload: bytes, status: int = 0x10, address: int = 0) -> bytes:
     """LMS->host telegram: ``payload`` = response code + DATA, then the status byte.
 
-    ``status`` 0x10 is what a healthy standard LMS200 reports (note §1.4).
+    ``status`` 0x10 is what a healthy standard LMS200 reports
+    (docs/lms200-protocol.md, 'Status byte').
     """
     if not 0 <= address < REPLY_ADDRESS_BIT:
         raise ValueError(f"LMS address {address} outside 0..127")
@@ -142,7 +143,8 @@ class TelegramParser:
     Resynchronises after garbage, bit flips and truncated telegrams. On any
     failure it resumes the search at the byte after the failed STX, never after
     the claimed length, so the telegram following a truncated one is not lost
-    (note §7.4). It never raises on input content.
+    (docs/lms200-protocol.md, 'Quirks the driver handles'). It never raises on
+    input content.
 
     Parameters
     ----------

@@ -4,9 +4,9 @@ All timing and I/O of the driver live here; the bytes come from
 :mod:`.protocol`. The port is opened with ``serial.serial_for_url``, so a
 pseudo-terminal path (the emulator) works like ``/dev/ttyUSB0``.
 
-Init sequence (protocol note §3, §4): probe the current baud rate among
-9600/19200/38400/500000 (the LMS powers on at 9600), stop any stream left
-running, read the type string, switch to the requested rate, select the
+Init sequence (docs/lms200-protocol.md, 'Baud rates and switching'): probe the
+current baud rate among 9600/19200/38400/500000 (the LMS powers on at 9600),
+stop any stream left running, read the type string, switch to the requested rate, select the
 variant, make sure the units are mm with measuring mode 00h (8 m, 13-bit
 ranges), start continuous output. :meth:`Lms200.scans` runs it on connect,
 again when the LMS reports a reset or goes quiet, and after reconnecting a
@@ -40,7 +40,8 @@ _FAST_BYTE_GAP_S = 60e-6
 class Lms200Timeouts:
     """Timeouts and retry policy; all in seconds unless named otherwise.
 
-    Defaults follow the LMS timing rules (TL p.24) with the margins drivers use (note §2.2).
+    Defaults follow the LMS timing rules (TL p.24) with the margins other drivers use
+    (docs/lms200-protocol.md, 'Timing').
     """
 
     reply_s: float = 0.5            # ACK <= 60 ms, reply <= 60 ms, plus 160 bytes at 9600 Bd

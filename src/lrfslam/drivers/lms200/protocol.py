@@ -2,8 +2,8 @@
 
 PURE: bytes/numpy in, bytes/numpy out; stdlib + numpy only. No serial port,
 no clock, no environment, no logging. Framing, CRC and the stream parser live
-in :mod:`.framing` and are re-exported here. Section numbers (§) refer to
-``notes/lms200-protocol.md``; TL = SICK Telegram Listing LMS2xx 8007954/Q501.
+in :mod:`.framing` and are re-exported here. The protocol is described in
+``docs/lms200-protocol.md``; TL = SICK Telegram Listing LMS2xx 8007954/Q501.
 
 All multi-byte fields are little-endian WORDs (TL p.22).
 """
@@ -31,7 +31,8 @@ from lrfslam.drivers.lms200.framing import (  # noqa: F401
 )
 from lrfslam.errors import TelegramError
 
-# Command codes (host->LMS); the reply code is command | 80h (§1.3).
+# Command codes (host->LMS); the reply code is command | 80h
+# (docs/lms200-protocol.md, 'Commands and replies').
 CMD_MODE = 0x20
 CMD_SCAN = 0x30
 CMD_TYPE = 0x3A
@@ -44,11 +45,11 @@ REPLY_SCAN = 0xB0
 
 
 def reply_code(command: int) -> int:
-    """Response code the LMS uses to answer ``command`` (command + 80h, §1.3)."""
+    """Response code the LMS uses to answer ``command`` (command + 80h)."""
     return command | 0x80
 
 
-# 20h sub-commands (§4.1).
+# 20h sub-commands (docs/lms200-protocol.md, 'Operating modes (20h)').
 MODE_INSTALLATION = 0x00
 MODE_CONTINUOUS = 0x24  # stream every scan as B0
 MODE_ON_REQUEST = 0x25  # factory default; the only way to stop a stream
@@ -71,7 +72,9 @@ class Units(IntEnum):
 
 @dataclass(frozen=True)
 class Variant:
-    """Angular range and resolution, as set with command 3Bh (§4.3).
+    """Angular range and resolution, as set with command 3Bh.
+
+    See docs/lms200-protocol.md, 'Variant (3Bh)'.
 
     ``fov_deg`` is 100 or 180; ``resolution_cdeg`` is in 1/100 degree
     (100 = 1°, 50 = 0.5°, 25 = 0.25°).
@@ -115,7 +118,8 @@ STOP_CONTINUOUS = build_request(bytes((CMD_MODE, MODE_ON_REQUEST)))
 def baud_request(baud: int) -> bytes:
     """Telegram switching the LMS to ``baud`` (9600, 19200, 38400 or 500000 Bd).
 
-    The LMS acknowledges at the old rate, then switches (§3).
+    The LMS acknowledges at the old rate, then switches
+    (docs/lms200-protocol.md, 'Baud rates and switching').
     """
     if baud not in BAUD_CODES:
         raise ValueError(f"baud {baud} not one of {BAUD_RATES}")
@@ -123,7 +127,7 @@ def baud_request(baud: int) -> bytes:
 
 
 def installation_request(password: bytes = DEFAULT_PASSWORD) -> bytes:
-    """Telegram entering installation mode, which 77h configuration writes need (§4.4)."""
+    """Telegram entering installation mode, which 77h configuration writes need."""
     if len(password) != 8:
         raise ValueError("the LMS password is exactly 8 bytes")
     return build_request(bytes((CMD_MODE, MODE_INSTALLATION)) + password)
@@ -137,7 +141,7 @@ def variant_request(variant: Variant) -> bytes:
     return build_request(bytes((CMD_VARIANT,)) + data)
 
 
-# --- configuration block (74h read / 77h write), §4.4 ------------------------------------
+# --- configuration block (docs/lms200-protocol.md, 'Configuration block (74h/77h)') ---
 CONFIG_AVAILABILITY = 4
 CONFIG_MEASURING_MODE = 5
 CONFIG_UNITS = 6
@@ -161,7 +165,7 @@ def config_write_request(config: bytes) -> bytes:
 def config_with(config: bytes, *, units: Units, measuring_mode: int) -> bytes:
     """Copy of ``config`` with the units and measuring-mode bytes replaced.
 
-    Read-modify-write keeps the thresholds a canned block would overwrite (§4.4).
+    Read-modify-write keeps the thresholds a canned block would overwrite.
     """
     if measuring_mode not in _RANGE_BITS:
         raise ValueError(f"measuring mode {measuring_mode:#x} not supported")
@@ -172,7 +176,7 @@ def config_with(config: bytes, *, units: Units, measuring_mode: int) -> bytes:
 
 
 # --- reply decoding ----------------------------------------------------------------------
-# A0h answers 00 for success; BBh, F7h and E6h answer 01 (§7.6: opposite polarities).
+# A0h answers 00 for success; BBh, F7h and E6h answer 01: opposite polarities.
 _SUCCESS_BYTE = {reply_code(CMD_MODE): 0x00, reply_code(CMD_VARIANT): 0x01,
                  reply_code(CMD_CONFIG_WRITE): 0x01}
 
@@ -212,9 +216,12 @@ def config_of(reply: Telegram) -> bytes:
     return reply.data
 
 
-# --- B0 measured values, §5 --------------------------------------------------------------
+# --- B0 measured values (docs/lms200-protocol.md, 'Measured values (B0)') ---
 class RangeStatus(IntEnum):
-    """Per-value status codes of a scan; the special 13/14/15-bit codes of §5.4 made explicit."""
+    """Per-value status codes of a scan: the special range codes made explicit.
+
+    See docs/lms200-protocol.md, 'Special codes'.
+    """
 
     OK = 0
     NO_ECHO = 1        # top code: no stop signal; range +inf
@@ -238,7 +245,8 @@ MEASURING_MODES = tuple(_RANGE_BITS)  # 0Fh (16 bits) and 3Fh (reflectivity) are
 _DAZZLE_FLAG_MODE = 0x00  # only mode 00h uses bit 15 for dazzle
 _DAZZLE_FLAG = 0b100  # bit 15, seen as bit 2 of the flags
 
-_COUNT_MASK = 0x03FF  # bits 0-9; bits 11 and 13 must not leak into N (§5.2)
+# Bits 0-9; bits 11 and 13 must not leak into N (docs/lms200-protocol.md, 'Count word').
+_COUNT_MASK = 0x03FF
 _RASTER_SHIFT = 11
 _PARTIAL_BIT = 1 << 13
 _UNITS_SHIFT = 14
@@ -269,7 +277,8 @@ class ScanTelegram:
     scan_index, telegram_index : int or None
         Real-time indices modulo 256, when the LMS is configured to send them.
     status_byte : int
-        The telegram's trailing status byte (§1.4; 0x10 when healthy).
+        The telegram's trailing status byte, 0x10 when healthy
+        (docs/lms200-protocol.md, 'Status byte').
     """
 
     ranges_m: np.ndarray
@@ -364,7 +373,7 @@ def encode_ranges(ranges_m: np.ndarray, units: Units, measuring_mode: int = 0x00
 def build_scan_reply(raw: np.ndarray, *, units: Units, raster_qdeg: int | None = None,
                      indices: tuple[int, int] | None = None, status: int = 0x10,
                      address: int = 0) -> bytes:
-    """B0 telegram carrying the value WORDs ``raw`` (the emulator's side of §5.1).
+    """B0 telegram carrying the value WORDs ``raw``, as the emulator sends it.
 
     Parameters
     ----------
