@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import importlib
 
-from lrfslam.runtime.service import ServiceSpec
+from lrfslam.runtime.step import ServiceSpec
 
 NAMES: tuple[str, ...] = ("sensor", "denoise", "feature", "slam", "recorder")
 

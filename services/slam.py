@@ -34,13 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo.ekf_slam import EkfParams, EkfSlam
+from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, UpdateReport
 from lrfslam.algo.geometry import polar_to_xy, relative, wrap_angle
 from lrfslam.algo.scan_match import ScanMatchParams, ScanTracker
-from lrfslam.errors import InputError
+from lrfslam.errors import ConfigError, InputError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.service import Message, Output, RunContext, ServiceSpec, StepBase
+from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +82,18 @@ def interpolate_pose(stamps_ns: np.ndarray, poses: np.ndarray, stamp_ns: int) ->
     return out
 
 
+@dataclass(frozen=True)
+class LastUpdate:
+    """What the filter's last feature update was given (robot frame) and what it decided.
+
+    ``xy_m`` (K, 2) m, ``cov_m2`` (K, 2, 2) m², ``report`` the association of each of the K.
+    """
+
+    xy_m: np.ndarray
+    cov_m2: np.ndarray
+    report: UpdateReport
+
+
 class SlamStep(StepBase):
     def __init__(self, cfg: SlamConfig, ctx: RunContext) -> None:
         super().__init__()
@@ -96,9 +108,24 @@ class SlamStep(StepBase):
         self.started = False  # a scan has been processed (the next one has a motion to predict)
         self.seq = 0
         self.ekf = EkfSlam(cfg.ekf)
+        self._last_update: LastUpdate | None = None
         self.checkpoint = Path(cfg.checkpoint_path) if cfg.checkpoint_path and not ctx.replay else None
         if self.checkpoint is not None and self.checkpoint.exists():
             self._restore(self.checkpoint)
+
+    def start_at(self, pose: np.ndarray) -> None:
+        """Start the filter at ``pose`` (x m, y m, heading rad; shape (3,)) instead of the origin.
+
+        Only before the first scan is processed.
+        """
+        if self.seq:
+            raise ConfigError("the slam step's start pose can only be set before its first scan")
+        self.ekf = EkfSlam(self.cfg.ekf, pose0=pose)
+
+    @property
+    def last_update(self) -> LastUpdate | None:
+        """The last feature update (None before the first)."""
+        return self._last_update
 
     # -- messages
 
@@ -154,7 +181,9 @@ class SlamStep(StepBase):
         keep = np.ones(len(feats), dtype=bool) if self.cfg.use_backward_features \
             else feats.kind == t.FEATURE_FORWARD
         kinds = np.array([_KIND_FROM_SCHEMA.get(int(k), 0) for k in feats.kind[keep]], dtype=np.int8)
-        report = self.ekf.observe(feats.xy_m[keep], feats.cov_m2[keep], kinds)
+        xy, cov = feats.xy_m[keep], feats.cov_m2[keep]
+        report = self.ekf.observe(xy, cov, kinds)
+        self._last_update = LastUpdate(xy, cov, report)
         self.counts["scans"] += 1
         self.counts["matched"] += report.n_matched
         self.counts["new"] += report.n_new
