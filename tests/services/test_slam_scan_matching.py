@@ -99,4 +99,4 @@ def test_scans_without_their_features_are_not_kept_forever(poor_run):
     for m in poor_run[0]:
         if m.topic is topics.SCAN:
             step.on_message(m)
-    assert len(step.scans) == 2 * step.cfg.max_odom_wait_scans + 2
+    assert step.align.scans_held == 2 * step.cfg.max_odom_wait_scans + 2

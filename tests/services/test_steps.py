@@ -149,7 +149,7 @@ def test_slam_step_corrects_the_heading_with_the_wall_direction():
     assert not any(k.startswith("wall_") for k in off.counts)
     # Hundreds of wall points per scan pin the heading far below what odometry and corners give.
     assert np.sqrt(last_on.pose_cov[2, 2]) < 0.5 * np.sqrt(last_off.pose_cov[2, 2])
-    assert on.ekf.building_orientation is not None and off.ekf.building_orientation is None
+    assert on.slam.ekf.building_orientation is not None and off.slam.ekf.building_orientation is None
 
 
 def test_slam_resumes_from_its_checkpoint(tmp_path):
@@ -161,8 +161,8 @@ def test_slam_resumes_from_its_checkpoint(tmp_path):
     assert ckpt.exists()
     with Chain(live, robot=ROBOT, replay=False) as second:
         resumed = second.step("slam")
-        assert resumed.seq == head[-1].seq
-        np.testing.assert_allclose(resumed.ekf.pose, head[-1].pose, atol=1e-12)
+        assert resumed.slam.scans == head[-1].seq
+        np.testing.assert_allclose(resumed.slam.ekf.pose, head[-1].pose, atol=1e-12)
         tail = [m.value for m in second.feed(fed[40:])]
     assert tail and tail[0].seq == head[-1].seq + 1
     assert set(head[-1].landmark_ids.tolist()) <= set(tail[-1].landmark_ids.tolist())

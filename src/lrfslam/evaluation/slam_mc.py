@@ -273,7 +273,7 @@ class _Pipeline:
         slam = cfg.stage("slam")
         self.chain = Chain([cfg.stage("denoise"), cfg.stage("feature"),
                             Stage(slam.spec, replace(slam.config, ekf=params))], robot="slam_mc", wire=False)
-        self.slam = self.chain.step("slam")
+        self.slam = self.chain.step("slam").slam
         self.slam.start_at(pose0)
         self.lidar = sim.config.lidar
         self.scan_time_s = 1.0 / sim.config.rate_hz
