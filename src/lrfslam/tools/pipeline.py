@@ -30,9 +30,9 @@ from pathlib import Path
 
 from lrfslam import services
 from lrfslam.errors import ConfigError, LrfSlamError
+from lrfslam.runtime import chain
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
-from lrfslam.runtime.chain import Stage, replay_recording, stage
 from lrfslam.runtime.runner import setup_logging
 
 log = logging.getLogger("lrfslam.pipeline")
@@ -72,7 +72,7 @@ def stage_sets(sets: Iterable[str], names: Iterable[str]) -> dict[str, list[str]
     return out
 
 
-def run_pipeline(stages: Iterable[Stage], robot: str, in_path: str | Path, out_path: str | Path | None,
+def run_pipeline(stages: Iterable[chain.Stage], robot: str, in_path: str | Path, out_path: str | Path | None,
                  progress: bool = False) -> dict[str, Counter]:
     """Run ``stages`` (in pipeline order) over the recording ``in_path``; write ``out_path``.
 
@@ -88,15 +88,15 @@ def run_pipeline(stages: Iterable[Stage], robot: str, in_path: str | Path, out_p
     metadata = {"lrfslam": {"robot": robot, "service": "pipeline", "replay_of": in_path.name,
                             "stages": ",".join(s.spec.name for s in stages),
                             **{f"config.{s.spec.name}": config_mod.to_json(s.config) for s in stages}}}
-    return replay_recording(stages, robot, in_path, out_path, copy_inputs=True, metadata=metadata,
+    return chain.replay_recording(stages, robot, in_path, out_path, copy_inputs=True, metadata=metadata,
                             progress=progress)
 
 
-def build_stages(names: Iterable[str], sets: Iterable[str], file: Mapping, env: Mapping[str, str]) -> list[Stage]:
+def build_stages(names: Iterable[str], sets: Iterable[str], file: Mapping, env: Mapping[str, str]) -> list[chain.Stage]:
     """The stages ``names``, configured by :func:`~lrfslam.runtime.chain.stage` with their ``sets``."""
     names = tuple(names)
     per_stage = stage_sets(sets, names)
-    return [stage(name, sets=per_stage[name], config_file=file, env=env) for name in names]
+    return [chain.stage(name, sets=per_stage[name], config_file=file, env=env) for name in names]
 
 
 def main(argv: list[str] | None = None) -> int:
