@@ -8,8 +8,12 @@ service never loads the algorithms of another.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
 
-from lrfslam.runtime.service import ServiceSpec
+from lrfslam.runtime.chain import DEFAULT_ROBOT, Stage, configure
+from lrfslam.runtime.step import ServiceSpec
 
 NAMES: tuple[str, ...] = ("sensor", "denoise", "feature", "slam", "recorder")
 
@@ -19,3 +23,15 @@ def spec(name: str) -> ServiceSpec:
     if name not in NAMES:
         raise KeyError(name)
     return importlib.import_module(f"lrfslam.services.{name}").SPEC
+
+
+def stage(name: str, *, sets: Iterable[str] = (), config_file: str | Path | Mapping | None = None,
+          env: Mapping[str, str] | None = None) -> Stage:
+    """Service ``name`` configured as the runner would (see :func:`lrfslam.runtime.chain.configure`)."""
+    return configure(spec(name), sets=sets, config_file=config_file, env=env)
+
+
+def build_step(name: str, *, sets: Iterable[str] = (), config_file: str | Path | Mapping | None = None,
+               env: Mapping[str, str] | None = None, robot: str = DEFAULT_ROBOT, replay: bool = True) -> Any:
+    """The step of service ``name``, configured by :func:`stage`: the one way to make a step in code."""
+    return stage(name, sets=sets, config_file=config_file, env=env).build(robot, replay)

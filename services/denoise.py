@@ -15,7 +15,7 @@ from lrfslam.algo.histogram import DenoiseParams, denoise
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.service import Message, Output, ServiceSpec, StepBase
+from lrfslam.runtime.step import Message, Output, ServiceSpec, StepBase
 
 MODES = ("paper", "default")
 

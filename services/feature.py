@@ -17,7 +17,7 @@ from lrfslam.algo.wall_direction import WallDirectionParams, wall_direction
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.service import Message, Output, ServiceSpec, StepBase
+from lrfslam.runtime.step import Message, Output, ServiceSpec, StepBase
 
 MODES = ("paper", "default")
 # algo.corners numbers kinds from 0 (forward, backward); the schema keeps 0 for "unknown".

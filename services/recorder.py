@@ -20,7 +20,7 @@ from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.recording import RecordingWriter
-from lrfslam.runtime.service import Message, RunContext, ServiceSpec, StepBase
+from lrfslam.runtime.step import Message, RunContext, ServiceSpec, StepBase
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,7 @@ from lrfslam.drivers.lms200.protocol import RangeStatus
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.service import Output, RunContext, ServiceSpec, StepBase
+from lrfslam.runtime.step import Output, RunContext, ServiceSpec, StepBase
 from lrfslam.sim.lidar import LidarModel
 from lrfslam.sim.odometry import OdometryNoise
 from lrfslam.sim.simulator import SimConfig, Simulator

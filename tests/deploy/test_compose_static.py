@@ -22,7 +22,7 @@ import yaml
 from lrfslam import cli, services
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
-from lrfslam.runtime.runner import add_common_arguments, bus_config, service_config
+from lrfslam.runtime.runner import add_common_arguments, bus_config, flag_sets
 from lrfslam.tools import status
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -131,7 +131,7 @@ def test_service_commands_parse_and_their_config_loads(svcs):
         bus = bus_config(args, file, {})
         assert bus.mode == "client"
         assert bus.connect == ("tcp/zenohd:7447",)
-        cfg = service_config(spec, args, file, {})
+        cfg = config_mod.service_config(spec, sets=flag_sets(spec, args), file=file, env={})
         assert isinstance(cfg, spec.config_type)
 
 
@@ -213,7 +213,7 @@ def test_config_toml_loads_for_every_service():
         args = service_parser(spec).parse_args(["--config", str(CONFIG)])
         bus = bus_config(args, file, {})
         assert bus.robot == file["bus"]["robot"]
-        cfg = service_config(spec, args, file, {})
+        cfg = config_mod.service_config(spec, sets=flag_sets(spec, args), file=file, env={})
         for key, value in file[name].items():
             assert getattr(cfg, key) == value, f"{name}.{key}"
 
@@ -233,7 +233,7 @@ def test_commented_knobs_in_config_toml_are_real_settings():
             config_mod.load(BusConfig, table=tomllib.loads("\n".join(lines)))
             continue
         spec = services.spec(table)
-        service_config(spec, service_parser(spec).parse_args([]), {table: tomllib.loads("\n".join(lines))}, {})
+        config_mod.service_config(spec, file={table: tomllib.loads("\n".join(lines))})
 
 
 def test_dockerfile_base_and_entrypoint():

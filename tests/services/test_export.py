@@ -5,18 +5,16 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from test_steps import build, chain, sim_outputs
+from test_steps import chain, run, sim_outputs
 
 from lrfslam.msgs import topics
 from lrfslam.runtime.recording import RecordingWriter
-from lrfslam.runtime.service import run_offline
 from lrfslam.tools import export
 
 
 def test_export_writes_json_and_png(tmp_path):
     outs = sim_outputs(40)
-    slam, _ = build("slam")
-    states = [o.value for o in run_offline(slam, chain(outs))]
+    states, _ = run("slam", chain(outs))
     path = tmp_path / "r.mcap"
     with RecordingWriter(path) as w:
         for o in [o for o in outs if o.topic in (topics.TRUTH, topics.ODOM)] + \

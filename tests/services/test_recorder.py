@@ -12,7 +12,7 @@ from lrfslam.services.recorder import RecorderConfig, RecorderStep
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_recording
-from lrfslam.runtime.service import Message, RunContext
+from lrfslam.runtime.step import Message, RunContext
 
 
 def raw(i: int) -> Message:

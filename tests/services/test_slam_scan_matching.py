@@ -4,18 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_steps import build, msg
+from lrfslam.services import stage
+from test_steps import ROBOT, build, msg, run
 
 from lrfslam.algo.geometry import compose, relative
 from lrfslam.msgs import topics
-from lrfslam.runtime.service import run_offline
+from lrfslam.runtime.chain import Chain
 
 
 def sim_chain(n: int, *sensor_sets: str):
     """Simulated scans with noisy odometry -> slam inputs (scan, odom, features) in sensor order; and the truth."""
     sensor, _ = build("sensor", "speedup=0", "seed=4", "source=sim", *sensor_sets)
-    den, _ = build("denoise")
-    feat, _ = build("feature")
+    front = Chain([stage("denoise"), stage("feature")], robot=ROBOT, wire=False)
     fed, truth = [], {}
     while len(truth) < n:
         for o in sensor.poll(0.1):
@@ -25,8 +25,7 @@ def sim_chain(n: int, *sensor_sets: str):
                 fed.append(msg(o))
             elif o.topic is topics.SCAN:
                 fed.append(msg(o))
-                for f in den.on_message(msg(o)):
-                    fed += [msg(g) for g in feat.on_message(msg(f))]
+                fed += [m for m in front.push(msg(o)) if m.topic is topics.FEATURES]
     return fed, truth
 
 
@@ -47,10 +46,10 @@ def poor_run():
 
 def test_scan_matching_beats_poor_odometry_on_a_simulated_run(poor_run):
     fed, truth = poor_run
-    matched, _ = build("slam")
-    odometry, _ = build("slam", "scan_matching=false")
-    err_sm = position_errors([o.value for o in run_offline(matched, fed)], truth)
-    err_odo = position_errors([o.value for o in run_offline(odometry, fed)], truth)
+    states_sm, matched = run("slam", fed)
+    states_odo, odometry = run("slam", fed, "scan_matching=false")
+    err_sm = position_errors(states_sm, truth)
+    err_odo = position_errors(states_odo, truth)
     assert len(err_sm) == len(err_odo) == 300
     assert matched.counts["match_ok"] >= 290 and "match_ok" not in odometry.counts
     assert err_sm.max() < 0.5 * err_odo.max() and err_sm.mean() < 0.05, (err_sm.max(), err_odo.max())
@@ -58,8 +57,7 @@ def test_scan_matching_beats_poor_odometry_on_a_simulated_run(poor_run):
 
 def test_the_result_does_not_depend_on_how_scans_odometry_and_features_interleave(poor_run):
     fed = poor_run[0][:200]
-    a, _ = build("slam")
-    out_a = [o.value for o in run_offline(a, fed)]
+    out_a, a = run("slam", fed)
     # Another arrival order: each scan after its features (and after the odometry of its
     # stamp), but the first: features before any scan are not held (inputs without scans).
     late = list(fed)
@@ -68,8 +66,7 @@ def test_the_result_does_not_depend_on_how_scans_odometry_and_features_interleav
         if late[i].topic is topics.SCAN and late[i + 1].topic is not topics.SCAN:
             late[i], late[i + 1] = late[i + 1], late[i]
     assert [m.topic for m in late] != [m.topic for m in fed]
-    b, _ = build("slam")
-    out_b = [o.value for o in run_offline(b, late)]
+    out_b, b = run("slam", late)
     assert len(out_a) == len(out_b) > 60
     for x, y in zip(out_a, out_b):
         np.testing.assert_allclose(x.pose, y.pose, atol=1e-12)
@@ -81,8 +78,7 @@ def test_lost_scans_fall_back_to_odometry(poor_run):
     fed = poor_run[0][:200]
     scans = [i for i, m in enumerate(fed) if m.topic is topics.SCAN]
     lost = set(scans[5::4])
-    step, _ = build("slam")
-    states = [o.value for o in run_offline(step, [m for i, m in enumerate(fed) if i not in lost])]
+    states, step = run("slam", [m for i, m in enumerate(fed) if i not in lost])
     assert len(states) == sum(m.topic is topics.FEATURES for m in fed)
     assert step.counts["scan_missing"] == len(lost)
     assert step.counts["match_ok"] >= len(scans) - len(lost) - 5
@@ -92,8 +88,7 @@ def test_without_odometry_the_scans_alone_move_the_filter(poor_run):
     """A bare LMS200: no odometry at all, the guess is "no motion" and the match finds the motion."""
     fed, truth = poor_run
     scans_and_features = [m for m in fed[:300] if m.topic is not topics.ODOM]
-    step, _ = build("slam", "wait_for_odometry=false")
-    states = [o.value for o in run_offline(step, scans_and_features)]
+    states, step = run("slam", scans_and_features, "wait_for_odometry=false")
     err = position_errors(states, truth)
     travelled = np.hypot(*(truth[states[-1].stamp_ns][:2] - truth[states[0].stamp_ns][:2]))
     assert step.counts["no_odometry"] == len(states) and step.counts["match_ok"] >= len(states) - 3
@@ -105,4 +100,4 @@ def test_scans_without_their_features_are_not_kept_forever(poor_run):
     for m in poor_run[0]:
         if m.topic is topics.SCAN:
             step.on_message(m)
-    assert len(step.scans) == 2 * step.cfg.max_odom_wait_scans + 2
+    assert step.align.scans_held == 2 * step.cfg.max_odom_wait_scans + 2

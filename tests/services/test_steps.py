@@ -2,33 +2,35 @@
 
 from __future__ import annotations
 
-from collections import Counter
-
 import numpy as np
 import pytest
+from lrfslam.services import stage
 
-from lrfslam import services
 from lrfslam.algo.wall_direction import wrap_quarter
 from lrfslam.errors import InputError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.runner import service_config
-from lrfslam.runtime.service import Message, Output, RunContext, run_offline
+from lrfslam.runtime.chain import Chain
+from lrfslam.runtime.step import Message, Output
 from lrfslam.sim.floor_plans import l_corner
 from lrfslam.sim.lidar import LidarModel, simulate_scan
 
-CTX = RunContext("r1", replay=True)
+ROBOT = "r1"
 
 
 def build(name: str, *sets: str):
-    import argparse
-    spec = services.spec(name)
-    cfg = service_config(spec, argparse.Namespace(sets=list(sets)), {}, {})
-    return spec.build(cfg, CTX), cfg
+    """The step of service ``name`` with ``sets`` (replay: no checkpoints), and its config."""
+    st = stage(name, sets=sets)
+    return st.build(ROBOT), st.config
 
 
-def msg(out: Output) -> Message:
-    return Message(out.topic, out.value, out.value.stamp_ns, out.topic.schema, out.topic.name, out.value.seq)
+def run(name: str, messages, *sets: str):
+    """The output values of a one-stage chain of ``name`` over ``messages``, and its step."""
+    ch = Chain([stage(name, sets=sets)], robot=ROBOT)
+    return [m.value for m in ch.feed(messages)], ch.step(name)
+
+
+msg = Message.of
 
 
 def sim_outputs(n: int, seed: int = 1):
@@ -101,30 +103,26 @@ def test_feature_step_publishes_the_wall_direction(sets, published):
 
 def chain(outs):
     """sensor outputs -> denoise -> feature -> slam inputs (odom + features), in sensor order."""
-    den, _ = build("denoise")
-    feat, _ = build("feature")
+    front = Chain([stage("denoise"), stage("feature")], robot=ROBOT, wire=False)
     fed = []
     for o in outs:
         if o.topic is topics.ODOM:
             fed.append(msg(o))
         elif o.topic is topics.SCAN:
-            for f in den.on_message(msg(o)):
-                fed += [msg(g) for g in feat.on_message(msg(f))]
+            fed += [m for m in front.push(msg(o)) if m.topic is topics.FEATURES]
     return fed
 
 
 def test_slam_result_does_not_depend_on_how_odom_and_features_interleave():
     fed = chain(sim_outputs(60))
-    a, _ = build("slam")
-    b, _ = build("slam")
-    out_a = [o.value for o in run_offline(a, fed)]
+    out_a, _ = run("slam", fed)
     # The other tie order of a replay: each scan's features before the odometry of the same stamp.
     swapped = list(fed)
     for i in range(len(swapped) - 1):
         if swapped[i].topic is topics.ODOM and swapped[i + 1].topic is topics.FEATURES:
             swapped[i], swapped[i + 1] = swapped[i + 1], swapped[i]
     assert [m.topic for m in swapped] != [m.topic for m in fed]
-    out_b = [o.value for o in run_offline(b, swapped)]
+    out_b, _ = run("slam", swapped)
     assert len(out_a) == len(out_b) == 60
     for x, y in zip(out_a, out_b):
         np.testing.assert_allclose(x.pose, y.pose, atol=1e-12)
@@ -134,8 +132,7 @@ def test_slam_result_does_not_depend_on_how_odom_and_features_interleave():
 def test_pipeline_tracks_ground_truth_over_a_corridor():
     outs = sim_outputs(150)
     truth = {o.value.stamp_ns: o.value.pose for o in outs if o.topic is topics.TRUTH}
-    slam, _ = build("slam")
-    states = [o.value for o in run_offline(slam, chain(outs))]
+    states, _ = run("slam", chain(outs))
     from lrfslam.algo.geometry import compose, relative
     anchor = compose(truth[states[0].stamp_ns], relative(states[0].pose, np.zeros(3)))
     err = [np.linalg.norm(compose(anchor, s.pose)[:2] - truth[s.stamp_ns][:2]) for s in states]
@@ -146,41 +143,35 @@ def test_pipeline_tracks_ground_truth_over_a_corridor():
 def test_slam_step_corrects_the_heading_with_the_wall_direction():
     fed = chain(sim_outputs(30))
     assert all(m.value.has_wall_direction for m in fed if m.topic is topics.FEATURES)
-    on, _ = build("slam")
-    off, _ = build("slam", "use_wall_direction=false")
-    last_on = [o.value for o in run_offline(on, fed)][-1]
-    last_off = [o.value for o in run_offline(off, fed)][-1]
+    states_on, on = run("slam", fed)
+    states_off, off = run("slam", fed, "use_wall_direction=false")
+    last_on, last_off = states_on[-1], states_off[-1]
     assert on.counts["wall_initialised"] == 1 and on.counts["wall_applied"] >= 25
     assert not any(k.startswith("wall_") for k in off.counts)
     # Hundreds of wall points per scan pin the heading far below what odometry and corners give.
     assert np.sqrt(last_on.pose_cov[2, 2]) < 0.5 * np.sqrt(last_off.pose_cov[2, 2])
-    assert on.ekf.building_orientation is not None and off.ekf.building_orientation is None
+    assert on.slam.ekf.building_orientation is not None and off.slam.ekf.building_orientation is None
 
 
 def test_slam_resumes_from_its_checkpoint(tmp_path):
     fed = chain(sim_outputs(40))
     ckpt = tmp_path / "slam.npz"
-    live = RunContext("r1")
-    spec = services.spec("slam")
-    import argparse
-    cfg = service_config(spec, argparse.Namespace(sets=[f"checkpoint_path={ckpt}", "checkpoint_every_scans=10"]),
-                         {}, {})
-    first = spec.build(cfg, live)
-    head = [o.value for o in run_offline(first, fed[:40])]
-    first.close()
+    live = [stage("slam", sets=[f"checkpoint_path={ckpt}", "checkpoint_every_scans=10"])]
+    with Chain(live, robot=ROBOT, replay=False) as first:
+        head = [m.value for m in first.feed(fed[:40])]
     assert ckpt.exists()
-    resumed = spec.build(cfg, live)
-    assert resumed.seq == head[-1].seq
-    np.testing.assert_allclose(resumed.ekf.pose, head[-1].pose, atol=1e-12)
-    tail = [o.value for o in run_offline(resumed, fed[40:])]
+    with Chain(live, robot=ROBOT, replay=False) as second:
+        resumed = second.step("slam")
+        assert resumed.slam.scans == head[-1].seq
+        np.testing.assert_allclose(resumed.slam.ekf.pose, head[-1].pose, atol=1e-12)
+        tail = [m.value for m in second.feed(fed[40:])]
     assert tail and tail[0].seq == head[-1].seq + 1
     assert set(head[-1].landmark_ids.tolist()) <= set(tail[-1].landmark_ids.tolist())
 
 
 def test_bad_input_is_counted_and_skipped():
-    step, _ = build("denoise")
-    counts: Counter = Counter()
     bad = Message(topics.SCAN, t.LaserScan.from_ranges(1, 1, [1.0], 0.0, 0.1), 1, "", "scan")
     good = Message(topics.SCAN, t.LaserScan.from_ranges(2, 2, [1.0, 1.0, 1.0], 0.0, 0.1), 2, "", "scan")
-    outs = list(run_offline(step, [bad, good], counts))
-    assert counts["error.input"] == 1 and len(outs) == 1 and outs[0].value.stamp_ns == 2
+    ch = Chain([stage("denoise")], robot=ROBOT)
+    outs = list(ch.feed([bad, good]))
+    assert ch.counts()["denoise"]["error.input"] == 1 and len(outs) == 1 and outs[0].value.stamp_ns == 2

@@ -2,19 +2,19 @@
 
 from __future__ import annotations
 
-import argparse
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
+from lrfslam.services import stage
 
 from lrfslam import services
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import RecordingWriter, read_metadata, read_recording
-from lrfslam.runtime.runner import replay, service_config
+from lrfslam.runtime.runner import replay
 from lrfslam.sim import SimConfig, Simulator
 from lrfslam.tools import pipeline
 from lrfslam.tools.pipeline import build_stages, run_pipeline, stage_names, stage_sets
@@ -78,7 +78,7 @@ def test_same_outputs_as_the_services_replayed_one_by_one(sim_recording, tmp_pat
     run_pipeline(default_stages(), ROBOT, sim_recording, tmp_path / "all.mcap")
 
     def cfg(name):
-        return service_config(services.spec(name), argparse.Namespace(sets=[]), {}, {})
+        return stage(name).config
 
     replay(services.spec("denoise"), cfg("denoise"), ROBOT, sim_recording, tmp_path / "d.mcap")
     replay(services.spec("feature"), cfg("feature"), ROBOT, tmp_path / "d.mcap", tmp_path / "f.mcap")

@@ -9,8 +9,9 @@ sources (``McConfig.features``):
   management), not the front end.
 * ``"extractor"``: the real pipeline. Each simulated scan goes through the
   denoise, feature and slam *service steps* (built from their default configs,
-  as ``lrfslam up`` runs them), so what is measured is what runs live. Only the
-  filter's start pose is set to the true one, so no alignment is needed.
+  as ``lrfslam up`` runs them, in one :class:`~lrfslam.runtime.chain.Chain`),
+  so what is measured is what runs live. Only the filter's start pose is set
+  to the true one, so no alignment is needed.
 
 Every observation is labelled with the map point it came from: its true corner
 ("truth"), or the nearest map corner or free wall end within
@@ -47,13 +48,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.stats import chi2
 
-from lrfslam import services
-from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus, UpdateReport
+from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
 from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.runner import service_config
-from lrfslam.runtime.service import Message, Output, RunContext
+from lrfslam.runtime.chain import Chain, Stage
+from lrfslam.runtime.step import Message, Output
+from lrfslam.services import stage
 from lrfslam.sim import OdometryNoise, SimConfig, SimFrame, Simulator
 
 FEATURE_SOURCES = ("truth", "extractor")
@@ -123,7 +124,7 @@ class McConfig:
             "association": self.association,
         }
         if self.features == "extractor":
-            return replace(self.stage_config("slam").ekf, **odometry)
+            return replace(self.stage("slam").config.ekf, **odometry)
         return EkfParams(
             odom_trans_sigma_floor_m=1e-5,
             odom_rot_sigma_floor_rad=1e-6,
@@ -133,10 +134,10 @@ class McConfig:
             **odometry,
         )
 
-    def stage_config(self, name: str):
-        """The ``name`` service's config as the runner layers it: ``stage_sets``, no file, no environment."""
-        sets = [item.partition(".")[2] for item in self.stage_sets if item.partition(".")[0] == name]
-        return service_config(services.spec(name), argparse.Namespace(sets=sets), {}, {})
+    def stage(self, name: str) -> Stage:
+        """The ``name`` service configured as the runner layers it: ``stage_sets``, no file, no environment."""
+        return stage(name, sets=[item.partition(".")[2] for item in self.stage_sets
+                                 if item.partition(".")[0] == name])
 
 
 @dataclass(frozen=True, eq=False)
@@ -262,34 +263,19 @@ def truth_clusters(truth_xy: np.ndarray, radius_m: float) -> np.ndarray:
         cluster = merged
 
 
-class _RecordingEkf(EkfSlam):
-    """EkfSlam that keeps what its last :meth:`observe` call was given and returned."""
-
-    def observe(self, points_xy, covs=None, kinds=None) -> UpdateReport:
-        report = super().observe(points_xy, covs, kinds)
-        self.last = (np.asarray(points_xy, dtype=float).reshape(-1, 2),
-                     np.zeros((0, 2, 2)) if covs is None else np.asarray(covs, dtype=float), report)
-        return report
-
-
-def _message(out: Output) -> Message:
-    return Message(out.topic, out.value, out.value.stamp_ns, out.topic.schema, out.topic.name, out.value.seq)
-
-
 class _Pipeline:
-    """The denoise, feature and slam service steps, driven in memory frame by frame.
+    """The denoise, feature and slam service steps, one in-memory chain driven frame by frame.
 
     The frames are turned into the sensor service's messages (an odometry pose
-    and a scan with the same stamp); the slam step's filter is replaced by a
-    recording one anchored at the true start pose.
+    and a scan with the same stamp); the slam step starts at the true start pose.
     """
 
     def __init__(self, sim: Simulator, cfg: McConfig, params: EkfParams, pose0: np.ndarray) -> None:
-        ctx = RunContext("slam_mc", replay=True)
-        self.denoise = services.spec("denoise").build(cfg.stage_config("denoise"), ctx)
-        self.feature = services.spec("feature").build(cfg.stage_config("feature"), ctx)
-        self.slam = services.spec("slam").build(replace(cfg.stage_config("slam"), ekf=params), ctx)
-        self.slam.ekf = _RecordingEkf(params, pose0=pose0)
+        slam = cfg.stage("slam")
+        self.chain = Chain([cfg.stage("denoise"), cfg.stage("feature"),
+                            Stage(slam.spec, replace(slam.config, ekf=params))], robot="slam_mc", wire=False)
+        self.slam = self.chain.step("slam").slam
+        self.slam.start_at(pose0)
         self.lidar = sim.config.lidar
         self.scan_time_s = 1.0 / sim.config.rate_hz
 
@@ -299,14 +285,11 @@ class _Pipeline:
         scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, self.lidar.angle_min_rad,
                                        self.lidar.angle_increment_rad, self.lidar.max_range_m,
                                        scan_time_s=self.scan_time_s, source="sim")
-        states = list(self.slam.on_message(_message(Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose)))))
-        states += self.slam.on_message(_message(Output(topics.SCAN, scan)))
-        for filtered in self.denoise.on_message(_message(Output(topics.SCAN, scan))):
-            for feats in self.feature.on_message(_message(filtered)):
-                states += self.slam.on_message(_message(feats))
-        (state,) = (o.value for o in states)
-        xy, covs, report = self.slam.ekf.last
-        return state.pose, state.pose_cov, xy, covs, report
+        outs = self.chain.push(Message.of(Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose))))
+        outs += self.chain.push(Message.of(Output(topics.SCAN, scan)))
+        (state,) = (m.value for m in outs if m.topic is topics.SLAM_STATE)
+        last = self.slam.last_update
+        return state.pose, state.pose_cov, last.xy_m, last.cov_m2, last.report
 
 
 def run_once(cfg: McConfig, run_index: int) -> RunResult:

@@ -22,7 +22,7 @@ from lrfslam.msgs import topics
 from lrfslam.msgs.codec import parse_encoding
 from lrfslam.msgs.topics import Topic
 from lrfslam.runtime.decoding import LogOnce, decode_message
-from lrfslam.runtime.service import Message, Output
+from lrfslam.runtime.step import Message, Output
 
 log = logging.getLogger(__name__)
 

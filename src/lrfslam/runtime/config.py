@@ -170,6 +170,27 @@ def peek(cls: type, name: str, *, table: Mapping | None = None, env: Mapping[str
     return value
 
 
+def service_config(spec: Any, *, sets: typing.Iterable[str] = (), file: Mapping | None = None,
+                   env: Mapping[str, str] | None = None) -> Any:
+    """The config of service ``spec``: defaults (or its ``mode`` preset) < ``file[<service>]``
+    < ``LRFSLAM_<SERVICE>_*`` in ``env`` < ``sets``.
+
+    Parameters
+    ----------
+    spec : lrfslam.runtime.step.ServiceSpec
+    sets : iterable of ``"name=value"``
+        The service's own names (``histogram.bin_deg=10``), no service prefix.
+    file : mapping
+        The whole parsed config file (its ``[<service>]`` table is used); None: no file.
+    env : mapping
+        Environment variables; None: no environment layer.
+    """
+    layers = {"table": (file or {}).get(spec.name, {}), "env": env,
+              "env_prefix": f"{ENV_PREFIX}_{spec.name.upper()}", "sets": list(sets)}
+    base = spec.preset(peek(spec.config_type, "mode", **layers)) if spec.preset else None
+    return load(spec.config_type, base=base, **layers)
+
+
 def _parse_sets(sets: typing.Iterable[str]) -> list[tuple[str, str]]:
     out = []
     for item in sets:

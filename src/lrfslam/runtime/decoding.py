@@ -13,7 +13,7 @@ from typing import Any
 
 from lrfslam.errors import DecodeError, SchemaVersionError
 from lrfslam.msgs.topics import Topic
-from lrfslam.runtime.service import Message
+from lrfslam.runtime.step import Message
 
 
 class LogOnce:

@@ -19,7 +19,7 @@ import socket
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -30,15 +30,9 @@ from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
-from lrfslam.runtime.decoding import LogOnce, decode_message
-from lrfslam.runtime.recording import ReadReport, RecordingWriter, read_recording
-from lrfslam.runtime.service import (
-    Message,
-    RunContext,
-    ServiceSpec,
-    Source,
-    run_offline,
-)
+from lrfslam.runtime.chain import Stage, replay_recording
+from lrfslam.runtime.decoding import LogOnce
+from lrfslam.runtime.step import RunContext, ServiceSpec, Source
 
 log = logging.getLogger("lrfslam")
 
@@ -76,14 +70,10 @@ def bus_config(args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) 
                            env_prefix=f"{config_mod.ENV_PREFIX}_BUS", sets=sets)
 
 
-def service_config(spec: ServiceSpec, args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) -> Any:
-    """Defaults (or the selected preset) < file [<service>] < LRFSLAM_<SERVICE>_* < --set and flags."""
-    sets = list(args.sets) + [f"{name}={getattr(args, name)}" for _, name, _ in spec.flags
+def flag_sets(spec: ServiceSpec, args: argparse.Namespace) -> list[str]:
+    """``--set`` values, then the service's own flags (``--device X`` is ``--set device=X``)."""
+    return list(args.sets) + [f"{name}={getattr(args, name)}" for _, name, _ in spec.flags
                               if getattr(args, name, None) is not None]
-    layers = {"table": file.get(spec.name, {}), "env": env,
-              "env_prefix": f"{config_mod.ENV_PREFIX}_{spec.name.upper()}", "sets": sets}
-    base = spec.preset(config_mod.peek(spec.config_type, "mode", **layers)) if spec.preset else None
-    return config_mod.load(spec.config_type, base=base, **layers)
 
 
 def setup_logging(service: str, level: str | None) -> None:
@@ -103,7 +93,7 @@ def main(spec: ServiceSpec, argv: list[str] | None = None) -> int:
     try:
         file = config_mod.read_file(args.config)
         bus = bus_config(args, file, os.environ)
-        cfg = service_config(spec, args, file, os.environ)
+        cfg = config_mod.service_config(spec, sets=flag_sets(spec, args), file=file, env=os.environ)
         log.info("config %s", config_mod.to_json(cfg))
         if args.replay:
             counts = replay(spec, cfg, bus.robot, Path(args.replay), Path(args.out) if args.out else None)
@@ -121,57 +111,19 @@ def main(spec: ServiceSpec, argv: list[str] | None = None) -> int:
 
 
 def replay(spec: ServiceSpec, cfg: Any, robot: str, in_path: Path, out_path: Path | None) -> Counter:
-    """Run ``spec``'s step over the recording ``in_path``; write outputs to ``out_path``.
+    """Run ``spec``'s step over the recording ``in_path``; write its outputs to ``out_path``.
 
-    Deterministic: inputs come in log-time order, nothing reads the clock, and
-    the output file carries no wall-clock metadata, so two runs give the same bytes.
+    A one-stage :func:`~lrfslam.runtime.chain.replay_recording`: the same input
+    gives the same output bytes.
     """
     if not spec.inputs and not spec.raw_inputs:
         raise ConfigError(f"{spec.name} is a source; it has no inputs to replay")
-    counts: Counter = Counter()
-    once = LogOnce(log)
-    step = spec.build(cfg, RunContext(robot, replay=True))
-    wanted = {tp.name: tp for tp in spec.inputs}
-    report = ReadReport()
-
-    def messages() -> Iterator[Message]:
-        for rec in read_recording(in_path, None if spec.raw_inputs else list(wanted), report):
-            if spec.raw_inputs:
-                counts["in.raw"] += 1
-                yield Message(None, rec.data, rec.publish_time_ns, rec.schema, rec.topic, rec.sequence)
-                continue
-            topic = wanted[rec.topic]
-            counts[f"in.{topic.name}"] += 1
-            msg = decode_message(topic, rec.data, rec.schema, counts, once, f"{in_path.name}:{rec.topic}")
-            if msg is not None:
-                yield msg
-
-    writer = RecordingWriter(out_path, metadata={
-        "lrfslam": {"robot": robot, "service": spec.name, "replay_of": in_path.name,
-                    "config": config_mod.to_json(cfg)}}) if out_path else None
-    try:
-        def bad_input(msg: Message, exc: InputError) -> None:
-            once.warning("error.input", type(exc).__name__, "skipping bad input on %s: %s", msg.name, exc)
-
-        for out in run_offline(step, messages(), counts, bad_input):
-            counts[f"out.{out.topic.name}"] += 1
-            if writer is not None:
-                writer.write(out.topic.name, out.topic.schema, out.topic.codec.encode(out.value),
-                             out.value.stamp_ns, out.value.stamp_ns, out.value.seq)
-    finally:
-        step_close(step)
-        if writer is not None:
-            writer.close()
-    if report.truncated:
-        counts["input.truncated"] = 1
-    counts.update({f"step.{k}": v for k, v in getattr(step, "counts", {}).items()})
-    return counts
-
-
-def step_close(step: Any) -> None:
-    close = getattr(step, "close", None)
-    if close is not None:
-        close()
+    metadata = {"lrfslam": {"robot": robot, "service": spec.name, "replay_of": in_path.name,
+                            "config": config_mod.to_json(cfg)}}
+    counts = replay_recording([Stage(spec, cfg)], robot, in_path, out_path, copy_inputs=False, metadata=metadata)
+    merged = Counter(counts[spec.name])
+    merged.update({f"input.{k}": v for k, v in counts["input"].items()})
+    return merged
 
 
 # ---- live --------------------------------------------------------------------------------
@@ -207,7 +159,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
     health_topic = topics.health(spec.name)
     session = open_session(zenoh_config(bus_cfg), stop, bus_cfg.connect)
     if session is None:
-        step_close(step)
+        step.close()
         return 0
     with session:
         token = session.liveliness().declare_token(topics.alive(robot, spec.name))
@@ -216,9 +168,9 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         log.info("%s up: robot=%s mode=%s connect=%s", spec.name, robot, bus_cfg.mode, ",".join(bus_cfg.connect))
 
         def status() -> t.ServiceStatus:
-            level, message = step.health() if hasattr(step, "health") else (0, "ok")
+            level, message = step.health()
             merged = Counter(counts)
-            merged.update({f"step.{k}": v for k, v in getattr(step, "counts", {}).items()})
+            merged.update({f"step.{k}": v for k, v in step.counts.items()})
             return t.ServiceStatus(
                 spec.name, robot, level, message, time.time_ns(), time.monotonic() - started,
                 dict(merged), last_data[0], config_mod.to_json(cfg),
@@ -253,8 +205,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                 now = time.monotonic()
                 if now >= next_tick:
                     next_tick = now + 0.1
-                    if hasattr(step, "tick"):
-                        step.tick()
+                    step.tick()
                     while (query := status_q.try_recv()) is not None:
                         with query:
                             st = status()
@@ -263,10 +214,10 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                 if now >= next_health:
                     next_health = now + bus_cfg.health_period_s
                     publish_health()
-            publish(step.finish() if hasattr(step, "finish") else ())
+            publish(step.finish())
             publish_health()  # the final counts, for supervisors and the recording
         finally:
-            step_close(step)
+            step.close()
             bus.close()
             status_q.undeclare()
             token.undeclare()

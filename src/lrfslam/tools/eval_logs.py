@@ -32,6 +32,7 @@ from lrfslam.evaluation.relations import (
 )
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
+from lrfslam.runtime import chain
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.recording import read_recording
 from lrfslam.tools import pipeline
@@ -78,7 +79,7 @@ def find_logs(root: Path) -> list[Log]:
     return logs
 
 
-def run_log(log: Log, work: Path, stages: list[pipeline.Stage], draw_map: bool = True) -> LogResult:
+def run_log(log: Log, work: Path, stages: list[chain.Stage], draw_map: bool = True) -> LogResult:
     """Import ``log``, run ``stages`` over it, and score what it has ground truth for."""
     work.mkdir(parents=True, exist_ok=True)
     imported, out = work / f"{log.name}.mcap", work / f"{log.name}.run.mcap"

@@ -1,11 +1,11 @@
 """``lrfslam pipeline --replay IN.mcap --out OUT.mcap``: several services' steps in one process, offline.
 
 Equivalent to replaying the services one after the other, each on a recording
-holding its inputs, without the intermediate files and merges: every stage is
-the service's own step (``services.spec(name).build``) driven by
-:func:`~lrfslam.runtime.service.run_offline`, and each output is fed forward to
-the later stages as soon as it is produced. The input is read once in log-time
-order; nothing reads the clock, so the same input gives the same output bytes.
+holding its inputs, without the intermediate files and merges: the stages are
+one :class:`~lrfslam.runtime.chain.Chain` of the services' own steps, and each
+output is fed forward to the later stages as soon as it is produced. The input
+is read once in log-time order; nothing reads the clock, so the same input
+gives the same output bytes.
 
 OUT.mcap holds the input's messages (raw, as recorded) and every stage's
 outputs, except that input messages on a topic one of the stages produces are
@@ -24,50 +24,20 @@ import argparse
 import logging
 import os
 import sys
-from collections import Counter, deque
-from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass
+from collections import Counter
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
-
-from tqdm import tqdm
 
 from lrfslam import services
-from lrfslam.errors import ConfigError, InputError, LrfSlamError
+from lrfslam.errors import ConfigError, LrfSlamError
+from lrfslam.runtime import chain
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
-from lrfslam.runtime.decoding import LogOnce, decode_message
-from lrfslam.runtime.recording import (
-    ReadReport,
-    RecordedMessage,
-    RecordingWriter,
-    read_recording,
-)
-from lrfslam.runtime.runner import service_config, setup_logging, step_close
-from lrfslam.runtime.service import Message, RunContext, ServiceSpec, run_offline
+from lrfslam.runtime.runner import setup_logging
 
 log = logging.getLogger("lrfslam.pipeline")
 
 DEFAULT_STAGES = ("denoise", "feature", "slam")
-
-
-@dataclass(frozen=True)
-class Stage:
-    """One service to run: its spec and its fully layered config."""
-
-    spec: ServiceSpec
-    config: Any
-
-
-@dataclass(frozen=True)
-class _Item:
-    """A message in the chain: ``rec`` is set for one read from the input file, ``msg``
-    when some stage may consume it (decoded) or a stage produced it, ``payload`` (its
-    encoding) for a stage's output."""
-
-    msg: Message | None
-    rec: RecordedMessage | None
-    payload: bytes = b""
 
 
 def stage_names(text: str) -> tuple[str, ...]:
@@ -102,44 +72,7 @@ def stage_sets(sets: Iterable[str], names: Iterable[str]) -> dict[str, list[str]
     return out
 
 
-def _stage(stage: Stage, robot: str, upstream: Iterator[_Item], counts: Counter) -> Iterator[_Item]:
-    """Pass ``upstream`` through, with the stage's outputs right after the input that caused them."""
-    once = LogOnce(log)
-    step = stage.spec.build(stage.config, RunContext(robot, replay=True))
-    wanted = {tp.name for tp in stage.spec.inputs}
-    held: deque[_Item] = deque()
-
-    def inputs() -> Iterator[Message]:
-        # Everything goes to ``held`` so the stream keeps its order around the outputs.
-        for item in upstream:
-            held.append(item)
-            if item.msg is not None and item.msg.name in wanted:
-                counts[f"in.{item.msg.name}"] += 1
-                yield item.msg
-
-    def bad_input(msg: Message, exc: InputError) -> None:
-        once.warning("error.input", type(exc).__name__, "%s: skipping bad input on %s: %s",
-                     stage.spec.name, msg.name, exc)
-
-    try:
-        for out in run_offline(step, inputs(), counts, bad_input):
-            while held:
-                yield held.popleft()
-            counts[f"out.{out.topic.name}"] += 1
-            # Later stages get what the bus would deliver (e.g. float32 points), so a
-            # pipeline run gives the same results as the live services and --replay.
-            payload = out.topic.codec.encode(out.value)
-            value = out.topic.codec.decode(payload)
-            yield _Item(Message(out.topic, value, value.stamp_ns, out.topic.schema, out.topic.name, value.seq),
-                        None, payload)
-        while held:
-            yield held.popleft()
-    finally:
-        step_close(step)
-    counts.update({f"step.{k}": v for k, v in getattr(step, "counts", {}).items()})
-
-
-def run_pipeline(stages: Iterable[Stage], robot: str, in_path: str | Path, out_path: str | Path | None,
+def run_pipeline(stages: Iterable[chain.Stage], robot: str, in_path: str | Path, out_path: str | Path | None,
                  progress: bool = False) -> dict[str, Counter]:
     """Run ``stages`` (in pipeline order) over the recording ``in_path``; write ``out_path``.
 
@@ -152,61 +85,18 @@ def run_pipeline(stages: Iterable[Stage], robot: str, in_path: str | Path, out_p
     """
     stages = tuple(stages)
     in_path = Path(in_path)
-    produced = {tp.name for s in stages for tp in s.spec.outputs}
-    consumed = {tp.name: tp for s in stages for tp in s.spec.inputs if tp.name not in produced}
-    counts: dict[str, Counter] = {"input": Counter(), **{s.spec.name: Counter() for s in stages}}
-    read = counts["input"]
-    once = LogOnce(log)
-    report = ReadReport()
-
-    def source() -> Iterator[_Item]:
-        for rec in tqdm(read_recording(in_path, report=report), desc=f"pipeline {in_path.name}",
-                        unit=" msgs", disable=not progress, file=sys.stderr):
-            read["read"] += 1
-            if rec.topic in produced:
-                read["dropped"] += 1
-                continue
-            topic = consumed.get(rec.topic)
-            msg = None
-            if topic is not None:
-                msg = decode_message(topic, rec.data, rec.schema, read, once, f"{in_path.name}:{rec.topic}")
-            yield _Item(msg, rec)
-
-    stream: Iterator[_Item] = source()
-    for stage in stages:
-        stream = _stage(stage, robot, stream, counts[stage.spec.name])
     metadata = {"lrfslam": {"robot": robot, "service": "pipeline", "replay_of": in_path.name,
                             "stages": ",".join(s.spec.name for s in stages),
                             **{f"config.{s.spec.name}": config_mod.to_json(s.config) for s in stages}}}
-    writer = RecordingWriter(out_path, metadata) if out_path is not None else None
-    try:
-        for item in stream:
-            if writer is None:
-                continue
-            if item.rec is not None:
-                rec = item.rec
-                read["copied"] += 1
-                writer.write(rec.topic, rec.schema, rec.data, rec.log_time_ns, rec.publish_time_ns, rec.sequence)
-            else:
-                msg = item.msg
-                writer.write(msg.name, msg.schema, item.payload, msg.stamp_ns, msg.stamp_ns, msg.seq)
-    finally:
-        if writer is not None:
-            writer.close()
-    if report.truncated:
-        read["truncated"] = 1
-    return counts
+    return chain.replay_recording(stages, robot, in_path, out_path, copy_inputs=True, metadata=metadata,
+                            progress=progress)
 
 
-def build_stages(names: Iterable[str], sets: Iterable[str], file: Mapping, env: Mapping[str, str]) -> list[Stage]:
-    """The stages ``names`` with their configs layered as :func:`runner.service_config` does."""
+def build_stages(names: Iterable[str], sets: Iterable[str], file: Mapping, env: Mapping[str, str]) -> list[chain.Stage]:
+    """The stages ``names``, configured by :func:`~lrfslam.runtime.chain.stage` with their ``sets``."""
     names = tuple(names)
     per_stage = stage_sets(sets, names)
-    stages = []
-    for name in names:
-        spec = services.spec(name)
-        stages.append(Stage(spec, service_config(spec, argparse.Namespace(sets=per_stage[name]), file, env)))
-    return stages
+    return [services.stage(name, sets=per_stage[name], config_file=file, env=env) for name in names]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -2,18 +2,18 @@
 
 A *step* turns one input message into zero or more outputs; a *source* (the
 sensor) produces outputs when polled. The runner drives the same step live on
-Zenoh, over a recording (``--replay``) and in tests (:func:`run_offline`), so
-the three can never disagree about what a stage does.
+Zenoh; :class:`lrfslam.runtime.chain.Chain` drives it over a recording
+(``--replay``, ``lrfslam pipeline``), in the Monte Carlo and in tests, so they
+can never disagree about what a stage does.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
-from lrfslam.errors import InputError
 from lrfslam.msgs.topics import Topic
 
 
@@ -27,6 +27,11 @@ class Message:
     schema: str
     name: str = ""      # relative key; the only way a raw service knows what it got
     seq: int = 0
+
+    @classmethod
+    def of(cls, out: Output) -> Message:
+        """``out`` as a later stage receives it: stamp and seq from the value's header."""
+        return cls(out.topic, out.value, out.value.stamp_ns, out.topic.schema, out.topic.name, out.value.seq)
 
 
 @dataclass(frozen=True)
@@ -98,25 +103,3 @@ class RunContext:
     replay: bool = False
     extra: dict = field(default_factory=dict)
 
-
-def run_offline(step: Any, messages: Iterable[Message], counts: Counter | None = None,
-                on_bad_input: Callable[[Message, InputError], None] | None = None) -> Iterator[Output]:
-    """Drive ``step`` over ``messages`` synchronously; yield every output, then its final ones.
-
-    This is the replay and test path: no threads, no clock, so the same input
-    gives the same outputs. A message the step rejects with :class:`InputError`
-    is counted as ``error.input`` and skipped, as the live runner does.
-    """
-    for msg in messages:
-        try:
-            outs = list(step.on_message(msg))
-        except InputError as exc:
-            if counts is not None:
-                counts["error.input"] += 1
-            if on_bad_input is not None:
-                on_bad_input(msg, exc)
-            continue
-        yield from outs
-    finish = getattr(step, "finish", None)
-    if finish is not None:
-        yield from finish()
