@@ -35,11 +35,11 @@ def _child(n_scans: int, loops: int, mode: str) -> None:
     sys.path.insert(0, str(HERE))
     from bench_features import scans
 
-    from lrfslam.algo.corners import CornerParams, extract_features
+    from lrfslam.algo.features import FeatureParams, extract_features
     from lrfslam.algo.histogram import DenoiseParams, denoise
 
     data = [(s.ranges_m, s.angles_rad) for s in scans(n_scans, 0)]
-    dp, cp = getattr(DenoiseParams, mode)(), getattr(CornerParams, mode)()
+    dp, cp = getattr(DenoiseParams, mode)(), getattr(FeatureParams, mode)()
     for _ in range(1 + loops):
         for r, a in data:
             extract_features(r, a, denoise(r, a, dp).kept, cp)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lrfslam.algo.corners import CornerParams, extract_features
+from lrfslam.algo.features import FeatureParams, extract_features
 from lrfslam.algo.wall_direction import WallDirectionParams, wall_direction
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
@@ -27,7 +27,7 @@ _KIND_TO_SCHEMA = (t.FEATURE_FORWARD, t.FEATURE_BACKWARD)
 @dataclass(frozen=True)
 class FeatureConfig:
     mode: str = "default"   # "paper" or "default"; presets corners.*
-    corners: CornerParams = field(default_factory=CornerParams.default)
+    corners: FeatureParams = field(default_factory=FeatureParams.default)
     wall_direction: bool = True  # publish the dominant wall direction mod 90° (not in the paper)
     walls: WallDirectionParams = field(default_factory=WallDirectionParams)
 
@@ -40,7 +40,7 @@ def preset(mode: str) -> FeatureConfig:
     if mode not in MODES:
         raise ConfigError(f"mode must be one of {MODES}, got {mode!r}")
     # The paper preset is the literal reading: no wall-direction measurement.
-    return FeatureConfig(mode=mode, corners=getattr(CornerParams, mode)(), wall_direction=mode != "paper")
+    return FeatureConfig(mode=mode, corners=getattr(FeatureParams, mode)(), wall_direction=mode != "paper")
 
 
 class FeatureStep(StepBase):

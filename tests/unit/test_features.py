@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from lrfslam.algo import corners as C
-from lrfslam.algo.corners import BACKWARD, FORWARD, CornerParams, extract_features
+from lrfslam.algo.features import BACKWARD, FORWARD, FeatureParams, extract_features
 from lrfslam.algo.geometry import from_frame, to_frame
 from lrfslam.algo.histogram import DenoiseParams, denoise
 from lrfslam.errors import ConfigError
@@ -20,7 +20,7 @@ from lrfslam.sim.world import World, closed_polygon, polyline
 from lrfslam.sim.worlds import corridor_end, doorway_room, l_corner, straight_wall
 
 ANGLES = np.radians(np.arange(-90.0, 91.0))
-PAPER, DEFAULT = CornerParams.paper(), CornerParams.default()
+PAPER, DEFAULT = FeatureParams.paper(), FeatureParams.default()
 DENOISE = DenoiseParams.default()
 
 

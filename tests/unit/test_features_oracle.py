@@ -15,7 +15,7 @@ import pytest
 import reference_corners as R
 from oracle_scans import garbage, simulated
 
-from lrfslam.algo.corners import FORWARD, CornerParams, extract_features
+from lrfslam.algo.features import FORWARD, FeatureParams, extract_features
 from lrfslam.algo.histogram import DenoiseParams, denoise
 
 SCANS = simulated(24, 8, seed=5)
@@ -40,8 +40,8 @@ VARIANTS = {
 }
 
 
-def corner_params(variant: str) -> CornerParams:
-    return dataclasses.replace(CornerParams.default(), **VARIANTS[variant])
+def corner_params(variant: str) -> FeatureParams:
+    return dataclasses.replace(FeatureParams.default(), **VARIANTS[variant])
 
 
 def assert_same(new, old):
@@ -54,9 +54,9 @@ def assert_same(new, old):
     np.testing.assert_allclose(new.cov_m2 / scale, old.cov_m2 / scale, rtol=0, atol=1e-9)
 
 
-def compare(scans, cp: CornerParams, dp: DenoiseParams, seed: int) -> int:
+def compare(scans, cp: FeatureParams, dp: DenoiseParams, seed: int) -> int:
     """Compare on each scan with the filter's kept points and with a random tenth dropped too; corners seen."""
-    rp = R.CornerParams(**dataclasses.asdict(cp))
+    rp = R.FeatureParams(**dataclasses.asdict(cp))
     rng = np.random.default_rng(seed)
     corners = 0
     for r, a in scans:
@@ -75,13 +75,13 @@ def test_simulated_scans_give_the_reference_features(variant):
 
 
 def test_paper_mode_gives_the_reference_features():
-    assert compare(SCANS, CornerParams.paper(), DenoiseParams.paper(), 2) >= 20
+    assert compare(SCANS, FeatureParams.paper(), DenoiseParams.paper(), 2) >= 20
 
 
 @pytest.mark.parametrize("variant", ["default", "arclength", "no straightness check", "five picks per arm"])
 def test_garbage_scans_give_the_reference_features(variant):
     cp = corner_params(variant)
-    rp = R.CornerParams(**dataclasses.asdict(cp))
+    rp = R.FeatureParams(**dataclasses.asdict(cp))
     rng = np.random.default_rng(3)
     for r, a in GARBAGE:
         kept = rng.random(len(r)) > 0.2
@@ -91,7 +91,7 @@ def test_garbage_scans_give_the_reference_features(variant):
 def test_the_oracle_comparison_can_fail():
     r, a = SCANS[0]
     kept = denoise(r, a, DenoiseParams.default()).kept
-    fs = R.extract_features(r, a, kept, R.CornerParams())
+    fs = R.extract_features(r, a, kept, R.FeatureParams())
     moved = dataclasses.replace(fs, xy_m=fs.xy_m + 1e-6)
     with pytest.raises(AssertionError):
         assert_same(moved, fs)
