@@ -75,7 +75,7 @@ _INF = const(math.inf)
 
 
 def right_angle_bases(z: np.ndarray, step_m: np.ndarray, breaks: list[int],
-                      params: FeatureParams) -> tuple[list[int], list[float]]:
+                      params: FeatureParams) -> tuple[list[int], list[float], list[tuple[int, int]]]:
     """Base points whose arms pass the right-angle test (and the straightness check, if on).
 
     Same inputs and outputs as :func:`lrfslam.algo.features.right_angle_bases`.
@@ -97,14 +97,17 @@ def right_angle_bases(z: np.ndarray, step_m: np.ndarray, breaks: list[int],
         Columns in ``z`` of the base points, increasing.
     angles_deg : list of float
         Angle between each base point's two arm lines, degrees in [0, 90].
+    arm_ends : list of (int, int)
+        Columns of each base point's farthest picks, below and above it.
     """
-    if len(z) < 2 * len(params.arm_dists_m) + 1:
-        return [], []
+    m = len(z)
+    if m < 2 * len(params.arm_dists_m) + 1:
+        return [], [], []
     zz, arc, end = _doubled(z, step_m, breaks)
     arms = _arm_picks(zz, arc, end, params)
     n = arms.shape[1]
     if not n:
-        return [], []
+        return [], [], []
     # One arm per column, the lower sides first.
     theta, max_resid = _arm_fit(zz[arms.reshape(2 * n, -1).T])
     # The angle between the lines is min(d, 180° - d), d in [0°, 180°] (θ in
@@ -114,8 +117,10 @@ def right_angle_bases(z: np.ndarray, step_m: np.ndarray, breaks: list[int],
     if params.arm_max_resid_m is not None:
         ok &= np.maximum(max_resid[:n], max_resid[n:]) <= const(params.arm_max_resid_m)
     ok = ok.nonzero()[0]
-    # Upper-side base columns are scan columns.
-    return arms[1, ok, 0].tolist(), [min(x, 180.0 - x) for x in d[ok].tolist()]
+    # Upper-side columns are scan columns; lower-side column c is scan column 2M - 1 - c.
+    lower_end, upper_end = arms[:, ok, -1].tolist()
+    ends = [(2 * m - 1 - lo, hi) for lo, hi in zip(lower_end, upper_end)]
+    return arms[1, ok, 0].tolist(), [min(x, 180.0 - x) for x in d[ok].tolist()], ends
 
 
 def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, d_m: float, width: int) -> np.ndarray:

@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from operator import attrgetter
 from typing import NamedTuple
 
 import numpy as np
@@ -246,6 +247,9 @@ class _Feature(NamedTuple):
     refined: bool             # placed by the dense refit
 
 
+_COLUMN = attrgetter("column")
+
+
 class _Refit(NamedTuple):
     """A corner placed by the dense refit."""
 
@@ -276,8 +280,8 @@ def _stretches(m: int, breaks: list[int]) -> list[tuple[int, int]]:
     return list(zip(starts, ends))
 
 
-def _arm(points: list[complex], j: int, direction: int, end: int, params: FeatureParams) -> list[complex] | None:
-    """The arm of base point ``j`` on one side: the base point and its picks.
+def _arm(points: list[complex], j: int, direction: int, end: int, params: FeatureParams) -> list[int] | None:
+    """The arm of base point ``j`` on one side: the columns of the base point and its picks.
 
     Walks from ``j`` in ``direction`` (+1 up the scan, -1 down) and takes, for each
     distance in ``arm_dists_m``, the first point at least that far from the base point
@@ -285,7 +289,7 @@ def _arm(points: list[complex], j: int, direction: int, end: int, params: Featur
     that way, comes first.
     """
     base = points[j]
-    arm = [base]
+    arm = [j]
     k, walked, reach = j, 0.0, 0.0
     for dist in params.arm_dists_m:
         while reach < dist:
@@ -294,7 +298,7 @@ def _arm(points: list[complex], j: int, direction: int, end: int, params: Featur
             k += direction
             walked += abs(points[k] - points[k - direction])
             reach = abs(points[k] - base) if params.arm_metric == "euclidean" else walked
-        arm.append(points[k])
+        arm.append(k)
     return arm
 
 
@@ -318,7 +322,7 @@ def _line_angle_deg(theta_a: float, theta_b: float) -> float:
 
 
 def right_angle_bases(z: np.ndarray, step_m: np.ndarray, breaks: list[int],
-                      params: FeatureParams) -> tuple[list[int], list[float]]:
+                      params: FeatureParams) -> tuple[list[int], list[float], list[tuple[int, int]]]:
     """Forward searching: the base points whose two arms are at a right angle.
 
     Every kept point is tried as the base: its arm on each side (:func:`_arm`) gets a
@@ -344,23 +348,26 @@ def right_angle_bases(z: np.ndarray, step_m: np.ndarray, breaks: list[int],
         Columns in ``z`` of the base points, increasing.
     angles_deg : list of float
         Angle between each base point's two arm lines, degrees in [0, 90].
+    arm_ends : list of (int, int)
+        Columns of each base point's farthest picks, below and above it.
     """
     points = z.tolist()
-    columns, angles = [], []
+    columns, angles, arm_ends = [], [], []
     for first, last in _stretches(len(points), breaks):
         for j in range(first, last + 1):
             lower, upper = _arm(points, j, -1, first, params), _arm(points, j, 1, last, params)
             if lower is None or upper is None:
                 continue
-            theta_lower, resid_lower = _tls_line(lower)
-            theta_upper, resid_upper = _tls_line(upper)
+            theta_lower, resid_lower = _tls_line([points[k] for k in lower])
+            theta_upper, resid_upper = _tls_line([points[k] for k in upper])
             angle = _line_angle_deg(theta_lower, theta_upper)
             square = 90.0 - angle <= params.corner_tol_deg
             straight = params.arm_max_resid_m is None or max(resid_lower, resid_upper) <= params.arm_max_resid_m
             if square and straight:
                 columns.append(j)
                 angles.append(angle)
-    return columns, angles
+                arm_ends.append((lower[-1], upper[-1]))
+    return columns, angles, arm_ends
 
 
 # -- improvements on the corners ------------------------------------------------------
@@ -378,7 +385,11 @@ def _suppress(xy: list[complex], score: list[float], radius_m: float) -> list[in
     r2 = radius_m * radius_m
     chosen: list[int] = []
     for i in order:
-        if all(_dist2(xy[i], xy[c]) >= r2 for c in chosen):
+        for c in chosen:
+            d = xy[i] - xy[c]
+            if d.real * d.real + d.imag * d.imag < r2:
+                break
+        else:
             chosen.append(i)
     return chosen
 
@@ -431,10 +442,11 @@ def _wall_fit(walk: list[complex], params: FeatureParams) -> _Wall | None:
 def _refit(z: np.ndarray, first: int, last: int, j: int, params: FeatureParams) -> _Refit | None:
     """Dense wall refit round the corner at base point ``j``: the two walls' intersection.
 
-    Each wall is fitted (:func:`_wall_fit`) to the kept points of the base point's
-    stretch (columns ``first`` to ``last``) walking outward from it. None if a wall
-    has too few points or the intersection is farther than ``refine_accept_m`` from
-    the base point. A wall is a few dozen points: Python scalars beat array calls.
+    Each wall is fitted (:func:`_wall_fit`) to the kept points walking outward from the
+    base point, within columns ``first`` to ``last``: its stretch, or less where a
+    point farther than ``refine_rmax_m`` ends the walls anyway. None if a wall has too
+    few points or the intersection is farther than ``refine_accept_m`` from the base
+    point. A wall is a few dozen points: Python scalars beat array calls.
     """
     base = z[j]
     rel = (z[first:last + 1] - base).tolist()
@@ -443,23 +455,27 @@ def _refit(z: np.ndarray, first: int, last: int, j: int, params: FeatureParams) 
     upper = _wall_fit(rel[k + 1:], params) if lower is not None else None
     if upper is None:
         return None
-    n1, n2 = lower.normal, upper.normal
-    det = n1.real * n2.imag - n1.imag * n2.real
+    (n1x, n1y), (n2x, n2y) = _xy(lower.normal), _xy(upper.normal)
+    det = n1x * n2y - n1y * n2x
     if det == 0.0:
         return None
     # Intersection of the walls n_k · p = offset_k (Cramer's rule), relative to the base point.
     o1, o2 = lower.offset, upper.offset
-    x, y = (o1 * n2.imag - o2 * n1.imag) / det, (n1.real * o2 - n2.real * o1) / det
+    x, y = (o1 * n2y - o2 * n1y) / det, (n1x * o2 - n2x * o1) / det
     if not x * x + y * y <= params.refine_accept_m**2:
         return None
     v1 = _offset_var(lower, x, y)
     v2 = _offset_var(upper, x, y)
     # cov = A⁻¹ diag(v1, v2) A⁻ᵀ with A = [n1; n2] and A⁻¹ = [[n2y, -n1y], [-n2x, n1x]] / det.
     det2 = det * det
-    cxy = -(n2.imag * n2.real * v1 + n1.imag * n1.real * v2) / det2
-    cov = [[(n2.imag * n2.imag * v1 + n1.imag * n1.imag * v2) / det2, cxy],
-           [cxy, (n2.real * n2.real * v1 + n1.real * n1.real * v2) / det2]]
+    cxy = -(n2y * n2x * v1 + n1y * n1x * v2) / det2
+    cov = [[(n2y * n2y * v1 + n1y * n1y * v2) / det2, cxy], [cxy, (n2x * n2x * v1 + n1x * n1x * v2) / det2]]
     return _Refit(complex(base) + complex(x, y), cov, _line_angle_deg(lower.theta, upper.theta))
+
+
+def _xy(p: complex) -> tuple[float, float]:
+    """``(x, y)`` of ``p = x + iy``."""
+    return p.real, p.imag
 
 
 def _offset_var(wall: _Wall, x: float, y: float) -> float:
@@ -470,16 +486,22 @@ def _offset_var(wall: _Wall, x: float, y: float) -> float:
 
 
 def _corners(z: np.ndarray, breaks: list[int], columns: list[int], angles_deg: list[float],
-             params: FeatureParams) -> list[_Feature]:
-    """The corners among the right-angle base points: suppression, then the dense refit."""
+             arm_ends: list[tuple[int, int]], params: FeatureParams) -> list[_Feature]:
+    """The corners among the right-angle base points (:func:`right_angle_bases`):
+    suppression, then the dense refit."""
     xy = z[columns].tolist()
-    stretches = _stretches(len(z), breaks)
+    # The farthest picks are farther than refine_rmax_m from the base point, so the
+    # refit walls end before them: the refit need look no farther.
+    within_arms = params.arm_dists_m[-1] > params.refine_rmax_m
     out = []
     for i in sorted(_suppress(xy, [90.0 - a for a in angles_deg], params.nms_radius_m)):
         j = columns[i]
         refit = None
         if params.refine_corner:
-            first, last = next(s for s in stretches if s[0] <= j <= s[1])
+            if within_arms:
+                first, last = arm_ends[i]
+            else:
+                first, last = next((s, e) for s, e in _stretches(len(z), breaks) if s <= j <= e)
             refit = _refit(z, first, last, j, params)
         if refit is None:
             out.append(_Feature(j, FORWARD, xy[i], None, angles_deg[i], False))
@@ -622,10 +644,10 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
     breaks = ((n_invalid[1:] != n_invalid[:-1]) | (step > const(params.arm_break_gap_m))).nonzero()[0].tolist()
 
     search = _forward_search_kernel.right_angle_bases if accelerated else right_angle_bases
-    columns, angles = search(z, step, breaks, params)
-    found = _corners(z, breaks, columns, angles, params) if columns else []
+    columns, angles, arm_ends = search(z, step, breaks, params)
+    found = _corners(z, breaks, columns, angles, arm_ends, params) if columns else []
     edges = jump_edges(r, valid, idx, step, n_invalid, len(no_return), breaks, params)
-    edge_xy = z[edges].tolist()
+    edge_xy = [complex(z[p]) for p in edges]
     if params.nms_radius_m > 0 and found and edges:
         # A convex corner with one wall occluded fires both searches; the corner is
         # better localised, so the jump edge gives way.
@@ -637,7 +659,7 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
         return _NO_FEATURES
     # A handful of features per scan: assembled in Python, in beam order (corners
     # before edges on the same point), the numbers of each in one row of one array.
-    found.sort(key=lambda f: f.column)
+    found.sort(key=_COLUMN)
     beam = idx[[f.column for f in found]]
     rows = []
     for f, i in zip(found, beam.tolist()):
