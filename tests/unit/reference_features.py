@@ -1,6 +1,7 @@
-"""Reference (oracle) for :mod:`lrfslam.algo.corners`: the previous, slower implementation.
+"""Reference (oracle) for :mod:`lrfslam.algo.features`: the previous, slower implementation.
 
-Kept verbatim apart from this docstring so ``test_corners_oracle.py`` can check that the
+Kept verbatim apart from this docstring and the name of its params class (once
+``CornerParams``) so ``test_features_oracle.py`` can check that the
 optimised module returns the same features on many random scans. It computes every
 arm pick of every base point and fits every arm, with no screening, so it is the
 obviously-complete version of forward searching. Do not optimise it.

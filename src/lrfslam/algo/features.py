@@ -455,7 +455,7 @@ def _refit(z: np.ndarray, first: int, last: int, j: int, params: FeatureParams) 
     upper = _wall_fit(rel[k + 1:], params) if lower is not None else None
     if upper is None:
         return None
-    (n1x, n1y), (n2x, n2y) = _xy(lower.normal), _xy(upper.normal)
+    n1x, n1y, n2x, n2y = lower.normal.real, lower.normal.imag, upper.normal.real, upper.normal.imag
     det = n1x * n2y - n1y * n2x
     if det == 0.0:
         return None
@@ -473,11 +473,6 @@ def _refit(z: np.ndarray, first: int, last: int, j: int, params: FeatureParams) 
     return _Refit(complex(base) + complex(x, y), cov, _line_angle_deg(lower.theta, upper.theta))
 
 
-def _xy(p: complex) -> tuple[float, float]:
-    """``(x, y)`` of ``p = x + iy``."""
-    return p.real, p.imag
-
-
 def _offset_var(wall: _Wall, x: float, y: float) -> float:
     """Variance of a wall's offset at the corner ``(x, y)``, m²: its offset error plus
     its direction error times the lever arm from the fit centroid to the corner."""
@@ -490,9 +485,10 @@ def _corners(z: np.ndarray, breaks: list[int], columns: list[int], angles_deg: l
     """The corners among the right-angle base points (:func:`right_angle_bases`):
     suppression, then the dense refit."""
     xy = z[columns].tolist()
-    # The farthest picks are farther than refine_rmax_m from the base point, so the
-    # refit walls end before them: the refit need look no farther.
-    within_arms = params.arm_dists_m[-1] > params.refine_rmax_m
+    # Picked by Euclidean distance, the farthest picks are farther than refine_rmax_m
+    # from the base point, so the refit walls end before them: the refit need look no
+    # farther. (Along the polyline a pick can lie nearer than its distance.)
+    within_arms = params.arm_metric == "euclidean" and params.arm_dists_m[-1] > params.refine_rmax_m
     out = []
     for i in sorted(_suppress(xy, [90.0 - a for a in angles_deg], params.nms_radius_m)):
         j = columns[i]
