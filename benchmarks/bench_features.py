@@ -8,7 +8,7 @@ and the fastest run kept; the rounds (``--rounds``) interleave the two presets a
 show how much the machine's load moves the figures. Prints milliseconds per scan:
 mean, median and p95 over scans of the fastest runs, and the spread of the per-round
 means. ``--reference`` times the previous implementation instead
-(``tests/unit/reference_corners.py``, ``reference_histogram.py``, the oracles of the
+(``tests/unit/reference_features.py``, ``reference_histogram.py``, the oracles of the
 tests), for a before/after comparison on the same machine.
 
     python benchmarks/bench_features.py [--scans 200] [--repeat 5] [--rounds 3] [--reference]
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo.corners import CornerParams, extract_features
+from lrfslam.algo.features import FeatureParams, extract_features
 from lrfslam.algo.histogram import DenoiseParams, denoise
 from lrfslam.evaluation.features import build_scenes
 from lrfslam.sim.lidar import LidarModel, simulate_scan
@@ -41,15 +41,15 @@ def scans(n: int, seed: int):
 
 
 def implementation(reference: bool):
-    """(DenoiseParams, denoise, CornerParams, extract_features) of this or the previous implementation."""
+    """(DenoiseParams, denoise, FeatureParams, extract_features) of this or the previous implementation."""
     if not reference:
-        return DenoiseParams, denoise, CornerParams, extract_features
+        return DenoiseParams, denoise, FeatureParams, extract_features
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "unit"))
-    import reference_corners
+    import reference_features
     import reference_histogram
 
-    return (reference_histogram.DenoiseParams, reference_histogram.denoise, reference_corners.CornerParams,
-            reference_corners.extract_features)
+    return (reference_histogram.DenoiseParams, reference_histogram.denoise, reference_features.FeatureParams,
+            reference_features.extract_features)
 
 
 def fastest(fn, repeat: int, clock) -> float:

@@ -1,4 +1,4 @@
-"""feature: corner features by forward searching and jump edges by backward searching.
+"""feature: the feature stage (lrfslam.algo.features): corners by forward searching, jump edges by backward searching.
 
 in:  scan/filtered  FilteredScan
 out: features       Features (robot frame, 2x2 covariance, source beam, scan seq; and the
@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lrfslam.algo.corners import CornerParams, extract_features
+from lrfslam.algo.features import FeatureParams, extract_features
 from lrfslam.algo.wall_direction import WallDirectionParams, wall_direction
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
@@ -20,14 +20,14 @@ from lrfslam.msgs import types as t
 from lrfslam.runtime.step import Message, Output, ServiceSpec, StepBase
 
 MODES = ("paper", "default")
-# algo.corners numbers kinds from 0 (forward, backward); the schema keeps 0 for "unknown".
+# algo.features numbers kinds from 0 (forward: corner, backward: jump edge); the schema keeps 0 for "unknown".
 _KIND_TO_SCHEMA = (t.FEATURE_FORWARD, t.FEATURE_BACKWARD)
 
 
 @dataclass(frozen=True)
 class FeatureConfig:
     mode: str = "default"   # "paper" or "default"; presets corners.*
-    corners: CornerParams = field(default_factory=CornerParams.default)
+    corners: FeatureParams = field(default_factory=FeatureParams.default)  # both searches' knobs (key kept)
     wall_direction: bool = True  # publish the dominant wall direction mod 90° (not in the paper)
     walls: WallDirectionParams = field(default_factory=WallDirectionParams)
 
@@ -40,7 +40,7 @@ def preset(mode: str) -> FeatureConfig:
     if mode not in MODES:
         raise ConfigError(f"mode must be one of {MODES}, got {mode!r}")
     # The paper preset is the literal reading: no wall-direction measurement.
-    return FeatureConfig(mode=mode, corners=getattr(CornerParams, mode)(), wall_direction=mode != "paper")
+    return FeatureConfig(mode=mode, corners=getattr(FeatureParams, mode)(), wall_direction=mode != "paper")
 
 
 class FeatureStep(StepBase):
@@ -66,7 +66,7 @@ class FeatureStep(StepBase):
 
 SPEC = ServiceSpec(
     name="feature",
-    summary="Forward (right-angle corner) and backward (depth-jump) searching on denoised scans.",
+    summary="Features of denoised scans: corners by forward searching, jump edges by backward searching.",
     config_type=FeatureConfig,
     inputs=(topics.SCAN_FILTERED,),
     outputs=(topics.FEATURES,),

@@ -1,4 +1,4 @@
-"""Random scans for the oracle tests (test_corners_oracle.py, test_denoise_oracle.py).
+"""Random scans for the oracle tests (test_features_oracle.py, test_denoise_oracle.py).
 
 Simulated LMS200 scans round the hallway loop and in random rotated rooms at several
 noise levels, and scans of garbage: random ranges with NaN, ±inf, zeros and negative

@@ -37,11 +37,6 @@ _CITATIONS = (
     re.compile(r"(?<!TL )(?<!paper )\u00a7\s*\d"),     # a bare "(\u00a74.4)"
 )
 
-# Being rewritten on another branch, which replaces its own citations; tolerated here,
-# and only its citations, until that lands (then the tripwire test below fails).
-PENDING_CITATIONS = frozenset({"src/lrfslam/algo/corners.py"})
-
-
 @cache
 def headings(page: Path) -> frozenset[str]:
     """Heading texts of a markdown page (any level), code blocks skipped."""
@@ -88,18 +83,9 @@ def test_every_reference_points_into_the_repository():
     for path in scanned_files():
         rel = path.relative_to(ROOT).as_posix()
         text = path.read_text(encoding="utf-8")
-        found = path_problems(text)
-        if rel not in PENDING_CITATIONS:
-            found += citation_problems(text)
+        found = path_problems(text) + citation_problems(text)
         problems += [f"{rel}: {p}" for p in found]
     assert not problems, "\n".join(problems)
-
-
-def test_pending_files_still_need_their_exemption():
-    for rel in PENDING_CITATIONS:
-        path = ROOT / rel
-        assert path.is_file() and citation_problems(path.read_text(encoding="utf-8")), (
-            f"{rel} no longer cites outside notes: remove it from PENDING_CITATIONS")
 
 
 def test_the_scan_covers_the_code():

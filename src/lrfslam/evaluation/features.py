@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lrfslam.algo.corners import FORWARD, CornerParams, FeatureSet, extract_features
+from lrfslam.algo.features import FORWARD, FeatureParams, FeatureSet, extract_features
 from lrfslam.algo.geometry import from_frame, to_frame
 from lrfslam.algo.histogram import DenoiseParams, DenoiseResult, denoise
 from lrfslam.sim.floor_plans import hallway_loop, waypoints
@@ -280,17 +280,17 @@ def build_scenes(n_hallway: int, n_rooms: int, poses_per_room: int, seed: int) -
     return sets
 
 
-Config = tuple[DenoiseParams, CornerParams]
+Config = tuple[DenoiseParams, FeatureParams]
 
 
 def mode_configs() -> dict[str, Config]:
     """The paper-literal and default configurations."""
-    return {"paper": (DenoiseParams.paper(), CornerParams.paper()), "default": (DenoiseParams.default(), CornerParams.default())}
+    return {"paper": (DenoiseParams.paper(), FeatureParams.paper()), "default": (DenoiseParams.default(), FeatureParams.default())}
 
 
 def ablation_configs() -> dict[str, Config]:
     """The default with one improvement switched off (or one option switched on)."""
-    dp, cp = DenoiseParams.default(), CornerParams.default()
+    dp, cp = DenoiseParams.default(), FeatureParams.default()
     den = {
         "period 180° (no fold)": {"period_deg": 180.0},
         "bins 10°": {"bin_deg": 10.0},
@@ -324,7 +324,7 @@ def evaluate(
     Parameters
     ----------
     scenes : iterable of Scene
-    configs : dict of str to (DenoiseParams, CornerParams)
+    configs : dict of str to (DenoiseParams, FeatureParams)
     sigma_m : float
         Range noise of the simulated scanner, metres.
     seed : int

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo.corners import FORWARD, CornerParams, extract_features
+from lrfslam.algo.features import FORWARD, FeatureParams, extract_features
 from lrfslam.algo.geometry import from_frame, relative, to_frame, wrap_angle
 from lrfslam.algo.histogram import DenoiseParams, denoise
 from lrfslam.evaluation.features import match_nearest
@@ -157,8 +157,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.max_scans = 400
 
     stamps, poses, records = read_scans(args.log, args.max_scans)
-    modes = {"paper": (DenoiseParams.paper(), CornerParams.paper()),
-             "default": (DenoiseParams.default(), CornerParams.default())}
+    modes = {"paper": (DenoiseParams.paper(), FeatureParams.paper()),
+             "default": (DenoiseParams.default(), FeatureParams.default())}
     found: dict[tuple[str, str], list[np.ndarray]] = {(m, k): [] for m in modes for k in ("corners", "jump edges")}
     for rec in records:
         angles = rec.angle_min_rad + rec.angle_increment_rad * np.arange(rec.n_beams)

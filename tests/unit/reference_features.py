@@ -1,6 +1,7 @@
-"""Reference (oracle) for :mod:`lrfslam.algo.corners`: the previous, slower implementation.
+"""Reference (oracle) for :mod:`lrfslam.algo.features`: the previous, slower implementation.
 
-Kept verbatim apart from this docstring so ``test_corners_oracle.py`` can check that the
+Kept verbatim apart from this docstring and the name of its params class (once
+``CornerParams``) so ``test_features_oracle.py`` can check that the
 optimised module returns the same features on many random scans. It computes every
 arm pick of every base point and fits every arm, with no screening, so it is the
 obviously-complete version of forward searching. Do not optimise it.
@@ -22,7 +23,7 @@ edge). A finite point next to a no-return beam is a feature only if
 ``r < max_range_m - jump_m``: then the hidden surface is guaranteed to be more than
 ``jump_m`` behind it.
 
-Improvements over the paper, each switchable in :class:`CornerParams`: an arm
+Improvements over the paper, each switchable in :class:`FeatureParams`: an arm
 straightness check (rejects arms bent round a second corner), non-maximum suppression
 (one detection per corner), refinement (refit both walls densely and intersect), arms
 that break at 0.5 m gaps, and no jump edges across long stretches of removed points.
@@ -61,7 +62,7 @@ _FIRST_WINDOW = 8
 
 
 @dataclass(frozen=True)
-class CornerParams:
+class FeatureParams:
     """Knobs of forward and backward searching (docs/paper-reading.md, 'Parameter defaults').
 
     Parameters
@@ -159,7 +160,7 @@ class CornerParams:
             raise ConfigError(f"range_sigma_m must be > 0, got {self.range_sigma_m}")
 
     @classmethod
-    def paper(cls) -> CornerParams:
+    def paper(cls) -> FeatureParams:
         """The literal reading: no straightness check, no suppression, no refinement.
 
         Arms break only at gaps of ``jump_m``, the paper's only discontinuity scale.
@@ -169,7 +170,7 @@ class CornerParams:
         )
 
     @classmethod
-    def default(cls) -> CornerParams:
+    def default(cls) -> FeatureParams:
         """Measured improvements (docs/features.md): straightness, NMS, dense refit, edge guard."""
         return cls()
 
@@ -308,7 +309,7 @@ def _first_hits(p: np.ndarray, last: np.ndarray, dists_m: np.ndarray, euclidean:
     return hits
 
 
-def _arm_picks(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerParams):
+def _arm_picks(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: FeatureParams):
     """Picks of every base point on both sides.
 
     Parameters
@@ -317,7 +318,7 @@ def _arm_picks(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: Corne
         Kept points in scan order, metres.
     first, last : ndarray of int, shape (M,)
         Columns of the first and last point of each point's stretch.
-    params : CornerParams
+    params : FeatureParams
 
     Returns
     -------
@@ -350,7 +351,7 @@ def _suppress(xy: np.ndarray, score: np.ndarray, radius_m: float) -> np.ndarray:
     return np.asarray(chosen, dtype=np.intp)
 
 
-def _wall_members(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray, params: CornerParams):
+def _wall_members(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray, params: FeatureParams):
     """Points of the two walls leaving each corner candidate, for the refit.
 
     Walks from the base on each side within its stretch, stops at the first point
@@ -376,7 +377,7 @@ def _wall_members(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.n
     return np.stack((inside[c:, m:][:, ::-1], inside[:c, :m]))
 
 
-def _refine(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray, params: CornerParams):
+def _refine(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray, params: FeatureParams):
     """Dense wall refit around corner candidates.
 
     Parameters
@@ -387,7 +388,7 @@ def _refine(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray
         Columns of the first and last point of each point's stretch.
     base : ndarray of int, shape (C,)
         Columns of the candidates.
-    params : CornerParams
+    params : FeatureParams
 
     Returns
     -------
@@ -421,7 +422,7 @@ def _refine(p: np.ndarray, first: np.ndarray, last: np.ndarray, base: np.ndarray
     return np.column_stack((x, y)), cov, _line_angle_deg(f["theta"][0], f["theta"][1]), ok
 
 
-def _forward(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerParams):
+def _forward(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: FeatureParams):
     """Forward searching on kept points.
 
     Returns
@@ -458,7 +459,7 @@ def _forward(p: np.ndarray, first: np.ndarray, last: np.ndarray, params: CornerP
     return cols, xy, cov, angle, refined
 
 
-def _backward(ranges_m: np.ndarray, valid: np.ndarray, use: np.ndarray, xy: np.ndarray, params: CornerParams):
+def _backward(ranges_m: np.ndarray, valid: np.ndarray, use: np.ndarray, xy: np.ndarray, params: FeatureParams):
     """Beam indices of jump-edge features, sorted, unique."""
     # The sequence seen by backward searching: kept points and no-returns in scan
     # order; points removed by the filter are skipped as if never measured.
@@ -506,7 +507,7 @@ def _point_cov(ranges_m: np.ndarray, bearings_rad: np.ndarray, beam_step_rad: fl
     return cov
 
 
-def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndarray, params: CornerParams) -> FeatureSet:
+def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndarray, params: FeatureParams) -> FeatureSet:
     """Forward and backward searching on one scan.
 
     Parameters
@@ -518,7 +519,7 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
     kept : ndarray of bool, shape (N,)
         Points that survived noise reduction (e.g. ``DenoiseResult.kept``); valid beams
         not kept are skipped.
-    params : CornerParams
+    params : FeatureParams
 
     Returns
     -------
