@@ -15,7 +15,10 @@ from typing import Any
 from lrfslam.runtime.chain import DEFAULT_ROBOT, Stage, configure
 from lrfslam.runtime.step import ServiceSpec
 
-NAMES: tuple[str, ...] = ("sensor", "denoise", "feature", "slam", "recorder")
+NAMES: tuple[str, ...] = ("sensor", "denoise", "features", "slam", "recorder")
+
+#: The tables a config file may hold: the bus's and one per service.
+CONFIG_TABLES: tuple[str, ...] = ("bus", *NAMES)
 
 
 def spec(name: str) -> ServiceSpec:

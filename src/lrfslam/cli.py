@@ -5,7 +5,7 @@
     lrfslam status                     live services and their statistics
     lrfslam router                     a Zenoh router
     lrfslam info FILE.mcap             topics, schemas, counts and duration of a recording
-    lrfslam pipeline --replay IN.mcap --out OUT.mcap [--stages denoise,feature,slam]
+    lrfslam pipeline --replay IN.mcap --out OUT.mcap [--stages denoise,features,slam]
     lrfslam eval features|slam|relations ...
     lrfslam import carmen LOG -o FILE.mcap
     lrfslam emulate-lms200             an LMS200 on a pseudo-terminal
@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     command, rest = argv[0], argv[1:]
     if command in services.NAMES:
         from lrfslam.runtime.runner import main as run_service
-        return run_service(services.spec(command), rest)
+        return run_service(services.spec(command), rest, services.CONFIG_TABLES)
     if command not in COMMANDS:
         print(f"lrfslam: unknown command {command!r}\n\n{usage()}", file=sys.stderr)
         return 2

@@ -153,7 +153,7 @@ def test_compose_up_status_down_recording(engine, tmp_path):
         # handler, not a SIGKILL (137).
         dep("stop", "sensor", timeout=60)
         time.sleep(3)
-        dep("stop", "denoise", "feature", "slam", timeout=60)
+        dep("stop", "denoise", "features", "slam", timeout=60)
         dep("stop", timeout=120)
         codes = {s: dep.inspect(s, "{{.State.ExitCode}}") for s in CONTAINERS}
         assert set(codes.values()) == {"0"}, f"{codes}\n{dep.logs()}"

@@ -23,7 +23,7 @@ def test_missing_token_or_error_status_is_unhealthy():
 
 
 def test_a_service_without_a_status_reply_counts_as_alive():
-    assert check({("robot1", "feature")}, [], ["feature"]) == []
+    assert check({("robot1", "features")}, [], ["features"]) == []
 
 
 def test_unreachable_router_fails_the_check(capsys):

@@ -20,7 +20,7 @@ from lrfslam.msgs import types as t
 
 pytestmark = pytest.mark.integration
 
-STAGES = ("recorder", "slam", "feature", "denoise")
+STAGES = ("recorder", "slam", "features", "denoise")
 
 
 def out(statuses, service, topic):
@@ -49,15 +49,15 @@ def test_pipeline_runs_end_to_end_over_zenoh(cluster):
         cluster.wait_for(session, bad_counted, 15, "denoise to count the bad samples")
 
         # Kill a stage: its token goes, a restarted one takes over, data flows again.
-        cluster.procs["feature"].send_signal(signal.SIGKILL)
-        cluster.procs.pop("feature").wait(10)
-        cluster.wait_for(session, lambda alive, st: ("itest", "feature") not in alive, 15, "feature token to vanish")
-        cluster.start("feature")
-        cluster.wait_for(session, lambda a, st: out(st, "feature", "features") >= 10, 60, "restarted feature output")
+        cluster.procs["features"].send_signal(signal.SIGKILL)
+        cluster.procs.pop("features").wait(10)
+        cluster.wait_for(session, lambda alive, st: ("itest", "features") not in alive, 15, "features token to vanish")
+        cluster.start("features")
+        cluster.wait_for(session, lambda a, st: out(st, "features", "features") >= 10, 60, "restarted features output")
         before = cluster.wait_for(session, lambda a, st: out(st, "slam", "slam/state"), 5, "slam counters")
         cluster.wait_for(session, lambda a, st: out(st, "slam", "slam/state") > before + 5, 30, "slam to continue")
 
-    for name in ("sensor", "denoise", "feature", "slam", "recorder"):
+    for name in ("sensor", "denoise", "features", "slam", "recorder"):
         assert cluster.stop(name) == 0, f"{name} did not exit cleanly on SIGTERM"
 
     path = cluster.tmp / "recordings" / "run.mcap"
@@ -84,6 +84,6 @@ def test_pipeline_runs_end_to_end_over_zenoh(cluster):
         assert per_topic[topic] >= 40, (topic, per_topic)
         assert schemas[topic] == topics.by_name(topic).schema
     assert any(k.startswith("health/") for k in per_topic)
-    # Every scan passed through every stage except while feature was down.
+    # Every scan passed through every stage except while features was down.
     assert per_topic["scan/filtered"] >= per_topic["scan"] - 2
     assert per_topic["slam/state"] >= per_topic["features"] - 2

@@ -35,12 +35,12 @@ def up_run(tmp_path_factory):
 def test_up_summarises_every_stage_and_the_pose_error(up_run):
     stdout, recording, _ = up_run
     rows = {m.group(1): (int(m.group(2)), int(m.group(3))) for m in
-            re.finditer(r"^(sensor|denoise|feature|slam|recorder)\s+(\d+)\s+(\d+)", stdout, re.MULTILINE)}
-    assert set(rows) == {"sensor", "denoise", "feature", "slam", "recorder"}, stdout
+            re.finditer(r"^(sensor|denoise|features|slam|recorder)\s+(\d+)\s+(\d+)", stdout, re.MULTILINE)}
+    assert set(rows) == {"sensor", "denoise", "features", "slam", "recorder"}, stdout
     scans = rows["sensor"][1] // 3            # scan + odom + truth per step
     assert scans >= 50
     assert rows["denoise"] == (scans, scans)
-    assert rows["feature"][0] == scans and rows["slam"][1] == scans
+    assert rows["features"][0] == scans and rows["slam"][1] == scans
     err = re.search(r"final pose error ([\d.]+) cm", stdout)
     assert err and float(err.group(1)) < 50, stdout
     assert str(recording.name) in stdout

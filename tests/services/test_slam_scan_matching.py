@@ -15,7 +15,7 @@ from lrfslam.runtime.chain import Chain
 def sim_chain(n: int, *sensor_sets: str):
     """Simulated scans with noisy odometry -> slam inputs (scan, odom, features) in sensor order; and the truth."""
     sensor, _ = build("sensor", "speedup=0", "seed=4", "source=sim", *sensor_sets)
-    front = Chain([stage("denoise"), stage("feature")], robot=ROBOT, wire=False)
+    front = Chain([stage("denoise"), stage("features")], robot=ROBOT, wire=False)
     fed, truth = [], {}
     while len(truth) < n:
         for o in sensor.poll(0.1):

@@ -48,7 +48,7 @@ def test_modes_select_presets_and_flags_still_override():
     assert default.histogram.period_deg == 90.0
     _, custom = build("denoise", "mode=paper", "histogram.bin_deg=20")
     assert (custom.histogram.bin_deg, custom.histogram.period_deg) == (20.0, 180.0)
-    _, feat = build("feature", "mode=paper", "corners.arm_dists_m=0.3,0.6")
+    _, feat = build("features", "mode=paper", "corners.arm_dists_m=0.3,0.6")
     assert feat.corners.arm_dists_m == (0.3, 0.6) and feat.corners.refine_corner is False
 
 
@@ -68,7 +68,7 @@ def test_denoise_applies_the_4m_cut_and_keeps_a_subset():
 
 def test_feature_step_finds_the_corner_of_an_l():
     den, _ = build("denoise")
-    feat, _ = build("feature")
+    feat, _ = build("features")
     world = l_corner()
     lidar = LidarModel(range_sigma_m=0.0, quantum_m=0.0, mixed_pixel_prob=0.0)
     sim = simulate_scan(world, np.array([0.0, 0.0, 0.3]), lidar, np.random.default_rng(0))
@@ -87,7 +87,7 @@ def test_feature_step_finds_the_corner_of_an_l():
                                                (("mode=paper",), False)])
 def test_feature_step_publishes_the_wall_direction(sets, published):
     den, _ = build("denoise")
-    feat, _ = build("feature", *sets)
+    feat, _ = build("features", *sets)
     lidar = LidarModel(range_sigma_m=0.0, quantum_m=0.0, mixed_pixel_prob=0.0)
     sim = simulate_scan(l_corner(), np.array([0.0, 0.0, 0.3]), lidar, np.random.default_rng(0))
     scan = t.LaserScan.from_ranges(5, 1, sim.ranges_m, lidar.angle_min_rad, lidar.angle_increment_rad)
@@ -102,8 +102,8 @@ def test_feature_step_publishes_the_wall_direction(sets, published):
 
 
 def chain(outs):
-    """sensor outputs -> denoise -> feature -> slam inputs (odom + features), in sensor order."""
-    front = Chain([stage("denoise"), stage("feature")], robot=ROBOT, wire=False)
+    """sensor outputs -> denoise -> features -> slam inputs (odom + features), in sensor order."""
+    front = Chain([stage("denoise"), stage("features")], robot=ROBOT, wire=False)
     fed = []
     for o in outs:
         if o.topic is topics.ODOM:

@@ -130,8 +130,8 @@ def test_build_step_layers_preset_file_environment_and_sets(tmp_path):
     assert (cfg.mode, cfg.histogram.period_deg, cfg.histogram.bin_deg) == ("paper", 180.0, 15.0)
     assert cfg.histogram.keep_frac == 0.2
     path = tmp_path / "c.toml"
-    path.write_text('[feature]\nmode = "paper"\n')
-    step = build_step("feature", config_file=path)
+    path.write_text('[features]\nmode = "paper"\n')
+    step = build_step("features", config_file=path)
     assert step.cfg.mode == "paper" and step.cfg.wall_direction is False
     # No environment unless given: the process environment never leaks into a test.
     assert stage("denoise").config == stage("denoise", env={}).config

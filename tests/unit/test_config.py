@@ -63,3 +63,11 @@ def test_read_file(tmp_path):
         config.read_file(p)
     with pytest.raises(ConfigError, match="cannot read"):
         config.read_file(tmp_path / "missing.toml")
+
+
+def test_a_config_file_with_an_unknown_table_names_the_nearest_one(tmp_path):
+    path = tmp_path / "old.toml"
+    path.write_text('[feature]\nmode = "paper"\n')   # the service was renamed "features"
+    with pytest.raises(ConfigError, match=r"unknown table \[feature\] \(did you mean \[features\]\?\)"):
+        config.read_file(path, ("bus", "denoise", "features", "slam"))
+    assert config.read_file(path) == {"feature": {"mode": "paper"}}   # no tables given: not checked

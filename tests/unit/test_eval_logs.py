@@ -59,6 +59,6 @@ def test_a_folder_without_logs_is_an_error(tmp_path):
 
 def test_the_command_prints_one_table(datasets, tmp_path, capsys):
     assert evaluate.main(["relations", "--all", str(datasets), "--work", str(tmp_path / "w"),
-                          "--set", "feature.mode=paper"]) == 0
+                          "--set", "features.mode=paper"]) == 0
     out = capsys.readouterr().out
     assert out.count("| scored |") == 3 and "map" in out

@@ -24,12 +24,12 @@ COMMANDS = [
     for what, source, command, extra in (
         ("pipeline", "", ["pipeline"], ["-q"]),
         ("denoise", "", ["denoise"], []),
-        ("feature", "denoise", ["feature"], []),
+        ("features", "denoise", ["features"], []),
         ("slam", "pipeline", ["slam"], []),
     )
 ] + [
     ("sim_head.paper_odometry.mcap", "sim_head.mcap", ["pipeline"],
-     ["-q", "--set", "feature.mode=paper", "--set", "denoise.mode=paper", "--set", "slam.scan_matching=false"]),
+     ["-q", "--set", "features.mode=paper", "--set", "denoise.mode=paper", "--set", "slam.scan_matching=false"]),
 ]
 
 

@@ -59,13 +59,13 @@ def test_outputs_per_stage_and_passthrough(sim_recording, tmp_path):
     assert by_topic == {name: N_SCANS for name in ("scan", "odom", "truth", "scan/filtered", "features", "slam/state")}
     assert counts["input"] == {"read": 3 * N_SCANS, "copied": 3 * N_SCANS}
     assert counts["denoise"]["in.scan"] == counts["denoise"]["out.scan/filtered"] == N_SCANS
-    assert counts["feature"]["out.features"] == counts["slam"]["in.features"] == N_SCANS
+    assert counts["features"]["out.features"] == counts["slam"]["in.features"] == N_SCANS
     assert counts["slam"]["in.odom"] == counts["slam"]["out.slam/state"] == N_SCANS
     # A run that finds nothing would pass the counts above; the sim hallway has corners and edges.
-    assert counts["feature"]["step.forward"] + counts["feature"]["step.backward"] > 0
+    assert counts["features"]["step.forward"] + counts["features"]["step.backward"] > 0
     meta = read_metadata(out)["lrfslam"]
-    assert meta["robot"] == ROBOT and meta["stages"] == "denoise,feature,slam" and meta["replay_of"] == "sim.mcap"
-    assert '"mode": "default"' in meta["config.feature"]
+    assert meta["robot"] == ROBOT and meta["stages"] == "denoise,features,slam" and meta["replay_of"] == "sim.mcap"
+    assert '"mode": "default"' in meta["config.features"]
 
 
 def test_deterministic(sim_recording, tmp_path):
@@ -81,7 +81,7 @@ def test_same_outputs_as_the_services_replayed_one_by_one(sim_recording, tmp_pat
         return stage(name).config
 
     replay(services.spec("denoise"), cfg("denoise"), ROBOT, sim_recording, tmp_path / "d.mcap")
-    replay(services.spec("feature"), cfg("feature"), ROBOT, tmp_path / "d.mcap", tmp_path / "f.mcap")
+    replay(services.spec("features"), cfg("features"), ROBOT, tmp_path / "d.mcap", tmp_path / "f.mcap")
     slam_inputs = [tp.name for tp in services.spec("slam").inputs]  # odom, scan (scan matching), features
     with RecordingWriter(tmp_path / "odom_features.mcap") as writer:
         for path in (sim_recording, tmp_path / "f.mcap"):
@@ -97,7 +97,7 @@ def test_stage_outputs_replace_the_inputs_copies(sim_recording, tmp_path):
     first = tmp_path / "first.mcap"
     run_pipeline(default_stages(), ROBOT, sim_recording, first)
     again = tmp_path / "again.mcap"
-    counts = run_pipeline(default_stages(("feature", "slam")), ROBOT, first, again)
+    counts = run_pipeline(default_stages(("features", "slam")), ROBOT, first, again)
     assert counts["input"]["dropped"] == 2 * N_SCANS   # the old features and slam/state
     assert Counter(r.topic for r in read_recording(again))["features"] == N_SCANS
     assert payloads(again, "slam/state") == payloads(first, "slam/state")
@@ -109,9 +109,9 @@ def test_bad_input_is_counted_and_skipped(tmp_path):
         for seq, n_beams in enumerate((181, 1, 181), start=1):
             write(writer, topics.SCAN, t.LaserScan.from_ranges(T0_NS + seq, seq, np.full(n_beams, 2.0),
                                                               -np.pi / 2, np.pi / 180))
-    counts = run_pipeline(default_stages(("denoise", "feature")), ROBOT, path, None)
+    counts = run_pipeline(default_stages(("denoise", "features")), ROBOT, path, None)
     assert counts["denoise"]["error.input"] == 1
-    assert counts["denoise"]["out.scan/filtered"] == counts["feature"]["out.features"] == 2
+    assert counts["denoise"]["out.scan/filtered"] == counts["features"]["out.features"] == 2
 
 
 def test_stage_names_and_sets():
@@ -119,22 +119,22 @@ def test_stage_names_and_sets():
     for bad in ("sensor", "recorder", "denoise,nope", "", "slam,slam"):
         with pytest.raises(ConfigError):
             stage_names(bad)
-    assert stage_sets(["feature.mode=paper", "slam.ekf.gate_assoc_chi2=4"], ("feature", "slam")) == {
-        "feature": ["mode=paper"], "slam": ["ekf.gate_assoc_chi2=4"]}
+    assert stage_sets(["features.mode=paper", "slam.ekf.gate_assoc_chi2=4"], ("features", "slam")) == {
+        "features": ["mode=paper"], "slam": ["ekf.gate_assoc_chi2=4"]}
     with pytest.raises(ConfigError):
-        stage_sets(["mode=paper"], ("feature",))
+        stage_sets(["mode=paper"], ("features",))
     with pytest.raises(ConfigError):
-        stage_sets(["slam.ekf.gate_assoc_chi2=4"], ("feature",))
+        stage_sets(["slam.ekf.gate_assoc_chi2=4"], ("features",))
 
 
 def test_cli_layers_stage_settings(sim_recording, tmp_path, monkeypatch):
     monkeypatch.setenv("LRFSLAM_BUS_ROBOT", "fromenv")
     out = tmp_path / "cli.mcap"
-    assert pipeline.main(["--replay", str(sim_recording), "--out", str(out), "--stages", "denoise,feature",
-                          "--set", "feature.mode=paper", "-q"]) == 0
+    assert pipeline.main(["--replay", str(sim_recording), "--out", str(out), "--stages", "denoise,features",
+                          "--set", "features.mode=paper", "-q"]) == 0
     meta = read_metadata(out)["lrfslam"]
-    assert meta["robot"] == "fromenv" and meta["stages"] == "denoise,feature"
-    assert '"mode": "paper"' in meta["config.feature"] and '"mode": "default"' in meta["config.denoise"]
+    assert meta["robot"] == "fromenv" and meta["stages"] == "denoise,features"
+    assert '"mode": "paper"' in meta["config.features"] and '"mode": "default"' in meta["config.denoise"]
     assert "slam/state" not in {r.topic for r in read_recording(out)}
     assert pipeline.main(["--replay", str(sim_recording), "--stages", "sensor"]) == 2
-    assert pipeline.main(["--replay", str(sim_recording), "--set", "feature.mode=nonsense"]) == 2
+    assert pipeline.main(["--replay", str(sim_recording), "--set", "features.mode=nonsense"]) == 2

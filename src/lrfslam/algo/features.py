@@ -1,6 +1,6 @@
 """Feature extraction (paper §IV): corners by forward searching, jump edges by backward searching.
 
-One stage, one name: the ``feature`` service runs :func:`extract_features` on each
+One stage, one name: the ``features`` service runs :func:`extract_features` on each
 denoised scan and publishes the result on the ``features`` topic. A feature is either a
 *corner* (``FORWARD``, found by forward searching) or a *jump edge* (``BACKWARD``, found
 by backward searching). Both searches walk the kept points (those that survived noise

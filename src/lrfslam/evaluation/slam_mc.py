@@ -8,7 +8,7 @@ sources (``McConfig.features``):
   run tests the estimator itself (linearisation, association, landmark
   management), not the front end.
 * ``"extractor"``: the real pipeline. Each simulated scan goes through the
-  denoise, feature and slam *service steps* (built from their default configs,
+  denoise, features and slam *service steps* (built from their default configs,
   as ``lrfslam up`` runs them, in one :class:`~lrfslam.runtime.chain.Chain`),
   so what is measured is what runs live. Only the filter's start pose is set
   to the true one, so no alignment is needed.
@@ -80,7 +80,7 @@ class McConfig:
     truth_wall_sigma_rad : float
         "truth" only: also give the filter the true wall direction (the world's
         walls are axis-aligned, so ``-theta`` mod 90°) with this noise and sigma;
-        0 gives none. ("extractor" runs get the feature service's measurement.)
+        0 gives none. ("extractor" runs get the features service's measurement.)
     association : {"nn", "jcbb"}
     odometry : lrfslam.sim.OdometryNoise
         Simulated odometry noise, and the filter's odometry model.
@@ -91,7 +91,7 @@ class McConfig:
     seed : int
     stage_sets : tuple of str
         "extractor" only: ``"<service>.<name>=<value>"`` overrides of the
-        denoise, feature and slam configs, as ``--set`` gives them to a service.
+        denoise, features and slam configs, as ``--set`` gives them to a service.
     """
 
     n_runs: int = 30
@@ -264,7 +264,7 @@ def truth_clusters(truth_xy: np.ndarray, radius_m: float) -> np.ndarray:
 
 
 class _Pipeline:
-    """The denoise, feature and slam service steps, one in-memory chain driven frame by frame.
+    """The denoise, features and slam service steps, one in-memory chain driven frame by frame.
 
     The frames are turned into the sensor service's messages (an odometry pose
     and a scan with the same stamp); the slam step starts at the true start pose.
@@ -272,7 +272,7 @@ class _Pipeline:
 
     def __init__(self, sim: Simulator, cfg: McConfig, params: EkfParams, pose0: np.ndarray) -> None:
         slam = cfg.stage("slam")
-        self.chain = Chain([cfg.stage("denoise"), cfg.stage("feature"),
+        self.chain = Chain([cfg.stage("denoise"), cfg.stage("features"),
                             Stage(slam.spec, replace(slam.config, ekf=params))], robot="slam_mc", wire=False)
         self.slam = self.chain.step("slam").slam
         self.slam.start_at(pose0)
@@ -415,7 +415,7 @@ def format_summary(s: dict, cfg: McConfig) -> str:
     quarters = np.array_split(m, 4)
     walls = f", wall direction sigma {cfg.truth_wall_sigma_rad} rad" if cfg.truth_wall_sigma_rad > 0 else ""
     noise = (f"sigma_r {cfg.range_sigma_m} m, sigma_b {cfg.bearing_sigma_rad} rad{walls}" if cfg.features == "truth"
-             else "denoise -> feature -> slam service steps, default configs")
+             else "denoise -> features -> slam service steps, default configs")
     head = (
         f"EKF-SLAM Monte Carlo: {s['n_runs']} runs x {cfg.n_steps} steps, world {cfg.world_name}, "
         f"features {cfg.features} ({noise}), association {cfg.association}"
@@ -466,7 +466,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=McConfig.n_steps)
     ap.add_argument("--world", default=McConfig.world_name)
     ap.add_argument("--features", choices=FEATURE_SOURCES, default=McConfig.features,
-                    help="true corners plus matched noise, or the real denoise -> feature -> slam steps")
+                    help="true corners plus matched noise, or the real denoise -> features -> slam steps")
     ap.add_argument("--association", choices=("nn", "jcbb"), default=McConfig.association)
     ap.add_argument("--range-sigma-m", type=float, default=McConfig.range_sigma_m, help="truth features only")
     ap.add_argument("--bearing-sigma-rad", type=float, default=McConfig.bearing_sigma_rad, help="truth features only")
@@ -476,7 +476,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=McConfig.seed)
     ap.add_argument("--jobs", type=int, default=1, help="worker processes")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="SERVICE.NAME=VALUE",
-                    help="extractor only: override a denoise/feature/slam setting, e.g. slam.scan_matching=false")
+                    help="extractor only: override a denoise/features/slam setting, e.g. slam.scan_matching=false")
     args = ap.parse_args(argv)
     base = OdometryNoise()
     cfg = McConfig(

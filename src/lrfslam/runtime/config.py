@@ -10,11 +10,12 @@ environment with a double underscore (``LRFSLAM_DENOISE_HISTOGRAM__BIN_DEG``).
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import json
 import tomllib
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -24,17 +25,28 @@ C = TypeVar("C")
 ENV_PREFIX = "LRFSLAM"
 
 
-def read_file(path: str | Path | None) -> dict:
-    """The parsed TOML file, or ``{}`` when no path is given."""
+def read_file(path: str | Path | None, tables: Collection[str] | None = None) -> dict:
+    """The parsed TOML file, or ``{}`` when no path is given.
+
+    With ``tables``, a top-level table of another name is an error (a misspelt or
+    renamed service must not silently run on defaults), with the nearest name as a hint.
+    """
     if not path:
         return {}
     try:
         with open(path, "rb") as f:
-            return tomllib.load(f)
+            parsed = tomllib.load(f)
     except OSError as exc:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {path}: {exc}") from exc
+    for name in parsed if tables is not None else ():
+        if name not in tables:
+            near = difflib.get_close_matches(name, list(tables), n=1)
+            hint = f" (did you mean [{near[0]}]?)" if near else ""
+            raise ConfigError(f"config file {path}: unknown table [{name}]{hint}; "
+                              f"known: {', '.join(sorted(tables))}")
+    return parsed
 
 
 def coerce(value: Any, hint: Any, name: str) -> Any:

@@ -19,7 +19,7 @@ import socket
 import threading
 import time
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -81,7 +81,8 @@ def setup_logging(service: str, level: str | None) -> None:
                         format=LOG_FORMAT.format(service=service))
 
 
-def main(spec: ServiceSpec, argv: list[str] | None = None) -> int:
+def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[str] | None = None) -> int:
+    """``lrfslam <service>``; ``tables``: the config-file tables there may be (others are errors)."""
     parser = argparse.ArgumentParser(prog=f"lrfslam {spec.name}", description=spec.summary)
     add_common_arguments(parser)
     parser.add_argument("--replay", metavar="IN.mcap", help="run on a recording instead of the bus")
@@ -91,7 +92,7 @@ def main(spec: ServiceSpec, argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     setup_logging(spec.name, args.log_level)
     try:
-        file = config_mod.read_file(args.config)
+        file = config_mod.read_file(args.config, tables)
         bus = bus_config(args, file, os.environ)
         cfg = config_mod.service_config(spec, sets=flag_sets(spec, args), file=file, env=os.environ)
         log.info("config %s", config_mod.to_json(cfg))

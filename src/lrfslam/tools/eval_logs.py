@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lrfslam import services
 from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.errors import ConfigError
 from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
@@ -151,7 +152,7 @@ def evaluate_all(root: Path, work: Path, sets: list[str], file: Mapping, env: Ma
 
 def main_all(root: Path, work: Path, sets: list[str], config_file: str | None) -> int:
     """``lrfslam eval relations --all``: print the table (Markdown) and where the outputs are."""
-    results = evaluate_all(root, work, sets, config_mod.read_file(config_file), os.environ)
+    results = evaluate_all(root, work, sets, config_mod.read_file(config_file, services.CONFIG_TABLES), os.environ)
     print(markdown(results))
     for r in results:
         facts = r.sensor

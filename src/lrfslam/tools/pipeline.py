@@ -15,7 +15,7 @@ So ``lrfslam pipeline --replay intel.mcap --out run.mcap`` gives one file with
 
 Configuration layers as for the services (defaults or preset < ``--config``
 ``[<service>]`` table < ``LRFSLAM_<SERVICE>_*`` < ``--set``), with ``--set``
-naming the stage: ``--set feature.mode=paper --set slam.ekf.gate_chi2=9``.
+naming the stage: ``--set features.mode=paper --set slam.ekf.gate_chi2=9``.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from lrfslam.runtime.runner import setup_logging
 
 log = logging.getLogger("lrfslam.pipeline")
 
-DEFAULT_STAGES = ("denoise", "feature", "slam")
+DEFAULT_STAGES = ("denoise", "features", "slam")
 
 
 def stage_names(text: str) -> tuple[str, ...]:
@@ -60,14 +60,14 @@ def stage_names(text: str) -> tuple[str, ...]:
 
 
 def stage_sets(sets: Iterable[str], names: Iterable[str]) -> dict[str, list[str]]:
-    """Split ``stage.field=value`` overrides by stage: ``{"feature": ["mode=paper"], ...}``."""
+    """Split ``stage.field=value`` overrides by stage: ``{"features": ["mode=paper"], ...}``."""
     names = tuple(names)
     out: dict[str, list[str]] = {n: [] for n in names}
     for item in sets:
         stage, dot, rest = item.partition(".")
         if not dot or stage not in out:
             raise ConfigError(f"--set {item!r}: prefix the setting with a stage ({', '.join(names)}), "
-                              "e.g. feature.mode=paper")
+                              "e.g. features.mode=paper")
         out[stage].append(rest)
     return out
 
@@ -108,14 +108,14 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"comma-separated services, run in pipeline order (default {','.join(DEFAULT_STAGES)})")
     parser.add_argument("--config", metavar="FILE", help="TOML config file ([bus] robot and [<service>] tables)")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="STAGE.NAME=VALUE",
-                        help="override one setting of a stage, e.g. feature.mode=paper (repeatable)")
+                        help="override one setting of a stage, e.g. features.mode=paper (repeatable)")
     parser.add_argument("--robot", help="robot namespace given to the steps and stored in the metadata")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING, ERROR")
     args = parser.parse_args(argv)
     setup_logging("pipeline", args.log_level)
     try:
-        file = config_mod.read_file(args.config)
+        file = config_mod.read_file(args.config, services.CONFIG_TABLES)
         robot = config_mod.load(BusConfig, table=file.get("bus", {}), env=os.environ,
                                 env_prefix=f"{config_mod.ENV_PREFIX}_BUS",
                                 sets=[f"robot={args.robot}"] if args.robot else []).robot

@@ -1,6 +1,6 @@
 """``lrfslam up``: the whole pipeline as separate processes, supervised, with a summary.
 
-Starts a Zenoh router, then recorder, slam, feature and denoise, waits until each
+Starts a Zenoh router, then recorder, slam, features and denoise, waits until each
 has declared its liveliness token, then starts the sensor. A service that dies
 is restarted (up to ``--max-restarts`` times). On Ctrl-C, SIGTERM or after
 ``--duration`` seconds the sensor stops first, the pipeline drains, the rest stop
@@ -33,7 +33,7 @@ from lrfslam.tools.status import client_config
 
 log = logging.getLogger("lrfslam.up")
 
-START_ORDER = ("recorder", "slam", "feature", "denoise", "sensor")
+START_ORDER = ("recorder", "slam", "features", "denoise", "sensor")
 
 
 @dataclass
@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="extra router endpoint, e.g. tcp/0.0.0.0:7447 for remote monitoring")
     parser.add_argument("--config", help="TOML config passed to every service")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="SERVICE.NAME=VALUE",
-                        help="override one service setting, e.g. --set feature.mode=paper")
+                        help="override one service setting, e.g. --set features.mode=paper")
     parser.add_argument("--recordings", default="recordings", help="folder for the MCAP recording")
     parser.add_argument("--max-restarts", type=int, default=3)
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         log.info("stopping: sensor first, then draining the pipeline")
         children["sensor"].stop(10)
         _drain(observer, 5.0)
-        for name in ("denoise", "feature", "slam", "recorder"):
+        for name in ("denoise", "features", "slam", "recorder"):
             children[name].stop(15)
         time.sleep(0.3)  # let the last health messages arrive
         for sub in subs:

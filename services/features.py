@@ -1,4 +1,4 @@
-"""feature: the feature stage (lrfslam.algo.features): corners by forward searching, jump edges by backward searching.
+"""features: the feature stage (lrfslam.algo.features): corners by forward searching, jump edges by backward searching.
 
 in:  scan/filtered  FilteredScan
 out: features       Features (robot frame, 2x2 covariance, source beam, scan seq; and the
@@ -33,7 +33,7 @@ class FeatureConfig:
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
-            raise ConfigError(f"feature.mode must be one of {MODES}, got {self.mode!r}")
+            raise ConfigError(f"features.mode must be one of {MODES}, got {self.mode!r}")
 
 
 def preset(mode: str) -> FeatureConfig:
@@ -65,7 +65,7 @@ class FeatureStep(StepBase):
 
 
 SPEC = ServiceSpec(
-    name="feature",
+    name="features",
     summary="Features of denoised scans: corners by forward searching, jump edges by backward searching.",
     config_type=FeatureConfig,
     inputs=(topics.SCAN_FILTERED,),
