@@ -130,3 +130,26 @@ def test_robot_names_are_single_key_chunks():
     for bad in ("", "a/b", "a*", "a$b", "a b"):
         with pytest.raises(ConfigError):
             topics.check_robot(bad)
+
+
+@settings(max_examples=40, deadline=None)
+@given(k=st.integers(0, 50), seed=st.integers(0, 2**32 - 1))
+def test_map_messages_round_trip(k, seed):
+    rng = np.random.default_rng(seed)
+    pose = t.MapPose(11, 4, 3, rng.normal(size=3), rng.normal(size=3), k, 2, 1)
+    back = codec.MAP_POSE.decode(codec.MAP_POSE.encode(pose))
+    np.testing.assert_array_equal(back.pose, pose.pose)
+    np.testing.assert_array_equal(back.map_from_slam, pose.map_from_slam)
+    assert (back.stamp_ns, back.seq, back.scan_seq, back.keyframes, back.closures, back.closures_rejected) == (
+        11, 4, 3, k, 2, 1)
+    kf = t.MapKeyframes(12, 5, rng.integers(0, 2**62, k), rng.normal(size=(k, 3)), rng.normal(size=(k, 3)))
+    back = codec.MAP_KEYFRAMES.decode(codec.MAP_KEYFRAMES.encode(kf))
+    for name in ("scan_stamp_ns", "slam_pose", "map_pose"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(kf, name))
+
+
+def test_keyframes_whose_poses_are_not_k_by_3_are_a_decode_error():
+    from lrfslam.msgs.v1 import map_pb2
+    bad = map_pb2.MapKeyframes(scan_stamp_ns=[1, 2], slam_pose=[0.0] * 6, map_pose=[0.0] * 5)
+    with pytest.raises(DecodeError):
+        codec.MAP_KEYFRAMES.decode(bad.SerializeToString())

@@ -24,6 +24,7 @@ from lrfslam.msgs.v1 import (
     filtered_scan_pb2,
     ground_truth_pb2,
     laser_scan_pb2,
+    map_pb2,
     odometry_pb2,
     service_status_pb2,
     slam_state_pb2,
@@ -236,6 +237,43 @@ def _slam_from(p) -> t.SlamState:
     )
 
 
+def _pose2d(target, pose) -> None:
+    target.x_m, target.y_m, target.theta_rad = (float(v) for v in pose)
+
+
+def _map_pose_to(m: t.MapPose):
+    p = map_pb2.MapPose(scan_seq=m.scan_seq, keyframes=m.keyframes, closures=m.closures,
+                        closures_rejected=m.closures_rejected)
+    _header(p.header, m.stamp_ns, m.seq, "map")
+    _pose2d(p.pose, m.pose)
+    _pose2d(p.map_from_slam, m.map_from_slam)
+    return p
+
+
+def _map_pose_from(p) -> t.MapPose:
+    pose = (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)
+    t_map = (p.map_from_slam.x_m, p.map_from_slam.y_m, p.map_from_slam.theta_rad)
+    return t.MapPose(p.header.stamp_ns, p.header.seq, p.scan_seq, pose, t_map, p.keyframes, p.closures,
+                     p.closures_rejected)
+
+
+def _keyframes_to(m: t.MapKeyframes):
+    p = map_pb2.MapKeyframes()
+    _header(p.header, m.stamp_ns, m.seq, "map")
+    p.scan_stamp_ns.extend(m.scan_stamp_ns.tolist())
+    p.slam_pose.extend(m.slam_pose.ravel().tolist())
+    p.map_pose.extend(m.map_pose.ravel().tolist())
+    return p
+
+
+def _keyframes_from(p) -> t.MapKeyframes:
+    k = len(p.scan_stamp_ns)
+    if len(p.slam_pose) != 3 * k or len(p.map_pose) != 3 * k:
+        raise ValueError("keyframe poses are not K x 3")
+    return t.MapKeyframes(p.header.stamp_ns, p.header.seq, list(p.scan_stamp_ns),
+                          np.array(p.slam_pose, np.float64).reshape(k, 3), np.array(p.map_pose, np.float64).reshape(k, 3))
+
+
 def _truth_to(m: t.GroundTruth):
     p = ground_truth_pb2.GroundTruth()
     _header(p.header, m.stamp_ns, m.seq, "map")
@@ -277,10 +315,13 @@ FEATURES: Codec[t.Features] = Codec(features_pb2.Features, _features_to, _featur
 SLAM_STATE: Codec[t.SlamState] = Codec(slam_state_pb2.SlamState, _slam_to, _slam_from)
 GROUND_TRUTH: Codec[t.GroundTruth] = Codec(ground_truth_pb2.GroundTruth, _truth_to, _truth_from)
 SERVICE_STATUS: Codec[t.ServiceStatus] = Codec(service_status_pb2.ServiceStatus, _status_to, _status_from)
+MAP_POSE: Codec[t.MapPose] = Codec(map_pb2.MapPose, _map_pose_to, _map_pose_from)
+MAP_KEYFRAMES: Codec[t.MapKeyframes] = Codec(map_pb2.MapKeyframes, _keyframes_to, _keyframes_from)
 
 #: Every codec of the current version, by schema name.
 CODECS: dict[str, Codec] = {c.schema: c for c in
-                            (LASER_SCAN, ODOMETRY, FILTERED_SCAN, FEATURES, SLAM_STATE, GROUND_TRUTH, SERVICE_STATUS)}
+                            (LASER_SCAN, ODOMETRY, FILTERED_SCAN, FEATURES, SLAM_STATE, GROUND_TRUTH, SERVICE_STATUS,
+                             MAP_POSE, MAP_KEYFRAMES)}
 
 #: (old schema, current schema) -> (old generated class, converter to the current type).
 #: Empty while v1 is the only version; a v2 adds its v1 entries here.

@@ -39,9 +39,11 @@ SCAN_FILTERED: Topic = Topic("scan/filtered", c.FILTERED_SCAN)
 FEATURES: Topic = Topic("features", c.FEATURES)
 SLAM_STATE: Topic = Topic("slam/state", c.SLAM_STATE)
 TRUTH: Topic = Topic("truth", c.GROUND_TRUTH)
+MAP_POSE: Topic = Topic("map/pose", c.MAP_POSE)
+MAP_KEYFRAMES: Topic = Topic("map/keyframes", c.MAP_KEYFRAMES, droppable=False)
 
 #: Data topics in pipeline order.
-DATA_TOPICS: tuple[Topic, ...] = (SCAN, ODOM, TRUTH, SCAN_FILTERED, FEATURES, SLAM_STATE)
+DATA_TOPICS: tuple[Topic, ...] = (SCAN, ODOM, TRUTH, SCAN_FILTERED, FEATURES, SLAM_STATE, MAP_POSE, MAP_KEYFRAMES)
 
 
 def health(service: str) -> Topic:

@@ -153,6 +153,43 @@ class Features:
 
 
 @dataclass(frozen=True, eq=False)
+class MapPose:
+    """The loop-closing back end after one scan: ``pose`` (3,) corrected by the closures so far,
+    and ``map_from_slam`` (3,), the transform with ``pose = map_from_slam ⊕ slam pose``."""
+
+    stamp_ns: int
+    seq: int
+    scan_seq: int
+    pose: np.ndarray
+    map_from_slam: np.ndarray
+    keyframes: int = 0
+    closures: int = 0
+    closures_rejected: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pose", _array(self.pose, np.float64, (3,)))
+        object.__setattr__(self, "map_from_slam", _array(self.map_from_slam, np.float64, (3,)))
+
+
+@dataclass(frozen=True, eq=False)
+class MapKeyframes:
+    """The pose graph's K keyframes after an optimisation: ``scan_stamp_ns`` (K,) of the scan
+    that made each, its ``slam_pose`` (K, 3) and its optimised ``map_pose`` (K, 3)."""
+
+    stamp_ns: int
+    seq: int
+    scan_stamp_ns: np.ndarray
+    slam_pose: np.ndarray
+    map_pose: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "scan_stamp_ns", _array(self.scan_stamp_ns, np.int64))
+        k = self.scan_stamp_ns.size
+        object.__setattr__(self, "slam_pose", _array(self.slam_pose, np.float64, (k, 3)))
+        object.__setattr__(self, "map_pose", _array(self.map_pose, np.float64, (k, 3)))
+
+
+@dataclass(frozen=True, eq=False)
 class SlamState:
     """The EKF after one scan's features.
 

@@ -1,0 +1,38 @@
+from lrfslam.msgs.v1 import common_pb2 as _common_pb2
+from google.protobuf.internal import containers as _containers
+from google.protobuf import descriptor as _descriptor
+from google.protobuf import message as _message
+from collections.abc import Iterable as _Iterable, Mapping as _Mapping
+from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
+
+DESCRIPTOR: _descriptor.FileDescriptor
+
+class MapPose(_message.Message):
+    __slots__ = ("header", "scan_seq", "pose", "map_from_slam", "keyframes", "closures", "closures_rejected")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SCAN_SEQ_FIELD_NUMBER: _ClassVar[int]
+    POSE_FIELD_NUMBER: _ClassVar[int]
+    MAP_FROM_SLAM_FIELD_NUMBER: _ClassVar[int]
+    KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
+    CLOSURES_FIELD_NUMBER: _ClassVar[int]
+    CLOSURES_REJECTED_FIELD_NUMBER: _ClassVar[int]
+    header: _common_pb2.Header
+    scan_seq: int
+    pose: _common_pb2.Pose2D
+    map_from_slam: _common_pb2.Pose2D
+    keyframes: int
+    closures: int
+    closures_rejected: int
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., map_from_slam: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., keyframes: _Optional[int] = ..., closures: _Optional[int] = ..., closures_rejected: _Optional[int] = ...) -> None: ...
+
+class MapKeyframes(_message.Message):
+    __slots__ = ("header", "scan_stamp_ns", "slam_pose", "map_pose")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    SCAN_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    SLAM_POSE_FIELD_NUMBER: _ClassVar[int]
+    MAP_POSE_FIELD_NUMBER: _ClassVar[int]
+    header: _common_pb2.Header
+    scan_stamp_ns: _containers.RepeatedScalarFieldContainer[int]
+    slam_pose: _containers.RepeatedScalarFieldContainer[float]
+    map_pose: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_stamp_ns: _Optional[_Iterable[int]] = ..., slam_pose: _Optional[_Iterable[float]] = ..., map_pose: _Optional[_Iterable[float]] = ...) -> None: ...
