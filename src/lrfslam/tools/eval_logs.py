@@ -7,8 +7,9 @@ reads the no-return code, beam layout and laser mounting from the log itself), r
 given once for all — and scored with the Kümmerle relation metric, overall and per relation
 span. A log without relations runs end to end and gets its map drawn (``lrfslam export``).
 
-Rows per scored log: the SLAM estimate as published at each scan (``slam/state``), scan
-matching alone (the slam stage's tracker without the filter), and raw odometry.
+Rows per scored log: the mapper's final trajectory (every loop closure solved for), the
+mapper's and the EKF's estimates as published at each scan (``map/pose``, ``slam/state``),
+scan matching alone (the slam stage's tracker without the filter), and raw odometry.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ from lrfslam.evaluation.relations import (
     RelationStats,
     errors_by_span,
     load_relations,
-    relation_errors,
 )
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
@@ -37,10 +37,15 @@ from lrfslam.runtime import chain
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.recording import read_recording
 from lrfslam.tools import pipeline
-from lrfslam.tools.evaluate import read_trajectories, stamp_s
+from lrfslam.tools.evaluate import MAPPER_FINAL, evaluate_relations, stamp_s
 from lrfslam.tools.importers import import_carmen
 
 LOG_SUFFIXES = (".clf", ".clf.gz", ".clf.bz2")
+SCAN_MATCHING = "scan matching alone"
+
+#: Rows of the table, per log with relations: the mapper's final trajectory (every closure solved
+#: for), the mapper and the EKF as published at each scan, and the references.
+ROWS = (MAPPER_FINAL, "mapper online", "slam estimate", SCAN_MATCHING, "raw odometry")
 
 
 @dataclass(frozen=True)
@@ -93,17 +98,15 @@ def run_log(log: Log, work: Path, stages: list[chain.Stage], draw_map: bool = Tr
     if log.relations is not None:
         with open_log(log.relations) as f:
             relations = load_relations(f)
-        trajectories, _ = read_trajectories(out)
         slam_cfg = next((s.config for s in stages if s.spec.name == "slam"), None)
         match_params = slam_cfg.scan_match if slam_cfg is not None else ScanMatchParams()
         stamps_ns, poses, _ = scan_matched_trajectory(imported, match_params)
-        trajectories["scan matching alone"] = (np.array([stamp_s(s) for s in stamps_ns]), poses)
-        for label in ("slam estimate", "scan matching alone", "raw odometry"):
-            stamps, poses = trajectories[label]
-            if stamps.size:
-                stats = relation_errors(stamps, poses, relations)
-                result.scores[label] = stats
-                result.by_span[label] = errors_by_span(stats, relations)
+        scores, _ = evaluate_relations(out, log.relations, extra={
+            SCAN_MATCHING: (np.array([stamp_s(s) for s in stamps_ns]), poses)})
+        for label in ROWS:
+            if label in scores:
+                result.scores[label] = scores[label]
+                result.by_span[label] = errors_by_span(scores[label], relations)
     elif draw_map:
         from lrfslam.tools import (
             export,  # only here: it draws with the optional plotting extra
@@ -139,7 +142,7 @@ def markdown(results: Iterable[LogResult]) -> str:
             cells = [r.log.name, label, str(s.n_used), f"{s.trans_abs_m.mean:.3f} ± {s.trans_abs_m.std:.3f}",
                      f"{s.rot_abs_deg.mean:.2f}"]
             cells += [f"{e.mean:.3f} ({n})" for n, e in r.by_span[label].values()]
-            lines.append("| " + " | ".join(cells + [per_scan if label == "slam estimate" else ""]) + " |")
+            lines.append("| " + " | ".join(cells + [per_scan if label == next(iter(r.scores)) else ""]) + " |")
     return "\n".join(lines)
 
 

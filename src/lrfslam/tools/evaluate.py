@@ -27,6 +27,7 @@ import numpy as np
 from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.errors import DecodeError, LrfSlamError
 from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
+from lrfslam.evaluation.map_trajectory import final_trajectory
 from lrfslam.evaluation.relations import (
     DEFAULT_MAX_STAMP_GAP_S,
     RelationStats,
@@ -41,8 +42,11 @@ from lrfslam.runtime.recording import read_recording
 #: Subcommands implemented elsewhere: name -> module whose ``main(argv)`` runs it.
 DELEGATED = {"features": "lrfslam.evaluation.features", "slam": "lrfslam.evaluation.slam_mc"}
 
-#: Trajectories scored by ``relations``: row label -> topic whose poses form it.
-TRAJECTORIES = {"slam estimate": topics.SLAM_STATE, "raw odometry": topics.ODOM}
+#: Trajectories scored by ``relations``: row label -> topic whose poses form it. "slam estimate"
+#: and "mapper online" are as published at each scan; "mapper final" (computed from the last
+#: map/keyframes) is the trajectory with every loop closure solved for.
+TRAJECTORIES = {"slam estimate": topics.SLAM_STATE, "mapper online": topics.MAP_POSE, "raw odometry": topics.ODOM}
+MAPPER_FINAL = "mapper final"
 
 
 def stamp_s(stamp_ns: int) -> float:
@@ -104,6 +108,9 @@ def evaluate_relations(path: str | Path, relations_path: str | Path,
     with open_log(relations_path) as f:
         relations = load_relations(f)
     trajectories, undecodable = read_trajectories(path)
+    final = final_trajectory(path)
+    if final is not None:
+        trajectories[MAPPER_FINAL] = (np.array([stamp_s(v) for v in final[0]]), final[1])
     trajectories.update(extra or {})
     return ({label: relation_errors(stamps, poses, relations, max_gap_s)
              for label, (stamps, poses) in trajectories.items() if stamps.size},

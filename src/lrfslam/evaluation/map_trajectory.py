@@ -1,0 +1,71 @@
+"""The mapper's trajectories from a recording: as published at each scan, and final.
+
+The *online* trajectory is ``map/pose``: each scan's pose as the mapper knew it then.
+The *final* trajectory places every ``slam/state`` by the last ``map/keyframes``: a
+scan belongs to the newest keyframe made at or before it, and keeps the slam pose
+relative to that keyframe's slam pose — exactly how the mapper places its own scans.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from lrfslam.algo.geometry import compose, relative
+from lrfslam.errors import DecodeError
+from lrfslam.msgs import topics
+from lrfslam.msgs import types as t
+from lrfslam.runtime.recording import read_recording
+
+
+def final_poses(stamps_ns: np.ndarray, slam_poses: np.ndarray, keyframes: t.MapKeyframes) -> np.ndarray:
+    """Every slam pose corrected by the optimised keyframes.
+
+    Parameters
+    ----------
+    stamps_ns : ndarray of int, shape (T,)
+        Stamps of the slam states, ascending.
+    slam_poses : ndarray, shape (T, 3)
+        Their poses ``(x_m, y_m, theta_rad)``.
+    keyframes : MapKeyframes
+        The last one of the recording (K keyframes, their scans' stamps ascending).
+
+    Returns
+    -------
+    ndarray, shape (T, 3)
+        Final poses; states before the first keyframe keep their slam pose.
+    """
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    slam_poses = np.asarray(slam_poses, dtype=float).reshape(-1, 3)
+    out = slam_poses.copy()
+    k = np.searchsorted(keyframes.scan_stamp_ns, stamps_ns, side="right") - 1
+    placed = k >= 0
+    if np.any(placed):
+        kk = k[placed]
+        rel = relative(keyframes.slam_pose[kk].T, slam_poses[placed].T)
+        out[placed] = np.asarray(compose(keyframes.map_pose[kk].T, rel)).T
+    return out
+
+
+def final_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """Stamps (ns, (T,)) and final poses ((T, 3)) of a recording's slam states; None without ``map/keyframes``."""
+    stamps: list[int] = []
+    poses: list[np.ndarray] = []
+    last: t.MapKeyframes | None = None
+    for rec in read_recording(path, [topics.SLAM_STATE.name, topics.MAP_KEYFRAMES.name]):
+        topic = topics.by_name(rec.topic)
+        try:
+            value = topic.codec.decode(rec.data, rec.schema)
+        except DecodeError:
+            continue
+        if topic is topics.MAP_KEYFRAMES or topic.name == topics.MAP_KEYFRAMES.name:
+            last = value
+        else:
+            stamps.append(value.stamp_ns)
+            poses.append(value.pose)
+    if last is None or not stamps:
+        return None
+    order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
+    s = np.array(stamps, dtype=np.int64)[order]
+    return s, final_poses(s, np.array(poses)[order], last)
