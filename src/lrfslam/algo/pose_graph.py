@@ -319,7 +319,7 @@ class PoseGraph:
         lam = self.params.initial_damping
         it = 0
         for it in range(1, self.params.max_iterations + 1):
-            h, b, reduced = self._normal_equations(poses, i, j, z, info, robust, gauge=0)
+            h, b, _ = self._normal_equations(poses, i, j, z, info, robust, gauge=0)
             diag = h.diagonal()
             if np.any(diag <= 0):
                 raise InputError("pose graph is not connected: a node has no edge")
