@@ -49,8 +49,7 @@ def test_finds_the_true_pose_from_far_off():
 def brute_force(grid: LikelihoodGrid, pts, centre, half_width_m, half_angle_rad):
     """Every leaf of the search, scored one by one (the reference the bound must reproduce)."""
     p = grid.params
-    reach = float(np.max(np.hypot(pts[:, 0], pts[:, 1])))
-    step = min(p.max_angle_step_rad, p.cell_m / max(reach, p.cell_m))
+    step = p.angle_step_rad
     n_ang = int(np.ceil(half_angle_rad / step))
     n_xy = int(np.ceil(half_width_m / p.cell_m))
     best = -1.0

@@ -21,8 +21,7 @@ Symbols (inside this module only):
 Design choices
 --------------
 * **Rotations are enumerated, translations branched**, as Hess et al. do: the
-  rotated points' cells are computed once per angle, and the angle step is the
-  one that moves the farthest point by one cell.
+  rotated points' cells are computed once per angle (``angle_step_rad``).
 * **Breadth-first, vectorised.** Python cannot afford a depth-first search one
   node at a time; a greedy descent from the best top-level candidates gives a
   good first leaf (lower bound) and then whole levels are scored and pruned at
@@ -66,9 +65,12 @@ class CorrelativeParams:
     levels : int
         Pooled grids, level 0 (the grid) to ``levels − 1`` (blocks of
         ``2^(levels−1)`` cells).
-    max_angle_step_rad : float
-        Largest rotation step (rad); smaller when the points reach far (one cell
-        at the farthest point).
+    angle_step_rad : float
+        Rotation step (rad). Hess et al. take the step that moves the farthest
+        point by one cell; that makes hundreds of angles for 20 m returns, and
+        the far points are the least reliable anyway: this step moves a point
+        at ``cell_m / angle_step_rad`` by one cell, farther ones by a little
+        more, which the likelihood's blur and the refinement absorb.
     max_frontier : int
         Candidates kept per level at most (then best first; see module notes).
     peak_separation_m, peak_separation_rad : float
@@ -76,16 +78,16 @@ class CorrelativeParams:
         rotation (rad).
     """
 
-    cell_m: float = 0.05
-    hit_sigma_m: float = 0.05
+    cell_m: float = 0.1
+    hit_sigma_m: float = 0.1
     levels: int = 7
-    max_angle_step_rad: float = 0.02
+    angle_step_rad: float = 0.01
     max_frontier: int = 20_000
     peak_separation_m: float = 1.0
     peak_separation_rad: float = 0.35
 
     def __post_init__(self) -> None:
-        require_finite(self, ("cell_m", "hit_sigma_m", "max_angle_step_rad", "peak_separation_m",
+        require_finite(self, ("cell_m", "hit_sigma_m", "angle_step_rad", "peak_separation_m",
                               "peak_separation_rad"), positive=True, what="correlative matching ")
         if not 1 <= self.levels <= 12 or self.max_frontier < 1:
             raise ConfigError("correlative matching needs 1 <= levels <= 12 and max_frontier >= 1")
@@ -203,8 +205,7 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     centre = np.asarray(centre, dtype=float)
     if pts.shape[0] == 0 or centre.shape != (3,) or not np.all(np.isfinite(centre)):
         raise InputError("search needs points and a finite (3,) centre")
-    reach = float(np.max(np.hypot(pts[:, 0], pts[:, 1])))
-    step = min(p.max_angle_step_rad, p.cell_m / max(reach, p.cell_m))
+    step = p.angle_step_rad
     n_ang = int(np.ceil(max(half_angle_rad, 0.0) / step))
     angles = centre[2] + step * np.arange(-n_ang, n_ang + 1)
     n_xy = int(np.ceil(max(half_width_m, 0.0) / p.cell_m))

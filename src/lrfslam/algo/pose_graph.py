@@ -301,8 +301,14 @@ class PoseGraph:
             np.add.at(b, ((3 * rn[keep])[:, None] + off).ravel(), g[keep].ravel())
         return h, b, reduced
 
-    def optimize(self) -> OptimizeReport:
+    def optimize(self, robust: bool = True) -> OptimizeReport:
         """Levenberg–Marquardt on all nodes but the first; updates :attr:`poses`.
+
+        With ``robust`` False the loop edges' kernel is off (plain least
+        squares). The kernel needs a good start: a closure that moves a long
+        loop by metres starts with a tiny weight and would stay an "outlier"
+        however right it is, so a caller that trusts its closures solves
+        without the kernel first and then with it.
 
         Raises
         ------
@@ -310,16 +316,17 @@ class PoseGraph:
             If a node other than the first is not reached by any edge (the
             problem is then singular).
         """
-        _, i, j, z, info, robust = self._arrays()
+        _, i, j, z, info, robust_edges = self._arrays()
+        robust_edges &= robust
         poses = self.poses.copy()
         if self._n < 2 or i.size == 0:
             return OptimizeReport(0, 0.0, 0.0)
-        cost = self._cost(poses, i, j, z, info, robust)
+        cost = self._cost(poses, i, j, z, info, robust_edges)
         initial = cost
         lam = self.params.initial_damping
         it = 0
         for it in range(1, self.params.max_iterations + 1):
-            h, b, _ = self._normal_equations(poses, i, j, z, info, robust, gauge=0)
+            h, b, _ = self._normal_equations(poses, i, j, z, info, robust_edges, gauge=0)
             diag = h.diagonal()
             if np.any(diag <= 0):
                 raise InputError("pose graph is not connected: a node has no edge")
@@ -330,7 +337,7 @@ class PoseGraph:
                 trial = poses.copy()
                 trial[1:] += dx.reshape(-1, 3)
                 trial[:, 2] = wrap_angle(trial[:, 2])
-                trial_cost = self._cost(trial, i, j, z, info, robust)
+                trial_cost = self._cost(trial, i, j, z, info, robust_edges)
                 if trial_cost <= cost:
                     step = dx
                     poses, cost = trial, trial_cost
