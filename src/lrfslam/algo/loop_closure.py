@@ -287,6 +287,16 @@ class LoopClosingMapper:
         """The keyframes' optimised poses, (K, 3)."""
         return self.graph.poses.copy()
 
+    def keyframe_scans(self) -> np.ndarray:
+        """Index (in the order fed) of the scan that made each keyframe, (K,)."""
+        kf = np.array(self._scan_kf, dtype=np.int64)
+        return np.searchsorted(kf, np.arange(len(self._keyframes)))
+
+    def closures(self) -> list[tuple[int, int, np.ndarray]]:
+        """The closures in the graph: (old keyframe, new keyframe, pose of the new in the old's frame (3,))."""
+        return [(self.graph.edge_nodes(e)[0], self.graph.edge_nodes(e)[1], self.graph.edge_measurement(e))
+                for e in self._loop_edges]
+
     # -- keyframes and odometry edges -----------------------------------------------------------
 
     def _add_keyframe(self, ekf_pose: np.ndarray, points_xy_m, moved: np.ndarray | None) -> None:

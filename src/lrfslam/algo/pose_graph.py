@@ -184,6 +184,14 @@ class PoseGraph:
         """Take an edge out of the problem (a closure found wrong); indices of the others stay."""
         self._alive[edge] = False
 
+    def edge_nodes(self, edge: int) -> tuple[int, int]:
+        """The nodes ``(i, j)`` an edge joins."""
+        return self._i[edge], self._j[edge]
+
+    def edge_measurement(self, edge: int) -> np.ndarray:
+        """An edge's measurement (3,), node ``j`` in node ``i``'s frame."""
+        return self._z[edge].copy()
+
     def edge_count(self) -> int:
         """Edges in the problem (removed ones not counted)."""
         return int(sum(self._alive))
