@@ -1,6 +1,7 @@
 """The loop-closing back end over pipeline recordings, scored on the relation metric.
 
-    python -m lrfslam.evaluation.loop_closure RUN.mcap RELATIONS [RUN.mcap RELATIONS ...] [--set NAME=VALUE ...]
+    python -m lrfslam.evaluation.loop_closure RUN.mcap RELATIONS [RUN.mcap RELATIONS ...]
+        [--scan-matching] [--set NAME=VALUE ...]
 
 Each recording is one made by ``lrfslam pipeline`` (topics ``scan``, the raw
 laser scans, and ``slam/state``, the EKF's output, paired by the scan's
@@ -10,7 +11,10 @@ ground-truth relations (Kümmerle et al. 2009, :mod:`lrfslam.evaluation.relation
 the EKF alone, the back end's online poses (as it would have published them at
 each scan) and its final optimised trajectory; overall and per relation span
 (< 2 s, 2–30 s, ≥ 30 s). Also the closures accepted and rejected and the back
-end's time per scan (wall clock; this is a benchmark, not a test).
+end's time per scan (wall clock; this is a benchmark, not a test). With
+``--scan-matching`` the slam service's scan matching alone
+(:mod:`lrfslam.evaluation.laser_odometry`) is scored too: the back end must
+never be worse than it on any span.
 
 ``--set NAME=VALUE`` sets a ``LoopClosureParams`` field (``correlative.cell_m``
 for a nested one).
@@ -29,8 +33,15 @@ import numpy as np
 
 from lrfslam.algo.geometry import polar_to_xy
 from lrfslam.algo.loop_closure import ClosureStats, LoopClosingMapper, LoopClosureParams
+from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.errors import ConfigError, DecodeError, LrfSlamError
-from lrfslam.evaluation.relations import Relations, RelationStats, load_relations, relation_errors
+from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
+from lrfslam.evaluation.relations import (
+    Relations,
+    RelationStats,
+    load_relations,
+    relation_errors,
+)
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -117,16 +128,20 @@ def span_stats(stamps_s: np.ndarray, poses: np.ndarray, relations: Relations) ->
     return out
 
 
-def report(name: str, result: RunResult, relations: Relations) -> str:
-    """The table of one log."""
+def report(name: str, result: RunResult, relations: Relations,
+           scan_matching: tuple[np.ndarray, np.ndarray] | None = None) -> str:
+    """The table of one log; ``scan_matching``: (stamps ns (T,), poses (T, 3)) of scan matching alone, if scored."""
     stamps_s = np.array([stamp_s(s) for s in result.stamps_ns])
-    rows = {"EKF alone": result.ekf, "back end online": result.online, "back end final": result.final}
+    rows = {"EKF alone": (stamps_s, result.ekf)}
+    if scan_matching is not None:
+        rows["scan matching"] = (np.array([stamp_s(s) for s in scan_matching[0]]), scan_matching[1])
+    rows.update({"back end online": (stamps_s, result.online), "back end final": (stamps_s, result.final)})
     labels = ["all", *SPANS]
     lines = [f"{name}: {result.stamps_ns.size} scans, {result.keyframes} keyframes, {len(relations)} relations"]
     head = f"{'trajectory':16s}" + "".join(f" {lab + ' m':>16s} {'deg':>5s}" for lab in labels)
     lines += [head, "-" * len(head)]
-    for label, poses in rows.items():
-        stats = span_stats(stamps_s, poses, relations)
+    for label, (stamps, poses) in rows.items():
+        stats = span_stats(stamps, poses, relations)
         cells = "".join(f" {stats[lab].trans_abs_m.mean:7.3f} ± {stats[lab].trans_abs_m.std:6.3f} "
                         f"{stats[lab].rot_abs_deg.mean:5.2f}" for lab in labels)
         lines.append(f"{label:16s}{cells}")
@@ -164,6 +179,8 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("pairs", nargs="+", metavar="RUN.mcap RELATIONS",
                         help="recordings of lrfslam pipeline, each followed by its relations file")
+    parser.add_argument("--scan-matching", action="store_true",
+                        help="also score scan matching alone (the slam service's tracker, no filter)")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="NAME=VALUE")
     args = parser.parse_args(argv)
     if len(args.pairs) % 2:
@@ -174,7 +191,11 @@ def main(argv: list[str] | None = None) -> int:
             with open_log(rel_path) as f:
                 relations = load_relations(f)
             result = run(read_inputs(rec_path), params)
-            print(report(Path(rec_path).name, result, relations), flush=True)
+            alone = None
+            if args.scan_matching:
+                sm_stamps, sm_poses, _ = scan_matched_trajectory(rec_path, ScanMatchParams())
+                alone = (sm_stamps, sm_poses)
+            print(report(Path(rec_path).name, result, relations, alone), flush=True)
     except (LrfSlamError, OSError, ValueError) as exc:
         print(f"loop closure evaluation: {exc}", file=sys.stderr)
         return 2
