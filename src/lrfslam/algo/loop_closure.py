@@ -13,8 +13,9 @@ Design choices
   over seconds (relation error 0.014 m on Intel, 0.044 m on ACES under 2 s),
   except where the EKF corrected itself on re-seeing landmarks: its pose then
   jumps (2.3 m at once on ACES), and a jump is not motion. So the new keyframe's
-  scan is matched against the previous one with the EKF's motion as the guess,
-  and where the two differ by more than ``ekf_jump_*`` the match is the edge.
+  scan is matched against the last few keyframes with the EKF's motion as the
+  guess (standing still if that fails: a jump beyond the matcher's reach), and
+  where the two differ by more than ``ekf_jump_*`` the match is the edge.
   The edge covariance grows with the distance and the angle travelled
   (``odom_*``): a model of the drift the EKF does not see, not the EKF's own
   covariance, which is absolute and shrinks whenever it re-observes a
@@ -68,7 +69,11 @@ class LoopClosureParams:
     ----------
     keyframe_trans_m, keyframe_rot_rad : float
         A scan becomes a keyframe once the EKF has moved this far (m) or turned
-        this much (rad) since the last keyframe.
+        this much (rad) since the last keyframe...
+    max_scan_step_m : float
+        ...or moved this far since the previous scan (m): faster than the robot
+        drives, so the EKF jumped; the jump then falls between two keyframes,
+        where the scan match replaces it, and not inside a keyframe's scans.
     max_range_m : float
         Points farther than this from the sensor are ignored (m); also drops a
         log's "no return" placeholder ranges (ACES writes 50 m).
@@ -100,6 +105,10 @@ class LoopClosureParams:
         ...plus this much per metre travelled (rad/m) and per radian turned (dimensionless).
     window_sigmas : float
         Search half-widths in standard deviations of the relative pose.
+    drift_scale : float
+        Factor on the relative pose's standard deviations for the search window
+        and the gate, not for the optimisation (dimensionless; see the module
+        notes on odometry edges).
     min_window_m, max_window_m : float
         Bounds of the translation half-width (m).
     min_window_rad, max_window_rad : float
@@ -132,6 +141,8 @@ class LoopClosureParams:
     max_pending_closures : int
         ...until this many have gathered (or :meth:`LoopClosingMapper.trajectory`
         is asked for): each solve costs a sparse factorisation of the whole graph.
+    odometry_keyframes : int
+        The new keyframe's scan is matched against this many last keyframes, merged.
     ekf_jump_m, ekf_jump_rad : float
         An odometry edge is the EKF's motion between the keyframes unless it
         differs from the keyframes' scans matched (point-to-line, the EKF's
@@ -141,6 +152,7 @@ class LoopClosureParams:
 
     keyframe_trans_m: float = 0.5
     keyframe_rot_rad: float = 0.35
+    max_scan_step_m: float = 0.2
     max_range_m: float = 20.0
     keyframe_cell_m: float = 0.05
     submap_keyframes: int = 10
@@ -150,11 +162,12 @@ class LoopClosureParams:
     candidate_radius_m: float = 3.0
     max_candidates: int = 2
     odom_trans_sigma_m: float = 0.005
-    odom_trans_sigma_per_m: float = 0.05
+    odom_trans_sigma_per_m: float = 0.01
     odom_rot_sigma_rad: float = 0.002
-    odom_rot_sigma_per_m: float = 0.03
+    odom_rot_sigma_per_m: float = 0.006
     odom_rot_sigma_per_rad: float = 0.03
     window_sigmas: float = 3.0
+    drift_scale: float = 3.0
     min_window_m: float = 0.5
     max_window_m: float = 12.0
     min_window_rad: float = 0.1
@@ -172,15 +185,16 @@ class LoopClosureParams:
     wide_search_spacing_m: float = 2.0
     optimise_chi2: float = 9.0
     max_pending_closures: int = 10
+    odometry_keyframes: int = 3
     ekf_jump_m: float = 0.05
     ekf_jump_rad: float = 0.02
 
     def __post_init__(self) -> None:
         positive = ("max_range_m", "keyframe_cell_m", "query_cell_m", "odom_trans_sigma_m", "odom_rot_sigma_rad",
-                    "window_sigmas", "min_window_m", "max_window_m", "min_window_rad", "max_window_rad",
+                    "window_sigmas", "drift_scale", "min_window_m", "max_window_m", "min_window_rad", "max_window_rad",
                     "gate_chi2", "match_cov_scale", "candidate_radius_m")
         require_finite(self, positive, positive=True, what="loop closure ")
-        non_negative = ("keyframe_trans_m", "keyframe_rot_rad", "min_travel_m", "odom_trans_sigma_per_m",
+        non_negative = ("keyframe_trans_m", "max_scan_step_m", "keyframe_rot_rad", "min_travel_m", "odom_trans_sigma_per_m",
                         "odom_rot_sigma_per_m", "odom_rot_sigma_per_rad", "min_score", "max_second_ratio",
                         "min_weight", "optimise_chi2", "ekf_jump_m", "ekf_jump_rad", "wide_window_m",
                         "wide_search_spacing_m")
@@ -188,9 +202,9 @@ class LoopClosureParams:
         if self.min_window_m > self.max_window_m or self.min_window_rad > self.max_window_rad:
             raise ConfigError("loop closure window minima must not exceed the maxima")
         if self.submap_keyframes < 0 or self.query_keyframes < 1 or self.max_candidates < 0 \
-                or self.cached_submaps < 1 or self.max_pending_closures < 1:
+                or self.cached_submaps < 1 or self.max_pending_closures < 1 or self.odometry_keyframes < 1:
             raise ConfigError("loop closure needs submap_keyframes >= 0, query_keyframes >= 1, "
-                              "max_candidates >= 0 cached_submaps >= 1 and max_pending_closures >= 1")
+                              "max_candidates >= 0 cached_submaps >= 1, max_pending_closures >= 1 and odometry_keyframes >= 1")
 
 
 @dataclass(frozen=True)
@@ -249,7 +263,7 @@ class LoopClosingMapper:
         self._loop_edges: list[int] = []  # graph edge ids of the closures in the graph
         self._submaps: OrderedDict[int, tuple[LikelihoodGrid, ReferenceScan, np.ndarray]] = OrderedDict()
         self._counts = dict.fromkeys(ClosureStats.__dataclass_fields__, 0)
-        self._last_reference: ReferenceScan | None = None
+        self._last_ekf_pose = np.zeros(3)  # the previous scan's EKF pose
         self._pending = 0  # closures added since the last optimisation
         self._last_wide_search_m = -np.inf  # travel at the last wide search
         self._pending_strong = False  # one of them disagrees strongly with the estimate they were added to
@@ -287,9 +301,11 @@ class LoopClosingMapper:
         else:
             last = self._keyframes[-1]
             moved = relative(last.ekf_pose, pose)
-            if np.hypot(moved[0], moved[1]) >= p.keyframe_trans_m or abs(moved[2]) >= p.keyframe_rot_rad:
+            jumped = np.hypot(*(pose[:2] - self._last_ekf_pose[:2])) > p.max_scan_step_m
+            if jumped or np.hypot(moved[0], moved[1]) >= p.keyframe_trans_m or abs(moved[2]) >= p.keyframe_rot_rad:
                 self._add_keyframe(pose, points_xy_m, moved)
                 self._close_loops()
+        self._last_ekf_pose = pose
         k = len(self._keyframes) - 1
         rel = relative(self._keyframes[k].ekf_pose, pose)
         self._scan_kf.append(k)
@@ -335,7 +351,6 @@ class LoopClosingMapper:
         if moved is None:
             self.graph.add_node(ekf_pose)
             self._keyframes.append(_Keyframe(ekf_pose.copy(), pts, 0.0))
-            self._last_reference = ReferenceScan.build(pts, p.scan_match)
             return
         prev = len(self._keyframes) - 1
         dist = float(np.hypot(moved[0], moved[1]))
@@ -345,7 +360,12 @@ class LoopClosingMapper:
         # once on ACES), which are not local motion. The keyframes' scans,
         # matched with the EKF's motion as the guess, say what the motion was:
         # where the two disagree by more than ``ekf_jump_*`` the match is taken.
-        found = match(self._last_reference, pts, moved, p.scan_match, cov)
+        reference = self._recent_map(prev)
+        found = match(reference, pts, moved, p.scan_match, cov)
+        if not found.ok:
+            # A jump beyond the matcher's reach (its largest correction): the keyframes
+            # are at most ``keyframe_*`` apart, so standing still is a guess within it.
+            found = match(reference, pts, np.zeros(3), p.scan_match, cov)
         if found.ok:
             jump = relative(moved, found.pose)
             if np.hypot(jump[0], jump[1]) > p.ekf_jump_m or abs(jump[2]) > p.ekf_jump_rad:
@@ -354,7 +374,15 @@ class LoopClosingMapper:
         node = self.graph.add_node(compose(self.graph.poses[prev], step))
         self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
         self._keyframes.append(_Keyframe(ekf_pose.copy(), pts, self._keyframes[-1].travel_m + dist))
-        self._last_reference = ReferenceScan.build(pts, p.scan_match)
+
+    def _recent_map(self, last: int) -> ReferenceScan:
+        """The ``odometry_keyframes`` keyframes up to ``last`` merged in ``last``'s frame by their graph poses."""
+        p = self.params
+        poses = self.graph.poses
+        first = max(0, last - p.odometry_keyframes + 1)
+        pts = np.vstack([from_frame(self._keyframes[i].points_xy_m, relative(poses[last], poses[i]))
+                         for i in range(first, last + 1)])
+        return ReferenceScan.build(_thin(pts, p.keyframe_cell_m), p.scan_match)
 
     def _odometry_cov(self, dist_m: float, turn_rad: float) -> np.ndarray:
         """Covariance (3, 3) of an odometry edge over ``dist_m`` metres and ``turn_rad`` radians."""
@@ -417,8 +445,8 @@ class LoopClosingMapper:
         rel_cov = self.graph.relative_covariance(k, n)
         sigma_xy = float(np.sqrt(max(np.linalg.eigvalsh(rel_cov[:2, :2])[-1], 0.0)))
         sigma_th = float(np.sqrt(max(rel_cov[2, 2], 0.0)))
-        half_m = float(np.clip(p.window_sigmas * sigma_xy, p.min_window_m, p.max_window_m))
-        half_rad = float(np.clip(p.window_sigmas * sigma_th, p.min_window_rad, p.max_window_rad))
+        half_m = float(np.clip(p.window_sigmas * p.drift_scale * sigma_xy, p.min_window_m, p.max_window_m))
+        half_rad = float(np.clip(p.window_sigmas * p.drift_scale * sigma_th, p.min_window_rad, p.max_window_rad))
         if np.hypot(predicted[0], predicted[1]) > half_m + p.candidate_radius_m:
             return None
         return predicted, rel_cov, half_m, half_rad
@@ -471,7 +499,7 @@ class LoopClosingMapper:
             return None
         cov = p.match_cov_scale * refined.cov
         innovation = relative(predicted, refined.pose)
-        chi2 = float(innovation @ np.linalg.solve(rel_cov + cov, innovation))
+        chi2 = float(innovation @ np.linalg.solve(p.drift_scale**2 * rel_cov + cov, innovation))
         if not chi2 <= p.gate_chi2:
             count["gated"] += 1
             return None
