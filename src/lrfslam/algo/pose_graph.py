@@ -1,0 +1,393 @@
+"""A 2-D pose graph (SE(2)) optimised by sparse Levenberg–Marquardt, robust on loop edges.
+
+Symbols (inside this module only; public names are by role):
+
+* node poses ``x_k = (x_m, y_m, theta_rad)`` in one world frame, shape (K, 3);
+* an edge ``i -> j`` measures ``z = x_i ⊖ x_j`` (the pose of ``j`` in ``i``'s
+  frame, ``lrfslam.algo.geometry.relative``) with information ``Ω`` (3, 3)
+  (1/m², 1/(m·rad), 1/rad²);
+* residual ``e = (R_zᵀ (R_iᵀ (t_j − t_i) − t_z), wrap(θ_j − θ_i − θ_z))`` and its
+  squared Mahalanobis norm ``χ² = eᵀ Ω e``.
+
+Design choices
+--------------
+* **Gauge.** The first node is held fixed: its three columns are dropped from the
+  normal equations, so the solution is the unique one with that node where it
+  was (any other gauge is a rigid motion of it, ``tests/unit/test_pose_graph.py``).
+* **Sparse normal equations**, assembled from (E, 3, 3) Jacobian blocks with
+  numpy and solved by ``scipy.sparse.linalg.splu``: a graph of thousands of
+  keyframes solves in milliseconds; a chain plus a few loops stays banded.
+* **Levenberg–Marquardt** with a diagonal damping ``λ diag(H)``: Gauss–Newton
+  from a good initial guess converges in 2–3 steps, the damping only matters
+  when a closure first pulls a long loop shut (tens of degrees of heading).
+* **Robust loop edges.** Loop edges carry a Cauchy kernel
+  ``ρ(χ²) = c² log(1 + χ²/c²)``, solved by iteratively reweighted least squares
+  (weight ``1 / (1 + χ²/c²)``, recomputed each step, the step accepted on the
+  robust cost). A wrong closure that disagrees with the rest of the graph ends
+  with a small weight, which :meth:`PoseGraph.loop_weights` reports so the
+  caller can remove it. Odometry edges are plain least squares: they are
+  never outliers by construction (the chain they come from is continuous).
+* **Relative covariance** (:meth:`PoseGraph.relative_covariance`): the
+  covariance of node ``b`` seen from node ``a``, from the inverse of the
+  normal equations linearised at the current estimate, with node ``a`` as the
+  gauge. The loop search uses it as its search window.
+
+References
+----------
+G. Grisetti, R. Kümmerle, C. Stachniss, W. Burgard, "A tutorial on graph-based
+SLAM", IEEE ITS Magazine 2(4), 2010. P. Agarwal, G. D. Tipaldi, L. Spinello,
+C. Stachniss, W. Burgard, "Robust map optimization using dynamic covariance
+scaling", ICRA 2013 (the same down-weighting idea as the kernel here).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+from lrfslam.algo.checks import require_finite
+from lrfslam.algo.geometry import wrap_angle
+from lrfslam.errors import ConfigError, InputError
+
+
+@dataclass(frozen=True)
+class PoseGraphParams:
+    """Parameters of :meth:`PoseGraph.optimize`.
+
+    Attributes
+    ----------
+    max_iterations : int
+        Levenberg–Marquardt steps at most.
+    cauchy_scale : float
+        ``c`` of the Cauchy kernel on loop edges, in units of the edge's
+        Mahalanobis distance (dimensionless): a loop edge with ``χ² = c²`` has half
+        its weight.
+    initial_damping : float
+        ``λ`` of the first step (dimensionless, relative to diag(H)).
+    converged_step : float
+        The iteration stops once the largest step component is below this
+        (m and rad alike).
+    """
+
+    max_iterations: int = 10
+    cauchy_scale: float = 3.0
+    initial_damping: float = 1e-4
+    converged_step: float = 1e-4
+
+    def __post_init__(self) -> None:
+        require_finite(self, ("cauchy_scale", "initial_damping", "converged_step"), positive=True,
+                       what="pose graph ")
+        if self.max_iterations < 1:
+            raise ConfigError("pose graph max_iterations must be >= 1")
+
+
+@dataclass(frozen=True)
+class OptimizeReport:
+    """What :meth:`PoseGraph.optimize` did.
+
+    Attributes
+    ----------
+    iterations : int
+        Steps tried (accepted or not).
+    initial_cost, final_cost : float
+        Robust cost ``½ Σ ρ(χ²)`` before and after (dimensionless).
+    """
+
+    iterations: int
+    initial_cost: float
+    final_cost: float
+
+
+class PoseGraph:
+    """Nodes (poses) and relative-pose edges; the poses are optimised in place (mutable).
+
+    Parameters
+    ----------
+    params : PoseGraphParams
+
+    Attributes
+    ----------
+    poses : ndarray, shape (K, 3)
+        Current estimate of every node, ``(x_m, y_m, theta_rad)``.
+    """
+
+    def __init__(self, params: PoseGraphParams | None = None) -> None:
+        self.params = params or PoseGraphParams()
+        self._poses = np.zeros((0, 3))
+        self._n = 0
+        self._i: list[int] = []
+        self._j: list[int] = []
+        self._z: list[np.ndarray] = []
+        self._info: list[np.ndarray] = []
+        self._robust: list[bool] = []
+        self._alive: list[bool] = []
+
+    # -- building -------------------------------------------------------------------------------
+
+    @property
+    def poses(self) -> np.ndarray:
+        return self._poses[: self._n]
+
+    def __len__(self) -> int:
+        return self._n
+
+    def add_node(self, pose) -> int:
+        """Append a node with initial estimate ``pose`` (3,); returns its index."""
+        p = np.asarray(pose, dtype=float)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise InputError(f"a node pose must be 3 finite numbers, got {pose!r}")
+        if self._n == self._poses.shape[0]:
+            grown = np.zeros((max(16, 2 * self._n), 3))
+            grown[: self._n] = self._poses[: self._n]
+            self._poses = grown
+        self._poses[self._n] = p
+        self._n += 1
+        return self._n - 1
+
+    def set_pose(self, node: int, pose) -> None:
+        """Overwrite the estimate of ``node`` (3,), e.g. to re-seed a freshly added node."""
+        self._poses[self._check_node(node)] = np.asarray(pose, dtype=float)
+
+    def add_edge(self, i: int, j: int, measurement, information, robust: bool = False) -> int:
+        """Add an edge measuring node ``j`` in node ``i``'s frame; returns its index.
+
+        Parameters
+        ----------
+        i, j : int
+            Node indices, different.
+        measurement : array_like, shape (3,)
+            ``(dx_m, dy_m, dtheta_rad)`` of ``j`` in ``i``'s frame.
+        information : array_like, shape (3, 3)
+            Inverse covariance, symmetric positive definite.
+        robust : bool
+            Put the Cauchy kernel on it (loop closures).
+        """
+        self._check_node(i)
+        self._check_node(j)
+        z = np.asarray(measurement, dtype=float)
+        info = np.asarray(information, dtype=float)
+        if i == j or z.shape != (3,) or info.shape != (3, 3) or not (np.all(np.isfinite(z))
+                                                                       and np.all(np.isfinite(info))):
+            raise InputError("an edge needs two different nodes, a finite (3,) measurement and (3, 3) information")
+        self._i.append(i)
+        self._j.append(j)
+        self._z.append(z.copy())
+        self._info.append(0.5 * (info + info.T))
+        self._robust.append(bool(robust))
+        self._alive.append(True)
+        return len(self._i) - 1
+
+    def remove_edge(self, edge: int) -> None:
+        """Take an edge out of the problem (a closure found wrong); indices of the others stay."""
+        self._alive[edge] = False
+
+    def edge_nodes(self, edge: int) -> tuple[int, int]:
+        """The nodes ``(i, j)`` an edge joins."""
+        return self._i[edge], self._j[edge]
+
+    def edge_measurement(self, edge: int) -> np.ndarray:
+        """An edge's measurement (3,), node ``j`` in node ``i``'s frame."""
+        return self._z[edge].copy()
+
+    def edge_count(self) -> int:
+        """Edges in the problem (removed ones not counted)."""
+        return int(sum(self._alive))
+
+    def _check_node(self, node: int) -> int:
+        if not 0 <= node < self._n:
+            raise InputError(f"no node {node} (graph has {self._n})")
+        return node
+
+    # -- evaluation -----------------------------------------------------------------------------
+
+    def _arrays(self):
+        alive = np.flatnonzero(np.array(self._alive, dtype=bool))
+        i = np.array(self._i, dtype=np.int64)[alive]
+        j = np.array(self._j, dtype=np.int64)[alive]
+        z = np.array(self._z, dtype=float).reshape(-1, 3)[alive]
+        info = np.array(self._info, dtype=float).reshape(-1, 3, 3)[alive]
+        robust = np.array(self._robust, dtype=bool)[alive]
+        return alive, i, j, z, info, robust
+
+    @staticmethod
+    def _residuals(poses, i, j, z, with_jacobians: bool):
+        """Residuals (E, 3) and, if asked, their Jacobians (E, 3, 3) with respect to x_i and x_j."""
+        xi, xj = poses[i], poses[j]
+        ci, si = np.cos(xi[:, 2]), np.sin(xi[:, 2])
+        cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
+        dx, dy = xj[:, 0] - xi[:, 0], xj[:, 1] - xi[:, 1]
+        # d = R_iᵀ (t_j − t_i): node j's position in node i's frame.
+        d0, d1 = ci * dx + si * dy, -si * dx + ci * dy
+        a0, a1 = d0 - z[:, 0], d1 - z[:, 1]
+        e = np.column_stack((cz * a0 + sz * a1, -sz * a0 + cz * a1, wrap_angle(xj[:, 2] - xi[:, 2] - z[:, 2])))
+        if not with_jacobians:
+            return e, None, None
+        n = len(i)
+        rz_t = np.empty((n, 2, 2))
+        rz_t[:, 0, 0], rz_t[:, 0, 1], rz_t[:, 1, 0], rz_t[:, 1, 1] = cz, sz, -sz, cz
+        ri_t = np.empty((n, 2, 2))
+        ri_t[:, 0, 0], ri_t[:, 0, 1], ri_t[:, 1, 0], ri_t[:, 1, 1] = ci, si, -si, ci
+        # d(R_iᵀ)/dθ_i (t_j − t_i) = (d1, −d0).
+        ddtheta = np.column_stack((d1, -d0))
+        a = rz_t @ ri_t  # R_zᵀ R_iᵀ
+        jac_i = np.zeros((n, 3, 3))
+        jac_j = np.zeros((n, 3, 3))
+        jac_i[:, :2, :2] = -a
+        jac_i[:, :2, 2] = (rz_t @ ddtheta[:, :, None])[:, :, 0]
+        jac_i[:, 2, 2] = -1.0
+        jac_j[:, :2, :2] = a
+        jac_j[:, 2, 2] = 1.0
+        return e, jac_i, jac_j
+
+    def _robust_terms(self, chi2: np.ndarray, robust: np.ndarray):
+        """Per-edge robust cost ρ(χ²) and IRLS weight ρ'(χ²)."""
+        c2 = self.params.cauchy_scale ** 2
+        cost = np.where(robust, c2 * np.log1p(chi2 / c2), chi2)
+        weight = np.where(robust, 1.0 / (1.0 + chi2 / c2), 1.0)
+        return cost, weight
+
+    def _cost(self, poses, i, j, z, info, robust) -> float:
+        e, _, _ = self._residuals(poses, i, j, z, with_jacobians=False)
+        chi2 = _mahalanobis2(e, info)
+        return 0.5 * float(np.sum(self._robust_terms(chi2, robust)[0]))
+
+    def chi2(self) -> np.ndarray:
+        """``eᵀ Ω e`` of every edge at the current estimate, shape (edges added,); NaN for removed ones."""
+        alive, i, j, z, info, _ = self._arrays()
+        out = np.full(len(self._alive), np.nan)
+        if alive.size:
+            e, _, _ = self._residuals(self.poses, i, j, z, with_jacobians=False)
+            out[alive] = _mahalanobis2(e, info)
+        return out
+
+    def loop_weights(self) -> np.ndarray:
+        """Cauchy weight in (0, 1] of every edge at the current estimate (1 for plain edges, NaN if removed)."""
+        chi2 = self.chi2()
+        robust = np.array(self._robust, dtype=bool)
+        return np.where(np.isnan(chi2), np.nan, self._robust_terms(np.nan_to_num(chi2), robust)[1])
+
+    # -- solving --------------------------------------------------------------------------------
+
+    def _normal_equations(self, poses, i, j, z, info, robust, gauge: int):
+        """Sparse H (3(K−1) square) and gradient b with node ``gauge`` eliminated; also the robust weights."""
+        e, jac_i, jac_j = self._residuals(poses, i, j, z, with_jacobians=True)
+        chi2 = _mahalanobis2(e, info)
+        _, w = self._robust_terms(chi2, robust)
+        winfo = info * w[:, None, None]
+        # Stacked 3×3 products with matmul: einsum over three operands is several times slower here.
+        jti_w = np.swapaxes(jac_i, 1, 2) @ winfo
+        jtj_w = np.swapaxes(jac_j, 1, 2) @ winfo
+        blocks = {(0, 0): jti_w @ jac_i, (0, 1): jti_w @ jac_j, (1, 0): jtj_w @ jac_i, (1, 1): jtj_w @ jac_j}
+        grad_i = (jti_w @ e[:, :, None])[:, :, 0]
+        grad_j = (jtj_w @ e[:, :, None])[:, :, 0]
+        k = self._n
+        # Map node -> reduced block index (the gauge node dropped, -1).
+        reduced = np.arange(k) - (np.arange(k) > gauge)
+        reduced[gauge] = -1
+        ends = (reduced[i], reduced[j])
+        rows, cols, vals = [], [], []
+        off = np.arange(3)
+        for (a, b), blk in blocks.items():
+            ra, rb = ends[a], ends[b]
+            keep = (ra >= 0) & (rb >= 0)
+            r = (3 * ra[keep])[:, None, None] + off[None, :, None]
+            c = (3 * rb[keep])[:, None, None] + off[None, None, :]
+            rows.append(np.broadcast_to(r, blk[keep].shape).ravel())
+            cols.append(np.broadcast_to(c, blk[keep].shape).ravel())
+            vals.append(blk[keep].ravel())
+        size = 3 * (k - 1)
+        h = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(size, size)).tocsc()
+        b = np.zeros(size)
+        for rn, g in ((ends[0], grad_i), (ends[1], grad_j)):
+            keep = rn >= 0
+            np.add.at(b, ((3 * rn[keep])[:, None] + off).ravel(), g[keep].ravel())
+        return h, b, reduced
+
+    def optimize(self, robust: bool = True) -> OptimizeReport:
+        """Levenberg–Marquardt on all nodes but the first; updates :attr:`poses`.
+
+        With ``robust`` False the loop edges' kernel is off (plain least
+        squares). The kernel needs a good start: a closure that moves a long
+        loop by metres starts with a tiny weight and would stay an "outlier"
+        however right it is, so a caller that trusts its closures solves
+        without the kernel first and then with it.
+
+        Raises
+        ------
+        InputError
+            If a node other than the first is not reached by any edge (the
+            problem is then singular).
+        """
+        _, i, j, z, info, robust_edges = self._arrays()
+        robust_edges &= robust
+        poses = self.poses.copy()
+        if self._n < 2 or i.size == 0:
+            return OptimizeReport(0, 0.0, 0.0)
+        cost = self._cost(poses, i, j, z, info, robust_edges)
+        initial = cost
+        lam = self.params.initial_damping
+        it = 0
+        for it in range(1, self.params.max_iterations + 1):
+            h, b, _ = self._normal_equations(poses, i, j, z, info, robust_edges, gauge=0)
+            diag = h.diagonal()
+            if np.any(diag <= 0):
+                raise InputError("pose graph is not connected: a node has no edge")
+            step = None
+            while lam < 1e8:
+                damped = h + sp.diags(lam * diag, format="csc")
+                dx = -_factorise(damped).solve(b)
+                trial = poses.copy()
+                trial[1:] += dx.reshape(-1, 3)
+                trial[:, 2] = wrap_angle(trial[:, 2])
+                trial_cost = self._cost(trial, i, j, z, info, robust_edges)
+                if trial_cost <= cost:
+                    step = dx
+                    poses, cost = trial, trial_cost
+                    lam = max(lam / 10.0, 1e-12)
+                    break
+                lam *= 10.0
+            if step is None or np.max(np.abs(step)) < self.params.converged_step:
+                break
+        self._poses[: self._n] = poses
+        return OptimizeReport(it, initial, cost)
+
+    def relative_covariance(self, a: int, b: int) -> np.ndarray:
+        """Covariance (3, 3) of node ``b``'s pose in node ``a``'s frame, at the current estimate.
+
+        Node ``a`` is taken as the gauge, so this is the uncertainty the graph
+        leaves between the two (m², m·rad, rad²), loop-edge weights included.
+        """
+        self._check_node(a)
+        self._check_node(b)
+        if a == b:
+            return np.zeros((3, 3))
+        _, i, j, z, info, robust = self._arrays()
+        h, _, reduced = self._normal_equations(self.poses, i, j, z, info, robust, gauge=a)
+        rb = reduced[b]
+        rhs = np.zeros((h.shape[0], 3))
+        rhs[3 * rb: 3 * rb + 3] = np.eye(3)
+        cov_world = _factorise(h).solve(rhs)[3 * rb: 3 * rb + 3]
+        # With x_a fixed, the world-frame covariance of x_b rotated into a's frame.
+        c, s = np.cos(self.poses[a, 2]), np.sin(self.poses[a, 2])
+        rot_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        cov = rot_t @ cov_world @ rot_t.T
+        return 0.5 * (cov + cov.T)
+
+
+def _mahalanobis2(e: np.ndarray, info: np.ndarray) -> np.ndarray:
+    """``eᵀ Ω e`` per row: residuals (E, 3), information (E, 3, 3); shape (E,)."""
+    return np.sum((info @ e[:, :, None])[:, :, 0] * e, axis=1)
+
+
+def _factorise(h: sp.csc_matrix):
+    """Sparse LU of the symmetric normal equations.
+
+    The minimum-degree ordering of ``Hᵀ + H`` with symmetric pivoting halves the
+    fill-in of the default column ordering on a chain with loops (4 ms instead
+    of 13 ms for 1,400 nodes).
+    """
+    return splu(h, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})

@@ -1,0 +1,168 @@
+"""Loop-closing back end: the simulator's loop drift removed, a twin corridor not taken for the original."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
+from lrfslam.errors import ConfigError, InputError
+from lrfslam.sim.simulator import OdometryNoise, SimConfig, Simulator
+
+
+def aligned_errors(poses: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Position error (m) of each pose once the trajectory is moved so its first pose is the truth's, (T,)."""
+    moved = np.array([compose(truth[0], relative(poses[0], p)) for p in poses])
+    return np.hypot(*(moved[:, :2] - truth[:, :2]).T)
+
+
+def points(ranges_m: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
+    ok = np.isfinite(ranges_m)
+    return np.column_stack((ranges_m[ok] * np.cos(angles_rad[ok]), ranges_m[ok] * np.sin(angles_rad[ok])))
+
+
+def closures_are_right(mapper: LoopClosingMapper, truth_per_scan: np.ndarray, tol_m: float = 0.3) -> list[bool]:
+    """For every closure in the graph: does its measurement agree with the truth (within ``tol_m``)?"""
+    first_scan = mapper.keyframe_scans()
+    out = []
+    for k, n, z in mapper.closures():
+        true_rel = relative(truth_per_scan[first_scan[k]], truth_per_scan[first_scan[n]])
+        err = relative(true_rel, z)
+        out.append(bool(np.hypot(err[0], err[1]) < tol_m and abs(err[2]) < 0.05))
+    return out
+
+
+@pytest.fixture(scope="module")
+def hallway_run():
+    """Two laps of the simulator's hallway loop, fed with drifting odometry as the 'EKF' pose."""
+    cfg = SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3,
+                    odometry=OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02))
+    sim = Simulator(cfg)
+    lap_s = 62.0  # the loop is about 62 m long
+    mapper = LoopClosingMapper()
+    truth, odom, online = [], [], []
+    for frame, _ in zip(sim, range(int(2 * lap_s * cfg.rate_hz / cfg.speed_mps)), strict=False):
+        online.append(mapper.add_scan(int(frame.t_s * 1e9), frame.odom_pose, np.zeros((3, 3)),
+                                      points(frame.scan.ranges_m, frame.scan.angles_rad)))
+        truth.append(frame.true_pose)
+        odom.append(frame.odom_pose)
+    return mapper, np.array(truth), np.array(odom), np.array(online)
+
+
+def test_drift_round_the_loop_is_removed(hallway_run):
+    mapper, truth, odom, online = hallway_run
+    stamps, final = mapper.trajectory()
+    assert stamps.shape == (len(truth),) and final.shape == truth.shape
+    odom_err = aligned_errors(odom, truth)
+    final_err = aligned_errors(final, truth)
+    assert odom_err.max() > 1.0  # there is drift to remove
+    assert mapper.stats.accepted >= 5
+    assert all(closures_are_right(mapper, truth))
+    assert final_err.max() < 0.25
+    assert np.mean(final_err) < 0.1
+    # Online, each pose is as good as the closures known by then: after the first lap it is corrected.
+    lap = len(truth) // 2
+    assert np.mean(aligned_errors(online, truth)[lap:]) < 0.5 * np.mean(odom_err[lap:])
+
+
+def test_replay_is_deterministic(hallway_run):
+    mapper, truth, odom, online = hallway_run
+    again = LoopClosingMapper()
+    sim = Simulator(SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3, odometry=OdometryNoise(
+        trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02)))
+    for frame, _ in zip(sim, range(len(truth)), strict=False):
+        again.add_scan(int(frame.t_s * 1e9), frame.odom_pose, np.zeros((3, 3)),
+                       points(frame.scan.ranges_m, frame.scan.angles_rad))
+    assert np.array_equal(again.trajectory()[1], mapper.trajectory()[1])
+
+
+# -- two identical corridors ---------------------------------------------------------------------
+
+def raycast(walls: np.ndarray, pose, angles_rad: np.ndarray, max_range_m: float = 8.0) -> np.ndarray:
+    """Range along each beam to the nearest wall (two-sided segments (M, 4)), inf beyond ``max_range_m``."""
+    x, y, th = pose
+    d = np.column_stack((np.cos(th + angles_rad), np.sin(th + angles_rad)))  # (B, 2)
+    p0, p1 = walls[:, :2], walls[:, 2:]
+    e = p1 - p0  # (M, 2)
+    denom = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]  # (B, M)
+    w = p0[None, :, :] - np.array([x, y])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / denom
+        u = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / denom
+    hit = (np.abs(denom) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1)
+    r = np.where(hit, t, np.inf).min(axis=1)
+    return np.where(r <= max_range_m, r, np.inf)
+
+
+def twin_corridors(gap_m: float) -> np.ndarray:
+    """Corridors A (y = 0) and B (y = gap_m), alike wall for wall, and C (y = 2 gap_m) unlike them.
+
+    The robot drives A east, turns north up the east connector into C, drives C
+    west, comes down the west connector into B and drives B east: A and B are
+    seen the same way round, ``gap_m`` apart. Returns walls (M, 4).
+    """
+    h = 0.8  # half width of every corridor
+    walls = []
+    for yc, stubs in ((0.0, (3.0, 7.0, 8.5, 13.0, 18.0, 21.0)), (gap_m, (3.0, 7.0, 8.5, 13.0, 18.0, 21.0)),
+                      (2 * gap_m, (2.0, 5.5, 9.0, 14.0, 16.5, 20.0))):
+        for x in stubs:  # wall stubs 0.35 m deep, alternately on the right and left walls
+            side = -1.0 if x in stubs[::2] else 1.0
+            walls.append((x, yc + side * h, x, yc + side * (h - 0.35)))
+    a, b, c = 0.0, gap_m, 2 * gap_m
+    walls += [
+        (-2, a - h, 26, a - h), (-2, a + h, 24, a + h), (-2, a - h, -2, a + h),  # A, closed at the west
+        (24, a + h, 24, c - h), (26, a - h, 26, c + h),  # east connector A -> C
+        (-2, c + h, 26, c + h), (0, c - h, 24, c - h),  # C
+        (-2, b - h, -2, c + h), (0, b + h, 0, c - h),  # west connector C -> B
+        (-2, b - h, 24, b - h), (0, b + h, 24, b + h),  # B, closed at the east by the connector's wall
+    ]
+    return np.array(walls, dtype=float)
+
+
+def twin_path(gap_m: float, step_m: float) -> np.ndarray:
+    """True poses (T, 3) every ``step_m`` along A east, up, C west, down, B east."""
+    legs = [((1.0, 0.0), (25.0, 0.0)), ((25.0, 0.0), (25.0, 2 * gap_m)), ((25.0, 2 * gap_m), (-1.0, 2 * gap_m)),
+            ((-1.0, 2 * gap_m), (-1.0, gap_m)), ((-1.0, gap_m), (22.0, gap_m))]
+    poses = []
+    for (x0, y0), (x1, y1) in legs:
+        n = int(np.hypot(x1 - x0, y1 - y0) / step_m)
+        th = np.arctan2(y1 - y0, x1 - x0)
+        poses += [(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n, th) for i in range(n)]
+    return np.array(poses)
+
+
+@pytest.mark.parametrize("gap_m", [4.0, 6.0])
+def test_a_twin_corridor_is_not_taken_for_the_original(gap_m):
+    rng = np.random.default_rng(7)
+    walls = twin_corridors(gap_m)
+    truth = twin_path(gap_m, step_m=0.2)
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    mapper = LoopClosingMapper()
+    # 'EKF' poses: the truth with a slow heading drift, as a filter on good odometry would give.
+    ekf = [truth[0]]
+    for k in range(1, len(truth)):
+        step = relative(truth[k - 1], truth[k])
+        ekf.append(compose(ekf[-1], step + (0.0, 0.0, 0.002 * np.hypot(step[0], step[1]))))
+    for k, pose in enumerate(truth):
+        r = raycast(walls, pose, angles) + rng.normal(0.0, 0.01, angles.size)
+        mapper.add_scan(k, ekf[k], np.zeros((3, 3)), points(r, angles))
+    assert mapper.stats.searched > 0  # A's keyframes were searched from B...
+    assert all(closures_are_right(mapper, truth))  # ...but no wrong closure is in the graph
+    _, final = mapper.trajectory()
+    # B stays gap_m from A: no closure pulled it over.
+    in_b = truth[:, 1] == gap_m
+    assert np.all(np.abs(wrap_angle(final[in_b, 2] - truth[in_b, 2])) < 0.2)
+    assert aligned_errors(final, truth).max() < 1.0
+
+
+def test_bad_input_is_refused():
+    with pytest.raises(ConfigError):
+        LoopClosureParams(min_window_m=2.0, max_window_m=1.0)
+    with pytest.raises(ConfigError):
+        LoopClosureParams(query_keyframes=0)
+    mapper = LoopClosingMapper()
+    with pytest.raises(InputError):
+        mapper.add_scan(0, (0.0, 0.0), np.zeros((3, 3)), np.zeros((0, 2)))
+    with pytest.raises(InputError):
+        mapper.add_scan(0, (0.0, 0.0, np.nan), np.zeros((3, 3)), np.zeros((0, 2)))

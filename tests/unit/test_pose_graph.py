@@ -1,0 +1,131 @@
+"""Pose graph: a noisy loop is recovered, the gauge does not matter, an outlier closure is down-weighted."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.algo.pose_graph import PoseGraph, PoseGraphParams
+from lrfslam.errors import ConfigError, InputError
+
+SIGMA = np.array([0.02, 0.02, 0.01])  # odometry noise per edge (m, m, rad)
+
+
+def square_loop(laps: int = 1, side: int = 10, step_m: float = 0.5) -> np.ndarray:
+    """True poses (K, 3) driving round a square, ``side`` steps a side."""
+    poses = [np.zeros(3)]
+    for _ in range(laps):
+        for _ in range(4):
+            for k in range(side):
+                turn = np.pi / 2 if k == side - 1 else 0.0
+                poses.append(compose(poses[-1], (step_m, 0.0, turn)))
+    return np.array(poses)
+
+
+def noisy_graph(truth: np.ndarray, rng: np.random.Generator, loops: list[tuple[int, int]],
+                params: PoseGraphParams | None = None) -> PoseGraph:
+    graph = PoseGraph(params)
+    info = np.diag(1.0 / SIGMA**2)
+    pose = truth[0].copy()
+    graph.add_node(pose)
+    for k in range(1, len(truth)):
+        z = relative(truth[k - 1], truth[k]) + rng.normal(0.0, SIGMA)
+        pose = compose(pose, z)
+        graph.add_node(pose)
+        graph.add_edge(k - 1, k, z, info)
+    for a, b in loops:
+        z = relative(truth[a], truth[b]) + rng.normal(0.0, SIGMA / 2)
+        graph.add_edge(a, b, z, np.diag(4.0 / SIGMA**2), robust=True)
+    return graph
+
+
+def position_error(poses: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Distance of each pose from the truth after aligning the first poses (m), shape (K,)."""
+    aligned = np.array([compose(truth[0], relative(poses[0], p)) for p in poses])
+    return np.hypot(*(aligned[:, :2] - truth[:, :2]).T)
+
+
+def test_noisy_loop_is_recovered():
+    rng = np.random.default_rng(1)
+    truth = square_loop(laps=2)
+    n = len(truth)
+    loops = [(k, k + 40) for k in range(0, n - 40, 3)]
+    graph = noisy_graph(truth, rng, loops)
+    before = position_error(graph.poses, truth)
+    report = graph.optimize()
+    after = position_error(graph.poses, truth)
+    assert report.final_cost < report.initial_cost
+    assert before.max() > 0.3  # the chain alone drifts
+    assert after.max() < 0.1
+    # The χ² of a consistent graph is about its degrees of freedom.
+    chi2 = graph.chi2()
+    dof = 3 * graph.edge_count() - 3 * (n - 1)
+    assert 0.5 * dof < chi2.sum() < 2.0 * dof
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.floats(-20, 20), st.floats(-20, 20), st.floats(-np.pi, np.pi))
+def test_solution_is_invariant_to_the_gauge(tx, ty, th):
+    rng = np.random.default_rng(2)
+    truth = square_loop()
+    loops = [(0, len(truth) - 1), (5, 35)]
+    plain = noisy_graph(truth, np.random.default_rng(2), loops)
+    plain.optimize()
+    moved = noisy_graph(truth, rng, loops)
+    offset = np.array([tx, ty, th])
+    for k, p in enumerate(moved.poses.copy()):
+        moved.set_pose(k, compose(offset, p))
+    moved.optimize()
+    back = np.array([relative(offset, p) for p in moved.poses])
+    assert np.allclose(back[:, :2], plain.poses[:, :2], atol=1e-6)
+    assert np.allclose(wrap_angle(back[:, 2] - plain.poses[:, 2]), 0.0, atol=1e-8)
+
+
+def test_outlier_loop_edge_is_down_weighted():
+    rng = np.random.default_rng(3)
+    truth = square_loop()
+    n = len(truth)
+    graph = noisy_graph(truth, rng, [])
+    good = [graph.add_edge(0, n - 1, relative(truth[0], truth[n - 1]), np.diag(4.0 / SIGMA**2), robust=True),
+            graph.add_edge(2, n - 3, relative(truth[2], truth[n - 3]), np.diag(4.0 / SIGMA**2), robust=True)]
+    # A closure 3 m and 60° wrong, as sure of itself as the good ones.
+    wrong = compose(relative(truth[10], truth[30]), (3.0, 0.0, 1.0))
+    bad = graph.add_edge(10, 30, wrong, np.diag(4.0 / SIGMA**2), robust=True)
+    graph.optimize()
+    w = graph.loop_weights()
+    assert w[bad] < 0.01
+    assert all(w[g] > 0.5 for g in good)
+    assert position_error(graph.poses, truth).max() < 0.15
+    # Removed, the rest fits without it.
+    graph.remove_edge(bad)
+    graph.optimize()
+    assert np.isnan(graph.chi2()[bad])
+    assert position_error(graph.poses, truth).max() < 0.15
+
+
+def test_relative_covariance_of_a_chain_adds_up():
+    graph = PoseGraph()
+    cov = np.diag([0.01, 0.02, 0.001])
+    graph.add_node(np.zeros(3))
+    for k in range(1, 6):
+        graph.add_node((k, 0.0, 0.0))
+        graph.add_edge(k - 1, k, (1.0, 0.0, 0.0), np.linalg.inv(cov))
+    rel = graph.relative_covariance(2, 5)
+    # Three straight unit steps: heading variance adds up, lateral picks up the lever arms 1, 2 (and 0).
+    assert rel[2, 2] == pytest.approx(3 * 0.001)
+    assert rel[0, 0] == pytest.approx(3 * 0.01)
+    assert rel[1, 1] == pytest.approx(3 * 0.02 + 0.001 * (1 + 4))
+
+
+def test_bad_input_is_refused():
+    with pytest.raises(ConfigError):
+        PoseGraphParams(cauchy_scale=0.0)
+    graph = PoseGraph()
+    graph.add_node(np.zeros(3))
+    with pytest.raises(InputError):
+        graph.add_edge(0, 1, np.zeros(3), np.eye(3))
+    with pytest.raises(InputError):
+        graph.add_node((np.nan, 0.0, 0.0))
