@@ -1,4 +1,4 @@
-"""The five processes of the pipeline, one module each (installed as ``lrfslam.services``).
+"""The processes of the pipeline, one module each (installed as ``lrfslam.services``).
 
 Each module defines ``SPEC``: its config dataclass, input and output topics and
 step. :data:`NAMES` is the pipeline order; :func:`spec` imports one lazily so a
@@ -15,7 +15,7 @@ from typing import Any
 from lrfslam.runtime.chain import DEFAULT_ROBOT, Stage, configure
 from lrfslam.runtime.step import ServiceSpec
 
-NAMES: tuple[str, ...] = ("sensor", "denoise", "features", "slam", "recorder")
+NAMES: tuple[str, ...] = ("sensor", "denoise", "features", "slam", "mapper", "recorder")
 
 #: The tables a config file may hold: the bus's and one per service.
 CONFIG_TABLES: tuple[str, ...] = ("bus", *NAMES)

@@ -18,9 +18,9 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
+from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
@@ -71,10 +71,12 @@ class MapperStep(StepBase):
                 break
             self.waiting.popleft()
             outs += self._place(state)
-        # Scans older than every waiting state are never asked for again.
-        oldest = self.waiting[0].stamp_ns if self.waiting else self.newest_scan_ns + 1
-        for seq in [q for q, (stamp, _) in self.scans.items() if stamp < oldest]:
+        # Scans no newer than the last placed state are never asked for again; and however many
+        # scans come without states, no more are kept than states may wait.
+        for seq in [q for q, (stamp, _) in self.scans.items() if stamp <= self._last_stamp]:
             del self.scans[seq]
+        while len(self.scans) > 2 * self.cfg.max_waiting_states + 2:
+            del self.scans[min(self.scans, key=lambda q: (self.scans[q][0], q))]
         return outs
 
     def _place(self, state: t.SlamState) -> list[Output]:

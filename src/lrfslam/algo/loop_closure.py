@@ -335,6 +335,12 @@ class LoopClosingMapper:
         kf = np.array(self._scan_kf, dtype=np.int64)
         return np.searchsorted(kf, np.arange(len(self._keyframes)))
 
+    def keyframe_slam_poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stamps (ns, (K,)) of the scans that made the keyframes, and their EKF poses (K, 3)."""
+        stamps = np.array(self._stamps, dtype=np.int64)[self.keyframe_scans()] if self._keyframes \
+            else np.zeros(0, np.int64)
+        return stamps, np.array([k.ekf_pose for k in self._keyframes], dtype=float).reshape(-1, 3)
+
     def closures(self) -> list[tuple[int, int, np.ndarray]]:
         """The closures in the graph: (old keyframe, new keyframe, pose of the new in the old's frame (3,))."""
         return [(self.graph.edge_nodes(e)[0], self.graph.edge_nodes(e)[1], self.graph.edge_measurement(e))

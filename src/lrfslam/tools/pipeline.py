@@ -37,7 +37,7 @@ from lrfslam.runtime.runner import setup_logging
 
 log = logging.getLogger("lrfslam.pipeline")
 
-DEFAULT_STAGES = ("denoise", "features", "slam")
+DEFAULT_STAGES = ("denoise", "features", "slam", "mapper")
 
 
 def stage_names(text: str) -> tuple[str, ...]:

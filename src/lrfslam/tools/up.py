@@ -33,7 +33,9 @@ from lrfslam.tools.status import client_config
 
 log = logging.getLogger("lrfslam.up")
 
-START_ORDER = ("recorder", "slam", "features", "denoise", "sensor")
+START_ORDER = ("recorder", "mapper", "slam", "features", "denoise", "sensor")
+#: Stages ``--skip`` may leave out (every other one is needed for SLAM to run at all).
+OPTIONAL = ("mapper",)
 
 
 @dataclass
@@ -129,17 +131,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", help="TOML config passed to every service")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="SERVICE.NAME=VALUE",
                         help="override one service setting, e.g. --set features.mode=paper")
+    parser.add_argument("--skip", action="append", default=[], choices=OPTIONAL, metavar="SERVICE",
+                        help="leave a stage out: --skip mapper runs the EKF without loop closing (with "
+                             "--set slam.scan_matching=false, the paper's filter alone)")
     parser.add_argument("--recordings", default="recordings", help="folder for the MCAP recording")
     parser.add_argument("--max-restarts", type=int, default=3)
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
     args = parser.parse_args(argv)
     setup_logging("up", "INFO")
 
-    extra: dict[str, list[str]] = {n: [] for n in START_ORDER}
+    order = tuple(n for n in START_ORDER if n not in args.skip)
+    extra: dict[str, list[str]] = {n: [] for n in order}
     for item in args.sets:
         service, dot, rest = item.partition(".")
         if not dot or service not in extra:
-            parser.error(f"--set expects SERVICE.NAME=VALUE with SERVICE in {', '.join(START_ORDER)}: {item!r}")
+            parser.error(f"--set expects SERVICE.NAME=VALUE with SERVICE in {', '.join(order)}: {item!r}")
         extra[service] += ["--set", rest]
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     recording = Path(args.recordings) / f"{stamp}_{args.robot}.mcap"
@@ -152,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     router = Child("router", [sys.executable, "-m", "lrfslam.cli", "router", "--log-level", args.log_level]
                    + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)])
     router.start()
-    children = {n: Child(n, child_argv(n, args, endpoint, extra[n])) for n in START_ORDER}
+    children = {n: Child(n, child_argv(n, args, endpoint, extra[n])) for n in order}
     observer = Observer()
     counts: Counter = Counter()
     started = time.monotonic()
@@ -166,10 +172,10 @@ def main(argv: list[str] | None = None) -> int:
         subs = [session.declare_subscriber(topics.key(args.robot, topics.TRUTH.name), observer.on_truth),
                 session.declare_subscriber(topics.key(args.robot, topics.SLAM_STATE.name), observer.on_state),
                 session.declare_subscriber(topics.health_key(args.robot, topics.ANY), observer.on_health)]
-        for name in START_ORDER[:-1]:
+        for name in order[:-1]:
             children[name].start()
-        ready = wait_alive(session, args.robot, list(START_ORDER[:-1]), 30.0)
-        missing = set(START_ORDER[:-1]) - ready
+        ready = wait_alive(session, args.robot, list(order[:-1]), 30.0)
+        missing = set(order[:-1]) - ready
         if missing:
             log.warning("no liveliness token yet from %s; starting the sensor anyway", ", ".join(sorted(missing)))
         children["sensor"].start()
@@ -192,8 +198,9 @@ def main(argv: list[str] | None = None) -> int:
         log.info("stopping: sensor first, then draining the pipeline")
         children["sensor"].stop(10)
         _drain(observer, 5.0)
-        for name in ("denoise", "features", "slam", "recorder"):
-            children[name].stop(15)
+        for name in ("denoise", "features", "slam", "mapper", "recorder"):
+            if name in children:
+                children[name].stop(15)
         time.sleep(0.3)  # let the last health messages arrive
         for sub in subs:
             sub.undeclare()
@@ -253,7 +260,7 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
     lines = ["", f"lrfslam up: ran {wall_s:.1f} s", "", "stage      in          out         dropped  errors  restarts  exit"]
     with observer.lock:
         health = dict(observer.health)
-    for name in START_ORDER:
+    for name, child in children.items():
         c = {}
         if name in health:
             try:
@@ -263,7 +270,6 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
         ins = sum(v for k, v in c.items() if k.startswith("in."))
         outs = sum(v for k, v in c.items() if k.startswith("out.") and not k.startswith("out.health"))
         errs = sum(v for k, v in c.items() if k.startswith("error.") or ".error" in k)
-        child = children[name]
         code = child.proc.returncode if child.proc else None
         lines.append(f"{name:10s} {ins:<11d} {outs:<11d} {c.get('drop.queue', 0):<8d} {errs:<7d} "
                      f"{child.restarts:<9d} {code}")
