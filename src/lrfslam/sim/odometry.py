@@ -136,13 +136,13 @@ class SystematicOdometryError:
 
 #: No systematic error: odometry as the random walks alone make it.
 CALIBRATED = SystematicOdometryError()
-#: An uncalibrated indoor robot: 1.5 % long on distance (worn tyres measured new), 2 % short
-#: on turns (wheelbase set 2 % too wide), 1 mrad/m of curve from a 0.03 % wheel
-#: radius difference on a 0.33 m wheelbase, and a slip every 40 m on average (door
-#: thresholds, cables). Over a 150 m loop this alone is metres of drift.
+#: An uncalibrated indoor robot: 1.5 % long on distance (worn tyres, nominal radius), 2 % long
+#: on turns (wheelbase set 2 % too narrow), 1 mrad/m of left curve from a 0.03 % wheel radius
+#: difference on a 0.33 m wheelbase, and a slip every 40 m on average (door thresholds,
+#: cables). The two heading errors add up on a loop driven counter-clockwise.
 REALISTIC = SystematicOdometryError(
     distance_scale=0.015,
-    rotation_scale=-0.02,
+    rotation_scale=0.02,
     heading_drift_rad_per_m=0.001,
     slip_rate_per_m=0.025,
     slip_trans_sigma_m=0.10,
