@@ -307,3 +307,14 @@ def test_outline_rejects_overlapping_and_unknown_features():
         outline(square, [(Feature("hole", 1.0, 1.0),), (), (), ()])
     with pytest.raises(ConfigError):
         outline(square, [()])
+
+
+def test_large_building_variants_differ_from_it_in_one_ingredient_each():
+    full = scenario("large_building")
+    empty, uncalibrated, people = (scenario(f"large_building_{v}") for v in ("empty", "uncalibrated", "people"))
+    for variant in (empty, uncalibrated, people):
+        assert variant.build is full.build and variant.path is full.path
+    assert empty.n_walkers == 0 and empty.odometry_error != full.odometry_error
+    assert uncalibrated.n_walkers == 0 and uncalibrated.odometry_error == full.odometry_error
+    assert people.n_walkers == full.n_walkers and people.odometry_error == empty.odometry_error
+    np.testing.assert_array_equal(people.walker_lanes_m, full.walker_lanes_m)

@@ -153,6 +153,12 @@ _SCENARIOS = {
     # What ACES is: a big building, people, clutter, glass, and an uncalibrated robot.
     "large_building": Scenario(buildings.large_building, buildings.large_building_path,
                                buildings.large_building_lanes(), n_walkers=6, odometry_error=REALISTIC),
+    # The same map with one ingredient each, so a command line can tell which one breaks a filter.
+    "large_building_empty": Scenario(buildings.large_building, buildings.large_building_path),
+    "large_building_uncalibrated": Scenario(buildings.large_building, buildings.large_building_path,
+                                            odometry_error=REALISTIC),
+    "large_building_people": Scenario(buildings.large_building, buildings.large_building_path,
+                                      buildings.large_building_lanes(), n_walkers=6),
     # Only the aliasing: a calibrated robot, nobody about.
     "twin_corridors": Scenario(buildings.twin_corridors, buildings.twin_corridors_path),
 }
