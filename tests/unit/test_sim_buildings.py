@@ -6,6 +6,8 @@ import itertools
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lrfslam.errors import ConfigError
 from lrfslam.sim.buildings import (
@@ -318,3 +320,37 @@ def test_large_building_variants_differ_from_it_in_one_ingredient_each():
     assert uncalibrated.n_walkers == 0 and uncalibrated.odometry_error == full.odometry_error
     assert people.n_walkers == full.n_walkers and people.odometry_error == empty.odometry_error
     np.testing.assert_array_equal(people.walker_lanes_m, full.walker_lanes_m)
+
+
+def test_people_keep_clear_of_the_robot_path():
+    _, poses = _path_samples("large_building", 6000)
+    lanes = scenario("large_building").walker_lanes_m
+    # Body radius 0.2 m: at least 0.3 m between the scanner and a passing person.
+    assert _point_segment_distance(poses[:, :2], lanes).min() >= 0.5 - 1e-9
+
+
+@st.composite
+def _recess_lists(draw):
+    """Non-overlapping recesses on a 10 m face, kept 2.1 m from its ends so no two faces' recesses meet."""
+    n = draw(st.integers(0, 4))
+    cuts = sorted(draw(st.lists(st.floats(2.1, 7.9), min_size=2 * n, max_size=2 * n, unique=True)))
+    feats = []
+    for a, b in zip(cuts[::2], cuts[1::2], strict=True):
+        if b - a > 0.05 and (not feats or a - (feats[-1].s_m + feats[-1].width_m) > 0.05):
+            feats.append(recess(a, b - a, draw(st.floats(0.1, 2.0))))
+    return tuple(feats)
+
+
+@settings(max_examples=40, deadline=None)
+@given(faces=st.lists(_recess_lists(), min_size=4, max_size=4), free_inside=st.booleans())
+def test_outline_of_recesses_is_a_manhattan_polygon_of_right_angle_corners(faces, free_inside):
+    square = [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)]
+    # A room is counter-clockwise, a solid block clockwise (free space on the left).
+    seg, material = outline(square if free_inside else square[::-1], faces)
+    w = World(seg, "outline", material=material)
+    c = w.corners()
+    assert len(c) == len(seg) and len(w.free_endpoints()) == 0
+    np.testing.assert_allclose(c.angle_deg, 90.0)
+    # A simple rectilinear polygon has four more convex than reflex vertices.
+    inside, outside = (c.kind == "concave").sum(), (c.kind == "convex").sum()
+    assert (inside - outside if free_inside else outside - inside) == 4
