@@ -1,4 +1,9 @@
-"""Built-in worlds: the hallway loop driven by ``lrfslam up``, and small test scenes.
+"""Built-in worlds: the hallway loop driven by ``lrfslam up``, the large worlds, and small test scenes.
+
+A registered world is a :class:`Scenario`: the map, the loop the robot drives, and
+what comes with the place (people pacing its corridors, the robot's odometry
+calibration), so a world name alone selects a whole experiment. The large worlds
+are in ``buildings``.
 
 All maps are Manhattan-style, as the paper assumes (straight walls, right-angle
 corners, hallways at least 1.5 m wide). The small scenes put the robot at the
@@ -7,9 +12,14 @@ origin facing +x unless stated otherwise.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from lrfslam.errors import ConfigError
+from lrfslam.sim import buildings
+from lrfslam.sim.odometry import CALIBRATED, REALISTIC, SystematicOdometryError
 from lrfslam.sim.world import World, closed_polygon, polyline
 
 # fmt: off
@@ -114,27 +124,65 @@ def hallway_loop_path() -> np.ndarray:
     return np.array(_HALLWAY_PATH, dtype=float)
 
 
-_LOOP_WORLDS = {"hallway_loop": (hallway_loop, hallway_loop_path)}
+@dataclass(frozen=True)
+class Scenario:
+    """A registered world and what comes with it.
+
+    Attributes
+    ----------
+    build : callable () -> World
+    path : callable () -> ndarray, shape (P, 2)
+        Closed-loop waypoints, metres.
+    walker_lanes_m : ndarray, shape (L, 4)
+        Lanes people may pace, metres (see ``people``).
+    n_walkers : int
+        People on those lanes unless ``SimConfig.n_walkers`` says otherwise.
+    odometry_error : SystematicOdometryError
+        The robot's calibration errors and slip unless ``SimConfig.odometry_error`` says otherwise.
+    """
+
+    build: Callable[[], World]
+    path: Callable[[], np.ndarray]
+    walker_lanes_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    n_walkers: int = 0
+    odometry_error: SystematicOdometryError = CALIBRATED
+
+
+_SCENARIOS = {
+    "hallway_loop": Scenario(hallway_loop, hallway_loop_path),
+    # What ACES is: a big building, people, clutter, glass, and an uncalibrated robot.
+    "large_building": Scenario(buildings.large_building, buildings.large_building_path,
+                               buildings.large_building_lanes(), n_walkers=6, odometry_error=REALISTIC),
+    # The same map with one ingredient each, so a command line can tell which one breaks a filter.
+    "large_building_empty": Scenario(buildings.large_building, buildings.large_building_path),
+    "large_building_uncalibrated": Scenario(buildings.large_building, buildings.large_building_path,
+                                            odometry_error=REALISTIC),
+    "large_building_people": Scenario(buildings.large_building, buildings.large_building_path,
+                                      buildings.large_building_lanes(), n_walkers=6),
+    # Only the aliasing: a calibrated robot, nobody about.
+    "twin_corridors": Scenario(buildings.twin_corridors, buildings.twin_corridors_path),
+}
 
 
 def world_names() -> tuple[str, ...]:
-    """Names accepted by :func:`build_world` and :func:`waypoints`."""
-    return tuple(_LOOP_WORLDS)
+    """Names accepted by :func:`scenario`, :func:`build_world` and :func:`waypoints`."""
+    return tuple(_SCENARIOS)
 
 
 def build_world(world_name: str) -> World:
     """Build a registered world by name; raises ConfigError for an unknown name."""
-    return _lookup(world_name)[0]()
+    return scenario(world_name).build()
 
 
 def waypoints(world_name: str) -> np.ndarray:
     """Closed-loop waypoints (P, 2), metres, of a registered world."""
-    return _lookup(world_name)[1]()
+    return scenario(world_name).path()
 
 
-def _lookup(world_name: str):
+def scenario(world_name: str) -> Scenario:
+    """The registered :class:`Scenario` of that name; raises ConfigError for an unknown name."""
     try:
-        return _LOOP_WORLDS[world_name]
+        return _SCENARIOS[world_name]
     except KeyError:
         raise ConfigError(f"unknown world {world_name!r}; known: {', '.join(world_names())}") from None
 

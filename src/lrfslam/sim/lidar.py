@@ -92,12 +92,15 @@ class SimScan:
         Beams replaced by a mixed pixel: points floating in empty space at a depth edge.
     angles_rad : ndarray, shape (N,)
         Beam bearings in the robot frame, radians.
+    on_mover : ndarray of bool, shape (N,)
+        Beams whose true first hit is a moving obstacle (a walking person), not the map.
     """
 
     ranges_m: np.ndarray
     true_ranges_m: np.ndarray
     spurious: np.ndarray
     angles_rad: np.ndarray
+    on_mover: np.ndarray
 
 
 def raycast(segments_m: np.ndarray, pose, angles_rad: np.ndarray, max_range_m: float = np.inf) -> np.ndarray:
@@ -119,7 +122,16 @@ def raycast(segments_m: np.ndarray, pose, angles_rad: np.ndarray, max_range_m: f
     ndarray, shape (N,)
         Ranges in metres; ``inf`` where no wall is hit within ``max_range_m``.
     """
-    seg = np.asarray(segments_m, dtype=float)
+    return _first_hit(segments_m, pose, angles_rad, max_range_m)[0]
+
+
+def _first_hit(segments_m, pose, angles_rad, max_range_m: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Ranges (N,) as :func:`raycast`, and the index (N,) of the segment hit, -1 where none."""
+    seg = np.asarray(segments_m, dtype=float).reshape(-1, 4)
+    if len(seg) == 0:
+        n = len(np.atleast_1d(angles_rad))
+        return np.full(n, np.inf), np.full(n, -1)
+
     x, y, theta = (float(v) for v in pose)
     bearing = theta + np.asarray(angles_rad, dtype=float)
     d = np.stack((np.cos(bearing), np.sin(bearing)), axis=-1)[:, None, :]  # (N, 1, 2)
@@ -133,15 +145,25 @@ def raycast(segments_m: np.ndarray, pose, angles_rad: np.ndarray, max_range_m: f
     t = (w[..., 0] * e[..., 1] - w[..., 1] * e[..., 0]) / safe_den
     u = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / safe_den
     hit = ~parallel & (t > 0.0) & (u >= -_VERTEX_SLACK) & (u <= 1.0 + _VERTEX_SLACK)
-    ranges = np.where(hit, t, np.inf).min(axis=1)
+    t_hit = np.where(hit, t, np.inf)
+    index = t_hit.argmin(axis=1)
+    ranges = t_hit[np.arange(len(index)), index]
+    index[~np.isfinite(ranges) | (ranges > max_range_m)] = -1
     ranges[ranges > max_range_m] = np.inf
-    return ranges
+    return ranges, index
 
 
 def simulate_scan(
-    world: World, pose, model: LidarModel, rng: np.random.Generator, range_bias_m: float = 0.0
+    world: World,
+    pose,
+    model: LidarModel,
+    rng: np.random.Generator,
+    range_bias_m: float = 0.0,
+    movers_m: np.ndarray | None = None,
 ) -> SimScan:
     """Simulate one scan of ``world`` from ``pose``.
+
+    Glass segments of the world let the beam through; ``movers_m`` (people) block it.
 
     Every call draws the same number of variates from ``rng`` whatever the geometry,
     so a change of pose or map does not reshuffle the noise of later scans.
@@ -155,6 +177,8 @@ def simulate_scan(
     rng : numpy.random.Generator
     range_bias_m : float
         Systematic offset added to every return, metres (see ``LidarModel.range_bias_sigma_m``).
+    movers_m : ndarray, shape (P, 4), optional
+        Segments of moving obstacles at the time of the scan, metres, world frame.
 
     Returns
     -------
@@ -162,7 +186,9 @@ def simulate_scan(
     """
     angles = model.angles_rad()
     n = len(angles)
-    true_ranges = raycast(world.segments_m, pose, angles, model.max_range_m)
+    opaque = world.opaque_segments_m
+    movers = np.zeros((0, 4)) if movers_m is None else np.asarray(movers_m, dtype=float).reshape(-1, 4)
+    true_ranges, index = _first_hit(np.vstack((opaque, movers)), pose, angles, model.max_range_m)
 
     edge_draw = rng.random(n - 1)
     weight = rng.uniform(0.2, 0.8, n - 1)
@@ -179,7 +205,9 @@ def simulate_scan(
     ranges[ranges > model.max_range_m] = np.inf
     # A mixed pixel that dropped out is no longer a point in empty space.
     spurious &= np.isfinite(ranges)
-    return SimScan(ranges_m=ranges, true_ranges_m=true_ranges, spurious=spurious, angles_rad=angles)
+    return SimScan(
+        ranges_m=ranges, true_ranges_m=true_ranges, spurious=spurious, angles_rad=angles, on_mover=index >= len(opaque)
+    )
 
 
 def _mixed_pixels(true_ranges, model: LidarModel, edge_draw, weight):

@@ -20,8 +20,10 @@ OCCLUSION_TOL_M = 0.03
 PAPER_ARM_DISTS_M = (0.3, 0.6, 0.9, 1.2)
 
 
-def visible_points(world: World, pose, points_xy_m, max_range_m: float = 4.0, fov_rad: float = np.pi) -> np.ndarray:
-    """Which world points the scanner at ``pose`` sees.
+def visible_points(
+    world: World, pose, points_xy_m, max_range_m: float = 4.0, fov_rad: float = np.pi, movers_m=None
+) -> np.ndarray:
+    """Which world points the scanner at ``pose`` sees, through glass, not through walls, clutter or movers.
 
     Parameters
     ----------
@@ -34,6 +36,8 @@ def visible_points(world: World, pose, points_xy_m, max_range_m: float = 4.0, fo
         Farthest visible range, metres.
     fov_rad : float
         Field of view centred on the heading, radians.
+    movers_m : ndarray, shape (Q, 4), optional
+        Segments of moving obstacles (people) at this instant, metres.
 
     Returns
     -------
@@ -46,14 +50,20 @@ def visible_points(world: World, pose, points_xy_m, max_range_m: float = 4.0, fo
     candidate = (r <= max_range_m) & (np.abs(bearing) <= fov_rad / 2.0 + 1e-9)
     seen = np.zeros(len(local), dtype=bool)
     if candidate.any():
-        first_hit = raycast(world.segments_m, pose, bearing[candidate])
+        blockers = world.opaque_segments_m if movers_m is None else np.vstack((world.opaque_segments_m, movers_m))
+        first_hit = raycast(blockers, pose, bearing[candidate])
         seen[candidate] = first_hit >= r[candidate] - OCCLUSION_TOL_M
     return seen
 
 
-def visible_corners(world: World, pose, max_range_m: float = 4.0, fov_rad: float = np.pi) -> np.ndarray:
-    """Indices into ``world.corners()`` of the corners visible from ``pose``; shape (K,), int."""
-    return np.flatnonzero(visible_points(world, pose, world.corners().xy_m, max_range_m, fov_rad))
+def visible_corners(
+    world: World, pose, max_range_m: float = 4.0, fov_rad: float = np.pi, movers_m=None
+) -> np.ndarray:
+    """Indices into ``world.corners()`` of the corners visible from ``pose``; shape (K,), int.
+
+    ``movers_m`` (Q, 4), metres: moving obstacles that may hide corners, as in :func:`visible_points`.
+    """
+    return np.flatnonzero(visible_points(world, pose, world.corners().xy_m, max_range_m, fov_rad, movers_m))
 
 
 def eligible_corners(

@@ -5,6 +5,11 @@ Orientation convention: a segment ``(x0, y0) -> (x1, y1)`` has free space on its
 solid blocks inside them clockwise, as for polygon boundaries; :func:`closed_polygon`
 orients a vertex list for you. The ray caster treats walls as two-sided; only the
 corner classification (convex or concave) relies on the convention.
+
+Each segment has a material (:data:`MATERIALS`): ``"wall"`` reflects and makes the
+map; ``"glass"`` is transparent to the scanner (the beam goes on to whatever is
+behind it, or reports no return); ``"clutter"`` (boxes, pillars, bins) reflects but
+is not part of the map, so its vertices are never ground-truth corners.
 """
 
 from __future__ import annotations
@@ -20,6 +25,8 @@ from lrfslam.errors import ConfigError
 SNAP_TOLERANCE_M = 0.01
 #: A vertex is a corner when its two walls meet at 90° ± this.
 CORNER_ANGLE_TOL_DEG = 20.0
+#: Segment materials: map walls, transparent glass, and reflecting non-map clutter.
+MATERIALS = ("wall", "glass", "clutter")
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,10 +68,13 @@ class World:
         Rows ``(x0, y0, x1, y1)`` in metres, free space on the left of each row.
     name : str
         Registry name of the world.
+    material : ndarray of str, shape (M,), optional
+        One of :data:`MATERIALS` per segment; all ``"wall"`` when omitted.
     """
 
     segments_m: np.ndarray
     name: str
+    material: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         seg = np.asarray(self.segments_m, dtype=float)
@@ -74,21 +84,33 @@ class World:
             raise ConfigError(f"world {self.name!r}: segments contain non-finite coordinates")
         if np.any(np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]) < SNAP_TOLERANCE_M):
             raise ConfigError(f"world {self.name!r}: a segment is shorter than {SNAP_TOLERANCE_M} m")
+        material = np.full(len(seg), "wall", dtype="<U7") if self.material is None else np.asarray(self.material)
+        if material.shape != (len(seg),) or not np.all(np.isin(material, MATERIALS)):
+            raise ConfigError(f"world {self.name!r}: material must be one of {MATERIALS} per segment")
         seg.setflags(write=False)
+        material = material.astype("<U7")
+        material.setflags(write=False)
         object.__setattr__(self, "segments_m", seg)
+        object.__setattr__(self, "material", material)
+
+    @cached_property
+    def opaque_segments_m(self) -> np.ndarray:
+        """Segments that return the beam (walls and clutter); shape (M', 4), metres."""
+        return self.segments_m[self.material != "glass"]
 
     def corners(self) -> MapCorners:
-        """Vertices shared by exactly two segments meeting at 90° ± 20°."""
+        """Vertices shared by exactly two wall segments meeting at 90° ± 20° (glass and clutter ignored)."""
         return self._topology[0]
 
     def free_endpoints(self) -> np.ndarray:
-        """Endpoints shared by no other segment (wall ends, thin-wall door jambs); shape (F, 2), m."""
+        """Wall endpoints shared by no other wall (wall ends, door jambs, the edge of a glass pane); shape (F, 2), m."""
         return self._topology[1]
 
     @cached_property
     def _topology(self) -> tuple[MapCorners, np.ndarray]:
         # cached_property writes the instance __dict__ directly, which a frozen dataclass allows.
-        return _analyse_vertices(self.segments_m, self.name)
+        # Only walls make the map: a wall ending at a glass pane is a jump edge to the scanner.
+        return _analyse_vertices(self.segments_m[self.material == "wall"], self.name)
 
 
 def closed_polygon(vertices_m, free_inside: bool) -> np.ndarray:
@@ -131,6 +153,9 @@ def polyline(vertices_m) -> np.ndarray:
 
 
 def _analyse_vertices(seg: np.ndarray, name: str) -> tuple[MapCorners, np.ndarray]:
+    if len(seg) == 0:
+        return MapCorners(np.zeros((0, 2)), np.zeros(0, dtype="<U7"), np.zeros(0), np.zeros((0, 2, 2)),
+                          np.zeros((0, 2))), np.zeros((0, 2))
     endpoints = seg.reshape(-1, 2)  # row 2j = start of segment j, row 2j+1 = its end
     labels = _snap(endpoints, SNAP_TOLERANCE_M)
     n_vertices = labels.max() + 1

@@ -192,7 +192,8 @@ class SimScanSource:
         """Ranges of scan ``k`` of ``variant``, shape (variant.n_values,), metres."""
         sim = self._simulator(variant)
         rng = np.random.default_rng((self._seed, k))
-        return simulate_scan(sim.world, sim.trajectory.pose(k), sim.config.lidar, rng).ranges_m
+        people = sim.walkers.segments(k / sim.config.rate_hz)
+        return simulate_scan(sim.world, sim.trajectory.pose(k), sim.config.lidar, rng, movers_m=people).ranges_m
 
     def _simulator(self, variant: p.Variant) -> Simulator:
         if variant not in self._sims:
