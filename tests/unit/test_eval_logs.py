@@ -41,7 +41,8 @@ def test_every_log_runs_with_one_configuration_and_the_scored_ones_get_a_table(d
     assert [r.log.name for r in results] == ["scored", "unscored"]
     scored, unscored = results
     assert scored.scans == unscored.scans == 10 and not unscored.scores
-    assert set(scored.scores) == {"slam estimate", "scan matching alone", "raw odometry"}
+    assert set(scored.scores) == {"mapper final", "mapper online", "slam estimate", "scan matching alone",
+                                  "raw odometry"}
     # The relations are the odometry's own: its error is zero; every relation is used.
     odom = scored.scores["raw odometry"]
     assert odom.n_used == 3 and odom.trans_abs_m.max == pytest.approx(0.0, abs=1e-6)
@@ -61,4 +62,4 @@ def test_the_command_prints_one_table(datasets, tmp_path, capsys):
     assert evaluate.main(["relations", "--all", str(datasets), "--work", str(tmp_path / "w"),
                           "--set", "features.mode=paper"]) == 0
     out = capsys.readouterr().out
-    assert out.count("| scored |") == 3 and "map" in out
+    assert out.count("| scored |") == 5 and "map" in out

@@ -103,7 +103,7 @@ def test_missing_trajectories(tmp_path, capsys):
     only_odom = write_recording(tmp_path / "odom.mcap", estimate=False)
     assert evaluate.main(["relations", str(only_odom), str(rel)]) == 0
     out = capsys.readouterr().out
-    assert "raw odometry" in out and "(no slam estimate in the recording)" in out
+    assert "raw odometry" in out and "(no slam estimate, mapper online in the recording)" in out
     empty = write_recording(tmp_path / "empty.mcap", estimate=False, odometry=False)
     assert evaluate.main(["relations", str(empty), str(rel)]) == 2
     assert evaluate.main(["relations", str(tmp_path / "absent.mcap"), str(rel)]) == 2

@@ -16,20 +16,22 @@ import pytest
 from lrfslam import cli
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "golden"
+# The goldens predate the mapper stage; they pin the stages they were made with.
+EKF_STAGES = "denoise,features,slam"
 
 # (output, input, command before the --replay/--out arguments, extra arguments)
 COMMANDS = [
     (f"{name}.{what}.mcap", f"{name}.{source}.mcap" if source else f"{name}.mcap", command, extra)
     for name in ("intel_150", "sim_head")
     for what, source, command, extra in (
-        ("pipeline", "", ["pipeline"], ["-q"]),
+        ("pipeline", "", ["pipeline"], ["-q", "--stages", EKF_STAGES]),
         ("denoise", "", ["denoise"], []),
         ("features", "denoise", ["features"], []),
         ("slam", "pipeline", ["slam"], []),
     )
 ] + [
     ("sim_head.paper_odometry.mcap", "sim_head.mcap", ["pipeline"],
-     ["-q", "--set", "features.mode=paper", "--set", "denoise.mode=paper", "--set", "slam.scan_matching=false"]),
+     ["-q", "--stages", EKF_STAGES, "--set", "features.mode=paper", "--set", "denoise.mode=paper", "--set", "slam.scan_matching=false"]),
 ]
 
 

@@ -56,7 +56,10 @@ def test_outputs_per_stage_and_passthrough(sim_recording, tmp_path):
     out = tmp_path / "out.mcap"
     counts = run_pipeline(default_stages(), ROBOT, sim_recording, out)
     by_topic = Counter(r.topic for r in read_recording(out))
-    assert by_topic == {name: N_SCANS for name in ("scan", "odom", "truth", "scan/filtered", "features", "slam/state")}
+    per_scan = ("scan", "odom", "truth", "scan/filtered", "features", "slam/state", "map/pose")
+    # map/keyframes: after each graph optimisation and once at the end.
+    assert by_topic == {**{name: N_SCANS for name in per_scan}, "map/keyframes": by_topic["map/keyframes"]}
+    assert by_topic["map/keyframes"] >= 1
     assert counts["input"] == {"read": 3 * N_SCANS, "copied": 3 * N_SCANS}
     assert counts["denoise"]["in.scan"] == counts["denoise"]["out.scan/filtered"] == N_SCANS
     assert counts["features"]["out.features"] == counts["slam"]["in.features"] == N_SCANS
@@ -64,7 +67,7 @@ def test_outputs_per_stage_and_passthrough(sim_recording, tmp_path):
     # A run that finds nothing would pass the counts above; the sim hallway has corners and edges.
     assert counts["features"]["step.forward"] + counts["features"]["step.backward"] > 0
     meta = read_metadata(out)["lrfslam"]
-    assert meta["robot"] == ROBOT and meta["stages"] == "denoise,features,slam" and meta["replay_of"] == "sim.mcap"
+    assert meta["robot"] == ROBOT and meta["stages"] == "denoise,features,slam,mapper" and meta["replay_of"] == "sim.mcap"
     assert '"mode": "default"' in meta["config.features"]
 
 
