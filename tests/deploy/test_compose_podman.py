@@ -153,7 +153,7 @@ def test_compose_up_status_down_recording(engine, tmp_path):
         # handler, not a SIGKILL (137).
         dep("stop", "sensor", timeout=60)
         time.sleep(3)
-        dep("stop", "denoise", "features", "slam", timeout=60)
+        dep("stop", "denoise", "features", "slam", "mapper", timeout=60)
         dep("stop", timeout=120)
         codes = {s: dep.inspect(s, "{{.State.ExitCode}}") for s in CONTAINERS}
         assert set(codes.values()) == {"0"}, f"{codes}\n{dep.logs()}"
@@ -167,7 +167,7 @@ def test_compose_up_status_down_recording(engine, tmp_path):
     messages = list(read_recording(files[0], report=report))
     assert not report.truncated, f"the recorder did not finish its file: {report.reason}"
     per_topic = Counter(m.topic for m in messages)
-    for topic in ("scan", "odom", "scan/filtered", "features", "slam/state"):
+    for topic in ("scan", "odom", "scan/filtered", "features", "slam/state", "map/pose"):
         assert per_topic[topic] > 100, per_topic
     assert {f"health/{s}" for s in services.NAMES} <= set(per_topic), per_topic
     last = codec.SLAM_STATE.decode(next(m.data for m in reversed(messages) if m.topic == "slam/state"))
