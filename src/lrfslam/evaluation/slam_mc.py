@@ -92,6 +92,9 @@ class McConfig:
     stage_sets : tuple of str
         "extractor" only: ``"<service>.<name>=<value>"`` overrides of the
         denoise, features and slam configs, as ``--set`` gives them to a service.
+    mapper : bool
+        "extractor" only: the mapper stage runs behind the slam stage, and its
+        trajectories (as published at each scan, and final) are scored too.
     """
 
     n_runs: int = 30
@@ -107,6 +110,7 @@ class McConfig:
     final_lap_frac: float = 0.25
     seed: int = 0
     stage_sets: tuple[str, ...] = ()
+    mapper: bool = False
 
     def ekf_params(self) -> EkfParams:
         """Filter parameters.
@@ -168,6 +172,8 @@ class RunResult:
         Extractor: position error of every labelled observation, robot frame; empty for "truth".
     feature_nees : ndarray, shape (F,)
         Their 2-dof NEES against the extractor's own covariance.
+    map_online_poses, map_final_poses : ndarray, shape (T, 3) or (0, 3)
+        With the mapper: its pose as published at each step, and its final trajectory.
     """
 
     true_poses: np.ndarray
@@ -184,6 +190,8 @@ class RunResult:
     n_phantom_obs: int
     feature_err_m: np.ndarray
     feature_nees: np.ndarray
+    map_online_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    map_final_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def pose_nees(true_poses: np.ndarray, est_poses: np.ndarray, covs: np.ndarray) -> np.ndarray:
@@ -272,12 +280,20 @@ class _Pipeline:
 
     def __init__(self, sim: Simulator, cfg: McConfig, params: EkfParams, pose0: np.ndarray) -> None:
         slam = cfg.stage("slam")
-        self.chain = Chain([cfg.stage("denoise"), cfg.stage("features"),
-                            Stage(slam.spec, replace(slam.config, ekf=params))], robot="slam_mc", wire=False)
+        stages = [cfg.stage("denoise"), cfg.stage("features"), Stage(slam.spec, replace(slam.config, ekf=params))]
+        self.chain = Chain(stages + ([cfg.stage("mapper")] if cfg.mapper else []), robot="slam_mc", wire=False)
+        self.map_online: list[np.ndarray] = []
         self.slam = self.chain.step("slam").slam
         self.slam.start_at(pose0)
         self.lidar = sim.config.lidar
         self.scan_time_s = 1.0 / sim.config.rate_hz
+
+    def map_trajectories(self) -> tuple[np.ndarray, np.ndarray]:
+        """The mapper's online poses (T, 3) and its final trajectory (T, 3); empty without a mapper."""
+        if not any(st.spec.name == "mapper" for st in self.chain.stages):
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        _, final = self.chain.step("mapper").mapper.trajectory()
+        return np.array(self.map_online).reshape(-1, 3), final
 
     def step(self, frame: SimFrame):
         """Feed one frame; returns (pose, pose_cov, features xy (K, 2), covs (K, 2, 2), report)."""
@@ -288,6 +304,7 @@ class _Pipeline:
         outs = self.chain.push(Message.of(Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose))))
         outs += self.chain.push(Message.of(Output(topics.SCAN, scan)))
         (state,) = (m.value for m in outs if m.topic is topics.SLAM_STATE)
+        self.map_online += [m.value.pose for m in outs if m.topic is topics.MAP_POSE]
         last = self.slam.last_update
         return state.pose, state.pose_cov, last.xy_m, last.cov_m2, last.report
 
@@ -356,10 +373,11 @@ def run_once(cfg: McConfig, run_index: int) -> RunResult:
     err = truth_xy[d2.argmin(axis=1)].reshape(-1, 2) - table.xy[use]
     lm_nees = np.einsum("li,li->l", err, np.linalg.solve(table.cov[use], err[..., None])[..., 0])
     cat = (lambda parts: np.concatenate(parts) if parts else np.zeros(0))
+    online, final = pipeline.map_trajectories() if pipeline is not None else (np.zeros((0, 3)),) * 2
     return RunResult(
         true_p, est_p, odom_p, covs_p, np.hypot(err[:, 0], err[:, 1]), lm_nees,
         int(np.sum(table.confirmed & (lm_labels == PHANTOM))), np.array(nis_matched), n_wrong,
-        n_wrong_confirmed, n_obs, n_phantom, cat(feat_err), cat(feat_nees),
+        n_wrong_confirmed, n_obs, n_phantom, cat(feat_err), cat(feat_nees), online, final,
     )
 
 
@@ -405,6 +423,10 @@ def summarise(results: list[RunResult], final_lap_frac: float = McConfig.final_l
         "phantom_observations": int(sum(r.n_phantom_obs for r in results)),
         "feature_rmse_m": float(np.sqrt(np.mean(feat_err**2))) if feat_err.size else nan,
         "feature_mean_nees": float(np.mean(feat_nees)) if feat_nees.size else nan,
+        "map_online_ate_rmse_m": np.array([ate_rmse(r.true_poses, r.map_online_poses) for r in results
+                                           if r.map_online_poses.shape == r.true_poses.shape]),
+        "map_final_ate_rmse_m": np.array([ate_rmse(r.true_poses, r.map_final_poses) for r in results
+                                          if r.map_final_poses.shape == r.true_poses.shape]),
     }
 
 
@@ -446,6 +468,10 @@ def format_summary(s: dict, cfg: McConfig) -> str:
         f"{s['wrong_confirmed']} with confirmed landmarks (runs {s['runs_with_wrong']})"
     )
     lines = [head, ate, landmarks, nees, by_quarter, nis]
+    if s["map_final_ate_rmse_m"].size:
+        on, fin = s["map_online_ate_rmse_m"], s["map_final_ate_rmse_m"]
+        lines.append(f"mapper ATE RMSE (m) final {fin.mean():.4f} +- {fin.std():.4f} (max {fin.max():.4f}); "
+                     f"as published at each step {on.mean():.4f} +- {on.std():.4f} (max {on.max():.4f})")
     if cfg.features == "extractor":
         lines.append(f"features            RMSE {s['feature_rmse_m']:.4f} m, mean NEES against their own "
                      f"covariance {s['feature_mean_nees']:.2f} (2.00 if calibrated)")
@@ -476,14 +502,18 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=McConfig.seed)
     ap.add_argument("--jobs", type=int, default=1, help="worker processes")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="SERVICE.NAME=VALUE",
-                    help="extractor only: override a denoise/features/slam setting, e.g. slam.scan_matching=false")
+                    help="extractor only: override a denoise/features/slam/mapper setting, e.g. slam.scan_matching=false")
+    ap.add_argument("--mapper", action="store_true",
+                    help="extractor only: run the mapper (loop closing) behind the EKF and score its trajectories")
     args = ap.parse_args(argv)
+    if args.mapper and args.features != "extractor":
+        ap.error("--mapper needs --features extractor")
     base = OdometryNoise()
     cfg = McConfig(
         n_runs=args.runs, n_steps=args.steps, world_name=args.world, features=args.features,
         association=args.association, range_sigma_m=args.range_sigma_m, bearing_sigma_rad=args.bearing_sigma_rad,
         truth_wall_sigma_rad=args.truth_wall_sigma_rad,
-        seed=args.seed, stage_sets=tuple(args.sets),
+        seed=args.seed, stage_sets=tuple(args.sets), mapper=args.mapper,
         odometry=OdometryNoise(base.trans_sigma_per_m * args.odom_scale, base.rot_sigma_per_rad * args.odom_scale,
                                base.rot_sigma_per_m_rad * args.odom_scale),
     )
