@@ -9,7 +9,7 @@ import pytest
 
 from lrfslam.algo.checkpoint import decode
 from lrfslam.algo.corner_slam import BACKWARD, FORWARD, CornerSlam
-from lrfslam.algo.ekf_slam import EkfParams, EkfSlam
+from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
 from lrfslam.algo.geometry import relative
 from lrfslam.algo.motion_source import MotionParams
 from lrfslam.errors import ConfigError
@@ -81,3 +81,15 @@ def test_a_resumed_filter_goes_on_as_the_one_that_was_saved():
         for slam in (first, resumed):
             slam.update(pose, None, XY - 0.05, COV, KINDS, WALL)
     assert_same(resumed.ekf, first.ekf)
+
+
+def test_matched_observations_leave_their_nis_in_the_counters():
+    counts: Counter = Counter()
+    slam = CornerSlam(PARAMS, ODOMETRY_ONLY, counts=counts)
+    nis: list[float] = []
+    for pose in ODOM:
+        report = slam.update(pose, None, XY, COV, KINDS, None)
+        nis += report.nis[report.status == ObsStatus.MATCHED].tolist()
+    assert counts["matched"] == len(nis) > 0
+    assert counts["nis_matched_milli"] == pytest.approx(1000.0 * sum(nis), abs=len(nis))
+    assert counts["nis_matched_within_95"] == sum(v <= 5.991 for v in nis)

@@ -21,9 +21,12 @@ import numpy as np
 
 from lrfslam.algo.checkpoint import Checkpoint
 from lrfslam.algo.checkpoint import encode as encode_checkpoint
-from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, UpdateReport
+from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus, UpdateReport
 from lrfslam.algo.motion_source import MotionParams, MotionSource
 from lrfslam.errors import ConfigError
+
+#: 95 % quantile of the chi-squared distribution with 2 degrees of freedom.
+CHI2_2DOF_95 = 5.991
 
 FORWARD, BACKWARD = 0, 1   # the filter's feature kinds: right-angle corners, jump edges
 
@@ -116,6 +119,12 @@ class CornerSlam:
         self._last = LastUpdate(xy, cov, report)
         self.counts.update(scans=1, matched=report.n_matched, new=report.n_new,
                            ambiguous=report.n_ambiguous + report.n_rejected)
+        # Consistency on data without ground truth: the NIS of matched observations averages 2
+        # (chi-squared, 2 dof) and falls inside the 95 % bound 95 % of the time when the filter's
+        # covariances are right. Counters are integers, so the sum is kept in thousandths.
+        nis = report.nis[report.status == ObsStatus.MATCHED]
+        self.counts.update(nis_matched_milli=int(np.round(1000.0 * nis.sum())),
+                           nis_matched_within_95=int(np.count_nonzero(nis <= CHI2_2DOF_95)))
         self.scans += 1
         return report
 

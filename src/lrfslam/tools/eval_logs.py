@@ -69,6 +69,17 @@ class LogResult:
     by_span: dict[str, dict[str, tuple[int, object]]] = field(default_factory=dict)
     sensor: dict[str, str] = field(default_factory=dict)
     map_png: Path | None = None
+    slam_counts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def matched_nis(self) -> tuple[float, float, int]:
+        """Mean NIS of the EKF's matched observations (2 if consistent), the share inside the
+        95 % bound (0.95 if consistent), and how many there were."""
+        n = self.slam_counts.get("step.matched", 0)
+        if not n:
+            return float("nan"), float("nan"), 0
+        return (self.slam_counts.get("step.nis_matched_milli", 0) / 1000.0 / n,
+                self.slam_counts.get("step.nis_matched_within_95", 0) / n, n)
 
 
 def find_logs(root: Path) -> list[Log]:
@@ -92,7 +103,8 @@ def run_log(log: Log, work: Path, stages: list[chain.Stage], draw_map: bool = Tr
     found = import_carmen(log.path, imported, robot=log.name.replace(" ", "_"))
     result = LogResult(log, scans=found.scans, sensor=found.sensor)
     started = time.perf_counter()
-    pipeline.run_pipeline(stages, log.name.replace(" ", "_"), imported, out)
+    counts = pipeline.run_pipeline(stages, log.name.replace(" ", "_"), imported, out)
+    result.slam_counts = dict(counts.get("slam", {}))
     result.pipeline_s = time.perf_counter() - started
     result.landmarks = _final_landmarks(out)
     if log.relations is not None:
@@ -159,6 +171,9 @@ def main_all(root: Path, work: Path, sets: list[str], config_file: str | None) -
     print(markdown(results))
     for r in results:
         facts = r.sensor
+        nis, inside, n = r.matched_nis
+        print(f"{r.log.name}: matched NIS mean {nis:.2f} (2.00 if consistent), {100 * inside:.1f} % inside "
+              f"the 95 % bound, over {n} observations")
         print(f"{r.log.name}: {r.scans} scans in {r.pipeline_s:.1f} s; laser {facts.get('beams', '?')}, "
               f"no return {facts.get('no_return_m') or '-'} m"
               + (f"; map {r.map_png}" if r.map_png else ""))
