@@ -29,7 +29,7 @@ def closures_are_right(mapper: LoopClosingMapper, truth_per_scan: np.ndarray, to
     for k, n, z in mapper.closures():
         true_rel = relative(truth_per_scan[first_scan[k]], truth_per_scan[first_scan[n]])
         err = relative(true_rel, z)
-        out.append(bool(np.hypot(err[0], err[1]) < tol_m and abs(err[2]) < 0.05))
+        out.append(bool(np.hypot(err[0], err[1]) < tol_m and abs(err[2]) < 0.1))
     return out
 
 
@@ -67,7 +67,7 @@ def test_drift_round_the_loop_is_removed(hallway_run):
 
 
 def test_replay_is_deterministic(hallway_run):
-    mapper, truth, odom, online = hallway_run
+    mapper, truth, _, _ = hallway_run
     again = LoopClosingMapper()
     sim = Simulator(SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3, odometry=OdometryNoise(
         trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02)))

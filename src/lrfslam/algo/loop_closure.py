@@ -30,8 +30,8 @@ Design choices
 * **Submaps.** The candidate and its ``submap_keyframes`` neighbours on each
   side, placed by their graph poses in the candidate's frame, make the map
   (likelihood grid, :mod:`lrfslam.algo.correlative_match`); the new keyframe
-  and its ``query_keyframes − 1`` predecessors, placed by the EKF, make the
-  query: more wall than one scan, so less ambiguity.
+  and its ``query_keyframes − 1`` predecessors, placed by their graph poses
+  (the odometry edges), make the query: more wall than one scan, so less ambiguity.
 * **Verification**, in order: the best score must reach ``min_score``; the best
   pose separated from it (another corridor, a turned copy) must score below
   ``max_second_ratio`` of it; the point-to-line matcher
@@ -452,11 +452,10 @@ class LoopClosingMapper:
         return predicted, rel_cov, half_m, half_rad
 
     def _query(self, n: int) -> np.ndarray:
-        """The last ``query_keyframes`` keyframes' points in keyframe ``n``'s frame (EKF-relative), thinned."""
+        """The last ``query_keyframes`` keyframes' points in keyframe ``n``'s frame (graph poses), thinned."""
         first = max(0, n - self.params.query_keyframes + 1)
-        here = self._keyframes[n].ekf_pose
-        parts = [from_frame(self._keyframes[i].points_xy_m, relative(here, self._keyframes[i].ekf_pose))
-                 for i in range(first, n + 1)]
+        poses = self.graph.poses
+        parts = [from_frame(self._keyframes[i].points_xy_m, relative(poses[n], poses[i])) for i in range(first, n + 1)]
         return _thin(np.vstack(parts), self.params.query_cell_m)
 
     def _submap(self, k: int) -> tuple[LikelihoodGrid, ReferenceScan, np.ndarray]:
