@@ -150,10 +150,10 @@ def test_a_twin_corridor_is_not_taken_for_the_original(gap_m):
     assert mapper.stats.searched > 0  # A's keyframes were searched from B...
     assert all(closures_are_right(mapper, truth))  # ...but no wrong closure is in the graph
     _, final = mapper.trajectory()
-    # B stays gap_m from A: no closure pulled it over.
+    # Nothing pulled B onto A: the result is as good as its input (which drifts 0.2 rad on the way).
     in_b = truth[:, 1] == gap_m
     assert np.all(np.abs(wrap_angle(final[in_b, 2] - truth[in_b, 2])) < 0.2)
-    assert aligned_errors(final, truth).max() < 1.0
+    assert np.all(aligned_errors(final, truth) <= aligned_errors(np.array(ekf), truth) + 0.05)
 
 
 def test_bad_input_is_refused():

@@ -38,10 +38,14 @@ Design choices
   (:func:`lrfslam.algo.scan_match.match`) started there must converge and
   constrain all three directions (a corridor seen end-on cannot say where along
   it the robot is), and gives the covariance; the match must agree with the
-  graph's prediction within ``gate_chi2`` (Mahalanobis, the relative and the
+  graph's prediction within ``gate_chi2`` (Mahalanobis, the drift-scaled relative and the
   match covariances summed). Accepted closures are Cauchy-robust edges; after
   each optimisation, a closure whose weight fell below ``min_weight`` (the rest
-  of the graph disagrees) is removed and the graph optimised again.
+  of the graph disagrees) is removed and the graph optimised again. A closure
+  found in a wide window (after a long excursion) waits for the next wide one
+  to agree with it (``confirm_*``): in two identical corridors the best peak
+  in a wide window can be the twin's, but the twin's peaks of consecutive
+  keyframes do not agree with each other (``tests/unit/test_loop_closure.py``).
 
 Everything is deterministic: same calls, same results.
 """
@@ -135,6 +139,10 @@ class LoopClosureParams:
         run at most once per ``wide_search_spacing_m`` of travel (m): its cost
         grows with the window's area, and while the robot is lost in a place it
         saw long ago consecutive keyframes would search the same ground.
+    confirm_within_m, confirm_m, confirm_rad : float
+        A closure found in a wide window is added only once the next one found
+        in a wide window, at most ``confirm_within_m`` of travel later (m), puts
+        the robot within ``confirm_m`` (m) and ``confirm_rad`` (rad) of where it does.
     optimise_chi2 : float
         A new closure whose own χ² at the current estimate exceeds this is
         solved for at once; smaller ones (the graph agrees already) wait...
@@ -183,6 +191,9 @@ class LoopClosureParams:
     cached_submaps: int = 8
     wide_window_m: float = 2.0
     wide_search_spacing_m: float = 2.0
+    confirm_within_m: float = 10.0
+    confirm_m: float = 0.5
+    confirm_rad: float = 0.05
     optimise_chi2: float = 9.0
     max_pending_closures: int = 10
     odometry_keyframes: int = 3
@@ -197,7 +208,7 @@ class LoopClosureParams:
         non_negative = ("keyframe_trans_m", "max_scan_step_m", "keyframe_rot_rad", "min_travel_m", "odom_trans_sigma_per_m",
                         "odom_rot_sigma_per_m", "odom_rot_sigma_per_rad", "min_score", "max_second_ratio",
                         "min_weight", "optimise_chi2", "ekf_jump_m", "ekf_jump_rad", "wide_window_m",
-                        "wide_search_spacing_m")
+                        "wide_search_spacing_m", "confirm_within_m", "confirm_m", "confirm_rad")
         require_finite(self, non_negative, positive=False, what="loop closure ")
         if self.min_window_m > self.max_window_m or self.min_window_rad > self.max_window_rad:
             raise ConfigError("loop closure window minima must not exceed the maxima")
@@ -217,6 +228,8 @@ class ClosureStats:
         Correlative searches run.
     low_score, ambiguous, refine_failed, gated : int
         Candidates dropped at each verification step (see the module notes).
+    unconfirmed : int
+        Closures from a wide window that no second one confirmed.
     accepted : int
         Loop edges added to the graph.
     removed : int
@@ -232,6 +245,7 @@ class ClosureStats:
     ambiguous: int = 0
     refine_failed: int = 0
     gated: int = 0
+    unconfirmed: int = 0
     accepted: int = 0
     removed: int = 0
     optimisations: int = 0
@@ -266,6 +280,7 @@ class LoopClosingMapper:
         self._last_ekf_pose = np.zeros(3)  # the previous scan's EKF pose
         self._pending = 0  # closures added since the last optimisation
         self._last_wide_search_m = -np.inf  # travel at the last wide search
+        self._tentative = None  # a closure from a wide window awaiting confirmation
         self._pending_strong = False  # one of them disagrees strongly with the estimate they were added to
 
     @property
@@ -415,24 +430,61 @@ class LoopClosingMapper:
             if len(chosen) == p.max_candidates:
                 break
         query = None
-        urgent = False
+        found: list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]] = []
         for k in chosen:
             window = self._window(k, n)
             if window is None:
                 continue
-            if window[2] > p.wide_window_m:
+            wide = window[2] > p.wide_window_m
+            if wide:
                 if travel[n] - self._last_wide_search_m < p.wide_search_spacing_m:
                     continue
                 self._last_wide_search_m = travel[n]
             if query is None:
                 query = self._query(n)
-            edge_chi2 = self._try_closure(k, n, query, *window)
-            if edge_chi2 is not None:
-                self._pending += 1
-                urgent |= edge_chi2 > p.optimise_chi2
-                self._pending_strong |= edge_chi2 > p.graph.cauchy_scale**2
+            closure = self._try_closure(k, n, query, *window)
+            if closure is None:
+                continue
+            if not wide:
+                found.append(closure)
+                continue
+            # A closure from a wide window is the one kind a look-alike place can
+            # fake (a twin corridor): it waits for a second one that agrees.
+            earlier = self._tentative
+            if earlier is not None and travel[n] - travel[earlier[1]] <= p.confirm_within_m \
+                    and self._agree(earlier, closure):
+                found += [earlier, closure]
+                self._tentative = None
+            else:
+                if earlier is not None:
+                    self._counts["unconfirmed"] += 1
+                self._tentative = closure
+        urgent = False
+        for k, n_, z, cov, innovation in found:
+            info = np.linalg.inv(cov)
+            self._loop_edges.append(self.graph.add_edge(k, n_, z, info, robust=True))
+            self._counts["accepted"] += 1
+            edge_chi2 = float(innovation @ info @ innovation)
+            self._pending += 1
+            urgent |= edge_chi2 > p.optimise_chi2
+            self._pending_strong |= edge_chi2 > p.graph.cauchy_scale**2
         if urgent or self._pending >= p.max_pending_closures:
             self._optimise()
+
+    def _agree(self, first, second) -> bool:
+        """Do two closures put the second one's keyframe at the same place (``confirm_*``)?
+
+        Each is ``(old keyframe, new keyframe, measurement, covariance, innovation)``;
+        the first's placement is carried to the second's keyframe along the graph.
+        """
+        p = self.params
+        poses = self.graph.poses
+        k1, n1, z1 = first[:3]
+        k2, n2, z2 = second[:3]
+        via_first = compose(compose(poses[k1], z1), relative(poses[n1], poses[n2]))
+        via_second = compose(poses[k2], z2)
+        diff = relative(via_first, via_second)
+        return bool(np.hypot(diff[0], diff[1]) <= p.confirm_m and abs(diff[2]) <= p.confirm_rad)
 
     def _window(self, k: int, n: int) -> tuple[np.ndarray, np.ndarray, float, float] | None:
         """Prediction of ``n`` in ``k``'s frame, its covariance and the search half-widths (m, rad).
@@ -476,10 +528,11 @@ class LoopClosingMapper:
         return entry
 
     def _try_closure(self, k: int, n: int, query: np.ndarray, predicted: np.ndarray, rel_cov: np.ndarray,
-                     half_m: float, half_rad: float) -> float | None:
-        """Search keyframe ``n`` in ``k``'s submap; add the loop edge if it passes.
+                     half_m: float, half_rad: float):
+        """Search keyframe ``n`` in ``k``'s submap and verify what it finds.
 
-        Returns the new edge's χ² at the current estimate, None if no edge was added.
+        Returns ``(k, n, measurement (3,), covariance (3, 3), innovation (3,))``
+        of a closure that passed, None if none did.
         """
         p = self.params
         count = self._counts
@@ -502,10 +555,7 @@ class LoopClosingMapper:
         if not chi2 <= p.gate_chi2:
             count["gated"] += 1
             return None
-        info = np.linalg.inv(cov)
-        self._loop_edges.append(self.graph.add_edge(k, n, refined.pose, info, robust=True))
-        count["accepted"] += 1
-        return float(innovation @ info @ innovation)
+        return k, n, refined.pose, cov, innovation
 
     def _optimise(self) -> None:
         """Optimise; drop closures the graph disagrees with (the worst first) and optimise again."""
