@@ -20,6 +20,13 @@ Design choices
   (``odom_*``): a model of the drift the EKF does not see, not the EKF's own
   covariance, which is absolute and shrinks whenever it re-observes a
   landmark (on ACES it claims 3° where the heading is 20° off).
+* **Two uncertainties.** The edges' covariance is the local one (0.2° and 1 cm
+  per half metre), so loop closures do not bend what the EKF got right; but
+  the drift over a long loop is systematic (20° of heading round ACES's loops),
+  far beyond what a random walk of local errors predicts. The search window and
+  the gate therefore use the relative covariance scaled by ``drift_scale``²;
+  the optimisation does not. (Loose edges everywhere instead let every closure
+  bend the trajectory: Intel 0.023 → 0.021 m, ACES 0.051 → 0.044 m.)
 * **Search window from the graph.** A candidate is an old keyframe (at least
   ``min_travel_m`` back along the trajectory) near the predicted pose. The
   covariance of the new keyframe relative to it (:meth:`PoseGraph.relative_covariance`)
@@ -46,6 +53,10 @@ Design choices
   to agree with it (``confirm_*``): in two identical corridors the best peak
   in a wide window can be the twin's, but the twin's peaks of consecutive
   keyframes do not agree with each other (``tests/unit/test_loop_closure.py``).
+
+* **Cost.** A search's cost grows with its window's area, so wide searches
+  are spaced (``wide_search_spacing_m``); a closure the graph already agrees
+  with is not solved for at once (``optimise_chi2``, ``max_pending_closures``).
 
 Everything is deterministic: same calls, same results.
 """
@@ -130,7 +141,8 @@ class LoopClosureParams:
         A closure whose robust weight falls below this after optimisation is removed.
     correlative : CorrelativeParams
     scan_match : ScanMatchParams
-        Of the refinement (its ``max_point_range_m`` is ignored: ``max_range_m`` applies).
+        Of the closures' refinement and the odometry edges' matches (its
+        ``max_point_range_m`` limits the matched points there).
     graph : PoseGraphParams
     cached_submaps : int
         Submaps kept for re-use (the same old place is searched from consecutive keyframes).
@@ -275,7 +287,7 @@ class LoopClosingMapper:
         self._scan_rel: list[np.ndarray] = []  # per scan: EKF pose relative to that keyframe's
         self._stamps: list[int] = []
         self._loop_edges: list[int] = []  # graph edge ids of the closures in the graph
-        self._submaps: OrderedDict[int, tuple[LikelihoodGrid, ReferenceScan, np.ndarray]] = OrderedDict()
+        self._submaps: OrderedDict[int, tuple[LikelihoodGrid, ReferenceScan]] = OrderedDict()
         self._counts = dict.fromkeys(ClosureStats.__dataclass_fields__, 0)
         self._last_ekf_pose = np.zeros(3)  # the previous scan's EKF pose
         self._pending = 0  # closures added since the last optimisation
@@ -340,10 +352,6 @@ class LoopClosingMapper:
                                  base[:, 1] + s * rel[:, 0] + c * rel[:, 1],
                                  np.angle(np.exp(1j * (base[:, 2] + rel[:, 2])))))
         return np.array(self._stamps, dtype=np.int64), poses
-
-    def keyframe_poses(self) -> np.ndarray:
-        """The keyframes' optimised poses, (K, 3)."""
-        return self.graph.poses.copy()
 
     def keyframe_scans(self) -> np.ndarray:
         """Index (in the order fed) of the scan that made each keyframe, (K,)."""
@@ -510,7 +518,7 @@ class LoopClosingMapper:
         parts = [from_frame(self._keyframes[i].points_xy_m, relative(poses[n], poses[i])) for i in range(first, n + 1)]
         return _thin(np.vstack(parts), self.params.query_cell_m)
 
-    def _submap(self, k: int) -> tuple[LikelihoodGrid, ReferenceScan, np.ndarray]:
+    def _submap(self, k: int) -> tuple[LikelihoodGrid, ReferenceScan]:
         """The likelihood grid and line reference of keyframe ``k``'s neighbourhood, in its frame (cached)."""
         if k in self._submaps:
             self._submaps.move_to_end(k)
@@ -521,7 +529,7 @@ class LoopClosingMapper:
         pts = np.vstack([from_frame(self._keyframes[i].points_xy_m, relative(poses[k], poses[i]))
                          for i in range(lo, hi + 1)])
         pts = _thin(pts, p.keyframe_cell_m)
-        entry = (LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match), pts)
+        entry = (LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match))
         self._submaps[k] = entry
         if len(self._submaps) > p.cached_submaps:
             self._submaps.popitem(last=False)
@@ -536,7 +544,7 @@ class LoopClosingMapper:
         """
         p = self.params
         count = self._counts
-        grid, reference, _ = self._submap(k)
+        grid, reference = self._submap(k)
         count["searched"] += 1
         found = search(grid, query, predicted, half_m, half_rad, p.min_score)
         if found.score < p.min_score:
