@@ -163,6 +163,10 @@ class LoopClosureParams:
         is asked for): each solve costs a sparse factorisation of the whole graph.
     odometry_keyframes : int
         The new keyframe's scan is matched against this many last keyframes, merged.
+    interpolate : bool
+        :meth:`LoopClosingMapper.trajectory` places a scan between two
+        keyframes from both, weighted by where it lies between them (Intel
+        0.021 → 0.020 m, ACES 0.044 m either way); else from the earlier only.
     ekf_jump_m, ekf_jump_rad : float
         An odometry edge is the EKF's motion between the keyframes unless it
         differs from the keyframes' scans matched (point-to-line, the EKF's
@@ -210,6 +214,7 @@ class LoopClosureParams:
     max_pending_closures: int = 10
     odometry_keyframes: int = 3
     ekf_jump_m: float = 0.05
+    interpolate: bool = True
     ekf_jump_rad: float = 0.02
 
     def __post_init__(self) -> None:
@@ -269,6 +274,7 @@ class _Keyframe:
     ekf_pose: np.ndarray  # (3,) the EKF's pose when it was taken
     points_xy_m: np.ndarray  # (N, 2) its scan, robot frame, thinned
     travel_m: float  # trajectory length from the first keyframe (EKF)
+    ekf_edge: bool  # the odometry edge into it is the EKF's motion (no jump)
 
 
 class LoopClosingMapper:
@@ -346,11 +352,27 @@ class LoopClosingMapper:
             self._optimise()
         kf = np.array(self._scan_kf, dtype=np.int64)
         rel = np.array(self._scan_rel, dtype=float).reshape(-1, 3)
-        base = self.graph.poses[kf]
-        c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
-        poses = np.column_stack((base[:, 0] + c * rel[:, 0] - s * rel[:, 1],
-                                 base[:, 1] + s * rel[:, 0] + c * rel[:, 1],
-                                 np.angle(np.exp(1j * (base[:, 2] + rel[:, 2])))))
+        poses = _compose_rows(self.graph.poses[kf], rel)
+        # A scan between two keyframes is placed from both, weighted by where it
+        # lies between them, so the trajectory does not step at the next keyframe
+        # by what the optimisation changed in between. Not across an EKF jump:
+        # the EKF's motion from the scan to the next keyframe would hold it.
+        first = self.keyframe_scans()
+        nxt = np.minimum(kf + 1, len(self._keyframes) - 1)
+        ekf_next = np.array([kf_.ekf_edge for kf_ in self._keyframes])[nxt]
+        blend = (nxt > kf) & ekf_next
+        if self.params.interpolate and blend.any():
+            idx = np.flatnonzero(blend)
+            ekf_here = np.array([self._keyframes[k].ekf_pose for k in kf[idx]])
+            ekf_scan = _compose_rows(ekf_here, rel[idx])
+            ekf_after = np.array([self._keyframes[k].ekf_pose for k in nxt[idx]])
+            rel_after = _relative_rows(ekf_after, ekf_scan)
+            from_next = _compose_rows(self.graph.poses[nxt[idx]], rel_after)
+            span = (first[nxt[idx]] - first[kf[idx]]).astype(float)
+            w = (idx - first[kf[idx]]) / span
+            a = poses[idx]
+            d = _relative_rows(a, from_next)
+            poses[idx] = _compose_rows(a, d * w[:, None])
         return np.array(self._stamps, dtype=np.int64), poses
 
     def keyframe_scans(self) -> np.ndarray:
@@ -373,7 +395,7 @@ class LoopClosingMapper:
         pts = _thin(pts, p.keyframe_cell_m)
         if moved is None:
             self.graph.add_node(ekf_pose)
-            self._keyframes.append(_Keyframe(ekf_pose.copy(), pts, 0.0))
+            self._keyframes.append(_Keyframe(ekf_pose.copy(), pts, 0.0, True))
             return
         prev = len(self._keyframes) - 1
         dist = float(np.hypot(moved[0], moved[1]))
@@ -396,7 +418,8 @@ class LoopClosingMapper:
                 self._counts["ekf_jumps"] += 1
         node = self.graph.add_node(compose(self.graph.poses[prev], step))
         self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
-        self._keyframes.append(_Keyframe(ekf_pose.copy(), pts, self._keyframes[-1].travel_m + dist))
+        self._keyframes.append(_Keyframe(ekf_pose.copy(), pts, self._keyframes[-1].travel_m + dist,
+                                         step is moved))
 
     def _recent_map(self, last: int) -> ReferenceScan:
         """The ``odometry_keyframes`` keyframes up to ``last`` merged in ``last``'s frame by their graph poses."""
@@ -597,3 +620,17 @@ def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     sums = np.zeros((cells.shape[0], 2))
     np.add.at(sums, inverse, points_xy_m)
     return sums / np.bincount(inverse, minlength=cells.shape[0])[:, None]
+
+
+def _compose_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise ``a ⊕ b`` of poses (T, 3)."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    return np.column_stack((a[:, 0] + c * b[:, 0] - s * b[:, 1], a[:, 1] + s * b[:, 0] + c * b[:, 1],
+                            np.angle(np.exp(1j * (a[:, 2] + b[:, 2])))))
+
+
+def _relative_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise ``a ⊖ b`` (``b`` in ``a``'s frame) of poses (T, 3)."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    return np.column_stack((c * dx + s * dy, -s * dx + c * dy, np.angle(np.exp(1j * (b[:, 2] - a[:, 2])))))
