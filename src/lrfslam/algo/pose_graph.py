@@ -69,16 +69,19 @@ class PoseGraphParams:
         ``λ`` of the first step (dimensionless, relative to diag(H)).
     converged_step : float
         The iteration stops once the largest step component is below this
-        (m and rad alike).
+        (m and rad alike)...
+    converged_cost : float
+        ...or a step lowered the cost by less than this fraction of it.
     """
 
     max_iterations: int = 10
     cauchy_scale: float = 3.0
     initial_damping: float = 1e-4
     converged_step: float = 1e-4
+    converged_cost: float = 1e-4
 
     def __post_init__(self) -> None:
-        require_finite(self, ("cauchy_scale", "initial_damping", "converged_step"), positive=True,
+        require_finite(self, ("cauchy_scale", "initial_damping", "converged_step", "converged_cost"), positive=True,
                        what="pose graph ")
         if self.max_iterations < 1:
             raise ConfigError("pose graph max_iterations must be >= 1")
@@ -337,6 +340,7 @@ class PoseGraph:
             if np.any(diag <= 0):
                 raise InputError("pose graph is not connected: a node has no edge")
             step = None
+            previous = cost
             while lam < 1e8:
                 damped = h + sp.diags(lam * diag, format="csc")
                 dx = -_factorise(damped).solve(b)
@@ -350,7 +354,8 @@ class PoseGraph:
                     lam = max(lam / 10.0, 1e-12)
                     break
                 lam *= 10.0
-            if step is None or np.max(np.abs(step)) < self.params.converged_step:
+            if step is None or np.max(np.abs(step)) < self.params.converged_step \
+                    or previous - cost <= self.params.converged_cost * previous:
                 break
         self._poses[: self._n] = poses
         return OptimizeReport(it, initial, cost)
