@@ -43,7 +43,7 @@ class MapperStep(StepBase):
         self.seq = 0
         self.keyframes_seq = 0
         self.optimisations = 0
-        self._last_stamp = 0
+        self._last_stamp = -1   # stamp of the last placed state (none yet)
 
     def on_message(self, msg: Message):
         v = msg.value
@@ -103,7 +103,8 @@ class MapperStep(StepBase):
         self.keyframes_seq += 1
         self.counts["keyframe_updates"] += 1
         return Output(topics.MAP_KEYFRAMES, t.MapKeyframes(stamp_ns, self.keyframes_seq, stamps, slam_poses,
-                                                           self.mapper.keyframe_poses()))
+                                                           self.mapper.keyframe_poses(),
+                                                           self.mapper.keyframe_ekf_edges()))
 
     def health(self) -> tuple[int, str]:
         s = self.mapper.stats

@@ -350,30 +350,22 @@ class LoopClosingMapper:
         """Stamps (ns, (T,)) and poses ((T, 3)) of every scan fed, from the graph with every closure solved for."""
         if self._pending:
             self._optimise()
-        kf = np.array(self._scan_kf, dtype=np.int64)
-        rel = np.array(self._scan_rel, dtype=float).reshape(-1, 3)
-        poses = _compose_rows(self.graph.poses[kf], rel)
-        # A scan between two keyframes is placed from both, weighted by where it
-        # lies between them, so the trajectory does not step at the next keyframe
-        # by what the optimisation changed in between. Not across an EKF jump:
-        # the EKF's motion from the scan to the next keyframe would hold it.
-        first = self.keyframe_scans()
-        nxt = np.minimum(kf + 1, len(self._keyframes) - 1)
-        ekf_next = np.array([kf_.ekf_edge for kf_ in self._keyframes])[nxt]
-        blend = (nxt > kf) & ekf_next
-        if self.params.interpolate and blend.any():
-            idx = np.flatnonzero(blend)
-            ekf_here = np.array([self._keyframes[k].ekf_pose for k in kf[idx]])
-            ekf_scan = _compose_rows(ekf_here, rel[idx])
-            ekf_after = np.array([self._keyframes[k].ekf_pose for k in nxt[idx]])
-            rel_after = _relative_rows(ekf_after, ekf_scan)
-            from_next = _compose_rows(self.graph.poses[nxt[idx]], rel_after)
-            span = (first[nxt[idx]] - first[kf[idx]]).astype(float)
-            w = (idx - first[kf[idx]]) / span
-            a = poses[idx]
-            d = _relative_rows(a, from_next)
-            poses[idx] = _compose_rows(a, d * w[:, None])
+        poses = place_scans(np.array(self._scan_kf, dtype=np.int64), np.array(self._scan_rel, dtype=float),
+                            self.graph.poses, self.keyframe_ekf_poses(), self.keyframe_scans(),
+                            self.keyframe_ekf_edges(), self.params.interpolate)
         return np.array(self._stamps, dtype=np.int64), poses
+
+    def keyframe_poses(self) -> np.ndarray:
+        """The keyframes' poses in the graph as it stands (optimised at the last optimisation), (K, 3)."""
+        return self.graph.poses.copy()
+
+    def keyframe_ekf_poses(self) -> np.ndarray:
+        """The EKF's pose when each keyframe was taken, (K, 3)."""
+        return np.array([k.ekf_pose for k in self._keyframes], dtype=float).reshape(-1, 3)
+
+    def keyframe_ekf_edges(self) -> np.ndarray:
+        """Whether the odometry edge into each keyframe is the EKF's motion (no jump), (K,) bool."""
+        return np.array([k.ekf_edge for k in self._keyframes], dtype=bool)
 
     def keyframe_scans(self) -> np.ndarray:
         """Index (in the order fed) of the scan that made each keyframe, (K,)."""
@@ -384,7 +376,7 @@ class LoopClosingMapper:
         """Stamps (ns, (K,)) of the scans that made the keyframes, and their EKF poses (K, 3)."""
         stamps = np.array(self._stamps, dtype=np.int64)[self.keyframe_scans()] if self._keyframes \
             else np.zeros(0, np.int64)
-        return stamps, np.array([k.ekf_pose for k in self._keyframes], dtype=float).reshape(-1, 3)
+        return stamps, self.keyframe_ekf_poses()
 
     def closures(self) -> list[tuple[int, int, np.ndarray]]:
         """The closures in the graph: (old keyframe, new keyframe, pose of the new in the old's frame (3,))."""
@@ -626,6 +618,50 @@ def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     sums = np.zeros((cells.shape[0], 2))
     np.add.at(sums, inverse, points_xy_m)
     return sums / np.bincount(inverse, minlength=cells.shape[0])[:, None]
+
+
+def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray, kf_ekf_poses: np.ndarray,
+                kf_first_scan: np.ndarray, kf_ekf_edge: np.ndarray, interpolate: bool = True) -> np.ndarray:
+    """Every scan placed by the (optimised) keyframes: the one way the mapper and a recording's reader do it.
+
+    Parameters
+    ----------
+    scan_kf : ndarray of int, shape (T,)
+        Keyframe of each scan (the newest one made at or before it), ascending.
+    scan_rel : ndarray, shape (T, 3)
+        Each scan's EKF pose relative to its keyframe's EKF pose.
+    kf_poses, kf_ekf_poses : ndarray, shape (K, 3)
+        The keyframes' optimised poses and their EKF poses.
+    kf_first_scan : ndarray of int, shape (K,)
+        Index of the scan that made each keyframe.
+    kf_ekf_edge : ndarray of bool, shape (K,)
+        Whether the odometry edge into each keyframe is the EKF's motion.
+    interpolate : bool
+        Blend a scan between two keyframes from both (see below).
+
+    Returns
+    -------
+    ndarray, shape (T, 3)
+    """
+    kf = np.asarray(scan_kf, dtype=np.int64)
+    rel = np.asarray(scan_rel, dtype=float).reshape(-1, 3)
+    poses = _compose_rows(kf_poses[kf], rel)
+    if not interpolate or kf.size == 0:
+        return poses
+    # A scan between two keyframes is placed from both, weighted by where it lies between
+    # them, so the trajectory does not step at the next keyframe by what the optimisation
+    # changed in between. Not across an EKF jump: the EKF's motion from the scan to the
+    # next keyframe would hold it.
+    nxt = np.minimum(kf + 1, len(kf_poses) - 1)
+    blend = (nxt > kf) & np.asarray(kf_ekf_edge, dtype=bool)[nxt]
+    if blend.any():
+        idx = np.flatnonzero(blend)
+        ekf_scan = _compose_rows(kf_ekf_poses[kf[idx]], rel[idx])
+        from_next = _compose_rows(kf_poses[nxt[idx]], _relative_rows(kf_ekf_poses[nxt[idx]], ekf_scan))
+        first = np.asarray(kf_first_scan, dtype=np.int64)
+        w = (idx - first[kf[idx]]) / (first[nxt[idx]] - first[kf[idx]]).astype(float)
+        poses[idx] = _compose_rows(poses[idx], _relative_rows(poses[idx], from_next) * w[:, None])
+    return poses
 
 
 def _compose_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -41,12 +41,12 @@ from lrfslam.evaluation.relations import (
     RelationStats,
     load_relations,
     relation_errors,
+    stamp_s,
 )
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_recording
-from lrfslam.tools.evaluate import stamp_s
 
 #: Ranges at or beyond this are a log's "no return" placeholder (ACES writes 50 m), not walls (m).
 NO_RETURN_RANGE_M = 49.9

@@ -12,24 +12,28 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo.geometry import compose, relative
+from lrfslam.algo.geometry import relative
+from lrfslam.algo.loop_closure import place_scans
 from lrfslam.errors import DecodeError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_recording
 
 
-def final_poses(stamps_ns: np.ndarray, slam_poses: np.ndarray, keyframes: t.MapKeyframes) -> np.ndarray:
-    """Every slam pose corrected by the optimised keyframes.
+def final_poses(stamps_ns: np.ndarray, slam_poses: np.ndarray, keyframes: t.MapKeyframes,
+                interpolate: bool = True) -> np.ndarray:
+    """Every slam pose corrected by the optimised keyframes, as the mapper places its scans.
 
     Parameters
     ----------
     stamps_ns : ndarray of int, shape (T,)
-        Stamps of the slam states, ascending.
+        Stamps of the slam states the mapper was fed, ascending.
     slam_poses : ndarray, shape (T, 3)
         Their poses ``(x_m, y_m, theta_rad)``.
     keyframes : MapKeyframes
         The last one of the recording (K keyframes, their scans' stamps ascending).
+    interpolate : bool
+        As the mapper's ``loop_closure.interpolate``.
 
     Returns
     -------
@@ -40,11 +44,13 @@ def final_poses(stamps_ns: np.ndarray, slam_poses: np.ndarray, keyframes: t.MapK
     slam_poses = np.asarray(slam_poses, dtype=float).reshape(-1, 3)
     out = slam_poses.copy()
     k = np.searchsorted(keyframes.scan_stamp_ns, stamps_ns, side="right") - 1
-    placed = k >= 0
-    if np.any(placed):
+    placed = np.flatnonzero(k >= 0)
+    if placed.size:
         kk = k[placed]
-        rel = relative(keyframes.slam_pose[kk].T, slam_poses[placed].T)
-        out[placed] = np.asarray(compose(keyframes.map_pose[kk].T, rel)).T
+        rel = np.asarray(relative(keyframes.slam_pose[kk].T, slam_poses[placed].T)).T
+        first = np.searchsorted(stamps_ns[placed], keyframes.scan_stamp_ns)
+        out[placed] = place_scans(kk, rel, keyframes.map_pose, keyframes.slam_pose, first, keyframes.slam_edge,
+                                  interpolate)
     return out
 
 

@@ -263,15 +263,17 @@ def _keyframes_to(m: t.MapKeyframes):
     p.scan_stamp_ns.extend(m.scan_stamp_ns.tolist())
     p.slam_pose.extend(m.slam_pose.ravel().tolist())
     p.map_pose.extend(m.map_pose.ravel().tolist())
+    p.slam_edge.extend(m.slam_edge.tolist())
     return p
 
 
 def _keyframes_from(p) -> t.MapKeyframes:
     k = len(p.scan_stamp_ns)
-    if len(p.slam_pose) != 3 * k or len(p.map_pose) != 3 * k:
-        raise ValueError("keyframe poses are not K x 3")
+    if len(p.slam_pose) != 3 * k or len(p.map_pose) != 3 * k or len(p.slam_edge) not in (0, k):
+        raise ValueError("keyframe poses are not K x 3, or the edge flags not K")
     return t.MapKeyframes(p.header.stamp_ns, p.header.seq, list(p.scan_stamp_ns),
-                          np.array(p.slam_pose, np.float64).reshape(k, 3), np.array(p.map_pose, np.float64).reshape(k, 3))
+                          np.array(p.slam_pose, np.float64).reshape(k, 3), np.array(p.map_pose, np.float64).reshape(k, 3),
+                          list(p.slam_edge))
 
 
 def _truth_to(m: t.GroundTruth):

@@ -174,19 +174,23 @@ class MapPose:
 @dataclass(frozen=True, eq=False)
 class MapKeyframes:
     """The pose graph's K keyframes after an optimisation: ``scan_stamp_ns`` (K,) of the scan
-    that made each, its ``slam_pose`` (K, 3) and its optimised ``map_pose`` (K, 3)."""
+    that made each, its ``slam_pose`` (K, 3), its optimised ``map_pose`` (K, 3), and
+    ``slam_edge`` (K,) bool, whether the edge into it is the slam motion (no jump)."""
 
     stamp_ns: int
     seq: int
     scan_stamp_ns: np.ndarray
     slam_pose: np.ndarray
     map_pose: np.ndarray
+    slam_edge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "scan_stamp_ns", _array(self.scan_stamp_ns, np.int64))
         k = self.scan_stamp_ns.size
         object.__setattr__(self, "slam_pose", _array(self.slam_pose, np.float64, (k, 3)))
         object.__setattr__(self, "map_pose", _array(self.map_pose, np.float64, (k, 3)))
+        edge = np.zeros(k, bool) if np.size(self.slam_edge) == 0 else self.slam_edge
+        object.__setattr__(self, "slam_edge", _array(edge, bool, (k,)))
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,7 +19,6 @@ import argparse
 import importlib
 import sys
 from collections.abc import Mapping
-from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +32,7 @@ from lrfslam.evaluation.relations import (
     RelationStats,
     load_relations,
     relation_errors,
+    stamp_s,
 )
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
@@ -47,17 +47,6 @@ DELEGATED = {"features": "lrfslam.evaluation.features", "slam": "lrfslam.evaluat
 #: map/keyframes) is the trajectory with every loop closure solved for.
 TRAJECTORIES = {"slam estimate": topics.SLAM_STATE, "mapper online": topics.MAP_POSE, "raw odometry": topics.ODOM}
 MAPPER_FINAL = "mapper final"
-
-
-def stamp_s(stamp_ns: int) -> float:
-    """Seconds of a stamp in ns, correctly rounded.
-
-    ``stamp_ns / 1e9`` rounds twice at Unix-epoch stamps (1e18 ns is beyond double
-    precision); the Decimal route gives the float nearest to the exact value,
-    which for a stamp imported from a log is the very float its text parses to,
-    so relation stamps match with zero gap.
-    """
-    return float(Decimal(int(stamp_ns)).scaleb(-9))
 
 
 def read_trajectories(path: str | Path, wanted: Mapping[str, topics.Topic] = TRAJECTORIES

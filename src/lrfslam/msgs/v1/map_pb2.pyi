@@ -26,13 +26,15 @@ class MapPose(_message.Message):
     def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., map_from_slam: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., keyframes: _Optional[int] = ..., closures: _Optional[int] = ..., closures_rejected: _Optional[int] = ...) -> None: ...
 
 class MapKeyframes(_message.Message):
-    __slots__ = ("header", "scan_stamp_ns", "slam_pose", "map_pose")
+    __slots__ = ("header", "scan_stamp_ns", "slam_pose", "map_pose", "slam_edge")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     SCAN_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     SLAM_POSE_FIELD_NUMBER: _ClassVar[int]
     MAP_POSE_FIELD_NUMBER: _ClassVar[int]
+    SLAM_EDGE_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     scan_stamp_ns: _containers.RepeatedScalarFieldContainer[int]
     slam_pose: _containers.RepeatedScalarFieldContainer[float]
     map_pose: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_stamp_ns: _Optional[_Iterable[int]] = ..., slam_pose: _Optional[_Iterable[float]] = ..., map_pose: _Optional[_Iterable[float]] = ...) -> None: ...
+    slam_edge: _containers.RepeatedScalarFieldContainer[bool]
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_stamp_ns: _Optional[_Iterable[int]] = ..., slam_pose: _Optional[_Iterable[float]] = ..., map_pose: _Optional[_Iterable[float]] = ..., slam_edge: _Optional[_Iterable[bool]] = ...) -> None: ...
