@@ -52,6 +52,9 @@ def test_every_state_gets_a_map_pose_and_the_closures_are_published(mapped):
         np.testing.assert_allclose(compose(p.map_from_slam, state.pose), p.pose, atol=1e-9)
     assert poses[-1].closures >= 5 and step.counts.get("scan_missing", 0) == 0
     assert sum(o.topic is topics.MAP_KEYFRAMES for o in outs) >= 2   # after optimisations, and at the end
+    nis = step.mapper.closure_nis
+    assert step.counts["closures_verified"] == nis.size >= step.mapper.stats.accepted
+    assert np.all(nis >= 0) and step.counts["closure_nis_milli"] == pytest.approx(1000 * nis.sum(), abs=nis.size)
 
 
 def test_the_last_keyframes_reproduce_the_mappers_final_trajectory(mapped):

@@ -292,7 +292,8 @@ class LoopClosingMapper:
         self._scan_kf: list[int] = []  # per scan fed: its keyframe
         self._scan_rel: list[np.ndarray] = []  # per scan: EKF pose relative to that keyframe's
         self._stamps: list[int] = []
-        self._loop_edges: list[int] = []  # graph edge ids of the closures in the graph
+        self._loop_edges: list[int] = []
+        self._closure_nis: list[float] = []  # per closure that passed verification  # graph edge ids of the closures in the graph
         self._submaps: OrderedDict[int, tuple[LikelihoodGrid, ReferenceScan]] = OrderedDict()
         self._counts = dict.fromkeys(ClosureStats.__dataclass_fields__, 0)
         self._last_ekf_pose = np.zeros(3)  # the previous scan's EKF pose
@@ -354,6 +355,11 @@ class LoopClosingMapper:
                             self.graph.poses, self.keyframe_ekf_poses(), self.keyframe_scans(),
                             self.keyframe_ekf_edges(), self.params.interpolate)
         return np.array(self._stamps, dtype=np.int64), poses
+
+    @property
+    def closure_nis(self) -> np.ndarray:
+        """NIS (3 dof) of every closure that passed verification, against the graph's prediction, (C,)."""
+        return np.array(self._closure_nis, dtype=float)
 
     def keyframe_poses(self) -> np.ndarray:
         """The keyframes' poses in the graph as it stands (optimised at the last optimisation), (K, 3)."""
@@ -584,6 +590,9 @@ class LoopClosingMapper:
         if not chi2 <= p.gate_chi2:
             count["gated"] += 1
             return None
+        # Its NIS without the drift factor: chi-squared with 3 dof if the graph's and the
+        # match's covariances were both right (kept for the consistency report).
+        self._closure_nis.append(float(innovation @ np.linalg.solve(rel_cov + cov, innovation)))
         return k, n, refined.pose, cov, innovation
 
     def _optimise(self) -> None:

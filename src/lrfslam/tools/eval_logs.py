@@ -70,6 +70,13 @@ class LogResult:
     sensor: dict[str, str] = field(default_factory=dict)
     map_png: Path | None = None
     slam_counts: dict[str, int] = field(default_factory=dict)
+    mapper_counts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def closure_nis(self) -> tuple[float, int]:
+        """Mean NIS of the loop closures that passed verification (3 if consistent), and how many."""
+        n = self.mapper_counts.get("step.closures_verified", 0)
+        return (self.mapper_counts.get("step.closure_nis_milli", 0) / 1000.0 / n if n else float("nan")), n
 
     @property
     def matched_nis(self) -> tuple[float, float, int]:
@@ -105,6 +112,7 @@ def run_log(log: Log, work: Path, stages: list[chain.Stage], draw_map: bool = Tr
     started = time.perf_counter()
     counts = pipeline.run_pipeline(stages, log.name.replace(" ", "_"), imported, out)
     result.slam_counts = dict(counts.get("slam", {}))
+    result.mapper_counts = dict(counts.get("mapper", {}))
     result.pipeline_s = time.perf_counter() - started
     result.landmarks = _final_landmarks(out)
     if log.relations is not None:
@@ -174,6 +182,9 @@ def main_all(root: Path, work: Path, sets: list[str], config_file: str | None) -
         nis, inside, n = r.matched_nis
         print(f"{r.log.name}: matched NIS mean {nis:.2f} (2.00 if consistent), {100 * inside:.1f} % inside "
               f"the 95 % bound, over {n} observations")
+        closure_nis, closures = r.closure_nis
+        print(f"{r.log.name}: loop closure NIS mean {closure_nis:.2f} (3.00 if consistent) over {closures} "
+              "verified closures")
         print(f"{r.log.name}: {r.scans} scans in {r.pipeline_s:.1f} s; laser {facts.get('beams', '?')}, "
               f"no return {facts.get('no_return_m') or '-'} m"
               + (f"; map {r.map_png}" if r.map_png else ""))
