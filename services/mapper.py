@@ -14,13 +14,13 @@ trajectory of a recording is every slam state placed by the last ``map/keyframes
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
+from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
@@ -37,53 +37,34 @@ class MapperStep(StepBase):
         super().__init__()
         self.cfg = cfg
         self.mapper = LoopClosingMapper(cfg.loop_closure)
-        self.scans: dict[int, tuple[int, np.ndarray]] = {}   # seq -> (stamp, points (N, 2) robot frame)
-        self.newest_scan_ns = -1
-        self.waiting: deque[t.SlamState] = deque()
+        # A slam state waits for its scan as features do in the slam stage (no odometry here).
+        self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
+            wait_for_odometry=False, max_wait=cfg.max_waiting_states, scans_optional=False))
         self.seq = 0
         self.keyframes_seq = 0
         self.optimisations = 0
-        self._last_stamp = -1   # stamp of the last placed state (none yet)
+        self._last_stamp = 0
 
     def on_message(self, msg: Message):
         v = msg.value
         if msg.topic is topics.SCAN:
             valid = (v.status == t.BEAM_VALID) & np.isfinite(v.ranges_m)
-            self.scans[v.seq] = (v.stamp_ns, polar_to_xy(v.ranges_m[valid], v.angles_rad[valid]))
-            self.newest_scan_ns = max(self.newest_scan_ns, v.stamp_ns)
+            self.align.add_scan(v.seq, v.stamp_ns, polar_to_xy(v.ranges_m[valid], v.angles_rad[valid]))
         elif msg.topic is topics.SLAM_STATE:
-            self.waiting.append(v)
-        return self._ready(final=False)
+            self.align.add_features(v.stamp_ns, v.scan_seq, v)
+        return [out for a in self.align.ready() for out in self._place(a.features, a.scan_xy_m)]
 
     def finish(self):
-        outs = self._ready(final=True)
+        outs = [out for a in self.align.ready(final=True) for out in self._place(a.features, a.scan_xy_m)]
         if self.mapper.keyframe_count:
             self.mapper.trajectory()   # solves for every closure still pending
-            outs.append(self._keyframes(self.waiting[-1].stamp_ns if self.waiting else self._last_stamp))
+            outs.append(self._keyframes(self._last_stamp))
         return outs
 
-    def _ready(self, final: bool) -> list[Output]:
-        outs: list[Output] = []
-        while self.waiting:
-            state = self.waiting[0]
-            have_scan = state.scan_seq in self.scans or self.newest_scan_ns > state.stamp_ns
-            if not (have_scan or final or len(self.waiting) > self.cfg.max_waiting_states):
-                break
-            self.waiting.popleft()
-            outs += self._place(state)
-        # Scans no newer than the last placed state are never asked for again; and however many
-        # scans come without states, no more are kept than states may wait.
-        for seq in [q for q, (stamp, _) in self.scans.items() if stamp <= self._last_stamp]:
-            del self.scans[seq]
-        while len(self.scans) > 2 * self.cfg.max_waiting_states + 2:
-            del self.scans[min(self.scans, key=lambda q: (self.scans[q][0], q))]
-        return outs
-
-    def _place(self, state: t.SlamState) -> list[Output]:
-        entry = self.scans.pop(state.scan_seq, None)
-        if entry is None:
+    def _place(self, state: t.SlamState, points: np.ndarray | None) -> list[Output]:
+        if points is None:
             self.counts["scan_missing"] += 1
-        points = entry[1] if entry is not None else np.zeros((0, 2))
+            points = np.zeros((0, 2))
         pose = self.mapper.add_scan(state.stamp_ns, state.pose, state.pose_cov, points)
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats

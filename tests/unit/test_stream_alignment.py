@@ -132,6 +132,15 @@ def test_features_before_any_scan_are_not_held_for_one():
     assert a.scan_xy_m is None
 
 
+def test_features_before_any_scan_wait_when_scans_are_not_optional():
+    align: StreamAligner[str] = StreamAligner(AlignmentParams(wait_for_odometry=False, scans_optional=False))
+    align.add_features(100, 1, "a")
+    assert align.ready() == []
+    align.add_scan(1, 100, points(1))
+    (a,) = align.ready()
+    assert a.features == "a" and a.scan_xy_m is not None
+
+
 def test_without_odometry_they_wait_only_so_long():
     align: StreamAligner[int] = StreamAligner(AlignmentParams(max_wait=3))
     for k in range(3):

@@ -73,11 +73,16 @@ class AlignmentParams:
         Hold features until their scan has arrived (scan matching needs it).
     max_wait : int
         With more sets of features than this waiting, the oldest goes out anyway.
+    scans_optional : bool
+        Features that arrive before the very first scan are not held for it, so that
+        inputs without scans still flow (the slam stage); false holds them too (the
+        mapper, whose keyframes are scans).
     """
 
     wait_for_odometry: bool = True
     wait_for_scans: bool = True
     max_wait: int = 20
+    scans_optional: bool = True
 
 
 @dataclass(frozen=True)
@@ -151,8 +156,9 @@ class StreamAligner(Generic[T]):
             stamp, scan_seq, _ = self._pending[0]
             give_up = final or len(self._pending) > p.max_wait
             odom_ready = not p.wait_for_odometry or (bool(self._odom) and self._odom[-1][0] >= stamp)
-            scan_ready = not p.wait_for_scans or self._newest_scan_ns is None or scan_seq in self._scans \
-                or self._newest_scan_ns > stamp
+            newest = self._newest_scan_ns
+            scan_ready = not p.wait_for_scans or scan_seq in self._scans \
+                or (p.scans_optional if newest is None else newest > stamp)
             if not (give_up or (odom_ready and scan_ready)):
                 break
             out.append(self._take())

@@ -34,25 +34,25 @@ import numpy as np
 from lrfslam.algo.geometry import polar_to_xy
 from lrfslam.algo.loop_closure import ClosureStats, LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.scan_match import ScanMatchParams
-from lrfslam.errors import ConfigError, DecodeError, LrfSlamError
+from lrfslam.errors import DecodeError, LrfSlamError
 from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
 from lrfslam.evaluation.relations import (
+    SPANS_S,
     Relations,
     RelationStats,
     load_relations,
     relation_errors,
+    span_label,
     stamp_s,
 )
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.recording import read_recording
 
-#: Ranges at or beyond this are a log's "no return" placeholder (ACES writes 50 m), not walls (m).
-NO_RETURN_RANGE_M = 49.9
-
 #: Relation spans reported separately: label -> [low, high) in seconds.
-SPANS = {"< 2 s": (0.0, 2.0), "2-30 s": (2.0, 30.0), ">= 30 s": (30.0, np.inf)}
+SPANS = {span_label(span): span for span in SPANS_S}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -91,7 +91,7 @@ def read_inputs(path: str | Path) -> list[tuple[int, np.ndarray, np.ndarray, np.
             continue
         if topic is topics.SCAN:
             r = value.ranges_m
-            ok = (value.status == t.BEAM_VALID) & np.isfinite(r) & (r < NO_RETURN_RANGE_M)
+            ok = (value.status == t.BEAM_VALID) & np.isfinite(r)
             scans[value.seq] = polar_to_xy(r[ok], value.angles_rad[ok])
             continue
         pts = scans.pop(value.scan_seq, None)
@@ -154,24 +154,9 @@ def report(name: str, result: RunResult, relations: Relations,
 
 
 def apply_sets(params: LoopClosureParams, sets: Sequence[str]) -> LoopClosureParams:
-    """``params`` with ``NAME=VALUE`` overrides (``outer.inner=VALUE`` for nested parameter tables)."""
-    for item in sets:
-        name, sep, text = item.partition("=")
-        if not sep:
-            raise ConfigError(f"--set wants NAME=VALUE, got {item!r}")
-        params = _replace(params, name.split("."), text)
-    return params
-
-
-def _replace(obj, path: list[str], text: str):
-    fields = {f.name: f for f in dataclasses.fields(obj)}
-    if path[0] not in fields:
-        raise ConfigError(f"{type(obj).__name__} has no field {path[0]!r}")
-    current = getattr(obj, path[0])
-    if len(path) > 1:
-        return dataclasses.replace(obj, **{path[0]: _replace(current, path[1:], text)})
-    value = type(current)(float(text)) if isinstance(current, (int, float)) else text
-    return dataclasses.replace(obj, **{path[0]: value})
+    """``params`` with ``NAME=VALUE`` overrides (``outer.inner=VALUE`` for nested parameter tables),
+    layered as every service's ``--set``."""
+    return config_mod.load(LoopClosureParams, base=params, sets=list(sets))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -65,7 +65,7 @@ def final_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
             value = topic.codec.decode(rec.data, rec.schema)
         except DecodeError:
             continue
-        if topic is topics.MAP_KEYFRAMES or topic.name == topics.MAP_KEYFRAMES.name:
+        if topic is topics.MAP_KEYFRAMES:
             last = value
         else:
             stamps.append(value.stamp_ns)

@@ -27,6 +27,7 @@ from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.errors import ConfigError
 from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
 from lrfslam.evaluation.relations import (
+    ErrorSummary,
     RelationStats,
     errors_by_span,
     load_relations,
@@ -66,7 +67,7 @@ class LogResult:
     landmarks: int = 0
     pipeline_s: float = 0.0
     scores: dict[str, RelationStats] = field(default_factory=dict)
-    by_span: dict[str, dict[str, tuple[int, object]]] = field(default_factory=dict)
+    by_span: dict[str, dict[str, tuple[int, ErrorSummary]]] = field(default_factory=dict)
     sensor: dict[str, str] = field(default_factory=dict)
     map_png: Path | None = None
     slam_counts: dict[str, int] = field(default_factory=dict)
