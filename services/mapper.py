@@ -21,15 +21,27 @@ import numpy as np
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
+from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
+
+#: What the mapper's local trajectory (its odometry edges, and each scan's place between keyframes) is made of.
+LOCAL_TRAJECTORIES = ("slam_motion", "slam_pose")
 
 
 @dataclass(frozen=True)
 class MapperConfig:
     loop_closure: LoopClosureParams = field(default_factory=LoopClosureParams)
     max_waiting_states: int = 20   # slam states held for their scan at most (then placed without one)
+    # "slam_motion": the chain of the motions that moved the filter (scan-matched, else odometry);
+    # "slam_pose": the filter's poses, landmark corrections included (see docs/slam.md for the choice).
+    local_trajectory: str = "slam_motion"
+
+    def __post_init__(self) -> None:
+        if self.local_trajectory not in LOCAL_TRAJECTORIES:
+            raise ConfigError(f"mapper.local_trajectory must be one of {', '.join(LOCAL_TRAJECTORIES)}, "
+                              f"not {self.local_trajectory!r}")
 
 
 class MapperStep(StepBase):
@@ -44,6 +56,8 @@ class MapperStep(StepBase):
         self.keyframes_seq = 0
         self.optimisations = 0
         self._last_stamp = 0
+        self._local: np.ndarray | None = None   # the last state's pose on the local trajectory
+        self._last_slam_pose = np.zeros(3)
 
     def on_message(self, msg: Message):
         v = msg.value
@@ -65,7 +79,10 @@ class MapperStep(StepBase):
         if points is None:
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
-        pose = self.mapper.add_scan(state.stamp_ns, state.pose, state.pose_cov, points)
+        local = self._local_pose(state)
+        # The filter's poses can jump (landmark corrections); a chain of scan-matched motions cannot.
+        matched = self.cfg.local_trajectory == "slam_motion" and state.motion is not None and state.motion_matched
+        pose = self.mapper.add_scan(state.stamp_ns, local, points, matched)
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats
         nis = self.mapper.closure_nis[self.counts["closures_verified"]:]
@@ -75,19 +92,34 @@ class MapperStep(StepBase):
         outs = [Output(topics.MAP_POSE, t.MapPose(
             state.stamp_ns, self.seq, state.scan_seq, pose, compose(pose, relative(state.pose, np.zeros(3))),
             self.mapper.keyframe_count, stats.accepted - stats.removed,
-            stats.ambiguous + stats.refine_failed + stats.gated + stats.removed))]
+            stats.ambiguous + stats.refine_failed + stats.gated + stats.removed, local))]
         if stats.optimisations != self.optimisations:
             self.optimisations = stats.optimisations
             outs.append(self._keyframes(state.stamp_ns))
         return outs
 
+    def _local_pose(self, state: t.SlamState) -> np.ndarray:
+        """The state's pose on the local trajectory (``local_trajectory``), (3,)."""
+        if self.cfg.local_trajectory == "slam_pose":
+            return state.pose
+        if self._local is None:
+            local = state.pose   # the chain starts where the filter does
+        elif state.motion is not None:
+            local = compose(self._local, state.motion)
+        else:
+            # A slam state recorded before they carried their motion: follow the filter's pose.
+            self.counts["motion_missing"] += 1
+            local = compose(self._local, relative(self._last_slam_pose, state.pose))
+        self._local, self._last_slam_pose = local, state.pose
+        return local
+
     def _keyframes(self, stamp_ns: int) -> Output:
-        stamps, slam_poses = self.mapper.keyframe_slam_poses()
+        stamps, local_poses = self.mapper.keyframe_stamped_local_poses()
         self.keyframes_seq += 1
         self.counts["keyframe_updates"] += 1
-        return Output(topics.MAP_KEYFRAMES, t.MapKeyframes(stamp_ns, self.keyframes_seq, stamps, slam_poses,
+        return Output(topics.MAP_KEYFRAMES, t.MapKeyframes(stamp_ns, self.keyframes_seq, stamps, local_poses,
                                                            self.mapper.keyframe_poses(),
-                                                           self.mapper.keyframe_ekf_edges()))
+                                                           self.mapper.keyframe_local_edges()))
 
     def health(self) -> tuple[int, str]:
         s = self.mapper.stats

@@ -3,7 +3,8 @@
 in:  odom        Odometry  (motion between scans)
      scan        LaserScan (scan matching: the motion between scans from their overlap)
      features    Features  (robot frame, with covariances; the walls' direction mod 90° corrects the heading)
-out: slam/state  SlamState (pose, 3x3 covariance, landmarks with stable ids and 2x2 covariances)
+out: slam/state  SlamState (pose, 3x3 covariance, landmarks with stable ids and 2x2 covariances,
+                 the motion that moved the filter)
 
 Features wait for their odometry and scan (``lrfslam.algo.stream_alignment``), so the result does not
 depend on how the streams interleave; then ``lrfslam.algo.corner_slam`` moves the filter (scan-matched
@@ -88,7 +89,13 @@ class SlamStep(StepBase):
         return Output(topics.SLAM_STATE, t.SlamState(
             f.stamp_ns, self.slam.scans, f.scan_seq, ekf.pose, ekf.pose_cov, lm.ids, lm.xy, lm.cov,
             np.where(lm.kinds == 0, t.FEATURE_FORWARD, t.FEATURE_BACKWARD), lm.sightings, lm.confirmed,
-            report.n_matched, report.n_new, report.n_ambiguous + report.n_rejected))
+            report.n_matched, report.n_new, report.n_ambiguous + report.n_rejected, self._motion(),
+            self.slam.last_update.motion_matched))
+
+    def _motion(self) -> np.ndarray:
+        """What moved the filter to this scan, (3,); zero where nothing did (absent only in older recordings)."""
+        motion = self.slam.last_update.motion
+        return np.zeros(3) if motion is None else motion
 
     def _save(self, path: Path) -> None:
         npz_file.write_atomic(path, self.slam.checkpoint())

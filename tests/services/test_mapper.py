@@ -1,5 +1,5 @@
-"""The mapper step: slam states placed with their scans, map/pose per state, map/keyframes that
-reproduce the mapper's own final trajectory from a recording."""
+"""The mapper step: slam states placed with their scans on the local trajectory, map/pose per
+state, map/keyframes that reproduce the mapper's own final trajectory from a recording."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from lrfslam.services import build_step
 
-from lrfslam.algo.geometry import compose
+from lrfslam.algo.geometry import compose, relative
+from lrfslam.errors import ConfigError
 from lrfslam.evaluation.map_trajectory import final_poses
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -17,18 +18,32 @@ from lrfslam.sim.simulator import OdometryNoise, SimConfig, Simulator
 msg = Message.of
 
 
-def drifting_loop(n: int):
-    """(scan, slam state) per frame of the hallway loop, the 'slam' pose being drifting odometry."""
+#: Where the 'filter' of :func:`drifting_loop` corrects itself: its pose jumps by this much.
+JUMP = np.array([0.3, -0.2, 0.05])
+
+
+def drifting_loop(n: int, with_motion: bool = True):
+    """(scan, slam state, true pose) per frame of the hallway loop.
+
+    The states' motions are drifting odometry's increments; their poses are that odometry
+    with a jump (:data:`JUMP`, as an EKF correcting itself) every 97 frames.
+    """
     cfg = SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3,
                     odometry=OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02))
     lidar = cfg.lidar
     out = []
+    previous, jumps = None, np.zeros(3)
     for frame, _ in zip(Simulator(cfg), range(n), strict=False):
         stamp, seq = round(frame.t_s * 1e9), frame.index + 1
         scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad,
                                        lidar.angle_increment_rad, lidar.max_range_m)
-        state = t.SlamState(stamp, seq, seq, frame.odom_pose, np.eye(3) * 1e-4)
-        out.append((scan, state, frame.true_pose))
+        motion = np.zeros(3) if previous is None else relative(previous, frame.odom_pose)
+        previous = frame.odom_pose
+        if frame.index % 97 == 50:
+            jumps = compose(jumps, JUMP)
+        state = t.SlamState(stamp, seq, seq, compose(jumps, frame.odom_pose), np.eye(3) * 1e-4,
+                            motion=motion if with_motion else None)
+        out.append((scan, state, frame))
     return out
 
 
@@ -48,8 +63,10 @@ def test_every_state_gets_a_map_pose_and_the_closures_are_published(mapped):
     frames, step, outs = mapped
     poses = [o.value for o in outs if o.topic is topics.MAP_POSE]
     assert [p.scan_seq for p in poses] == [s.scan_seq for _, s, _ in frames]
-    for p, (_, state, _) in zip(poses, frames, strict=True):
+    for p, (_, state, frame) in zip(poses, frames, strict=True):
         np.testing.assert_allclose(compose(p.map_from_slam, state.pose), p.pose, atol=1e-9)
+        # The local trajectory is the chain of the motions (the odometry here), not the jumping poses.
+        np.testing.assert_allclose(p.local_pose, frame.odom_pose, atol=1e-6)
     assert poses[-1].closures >= 5 and step.counts.get("scan_missing", 0) == 0
     assert sum(o.topic is topics.MAP_KEYFRAMES for o in outs) >= 2   # after optimisations, and at the end
     nis = step.mapper.closure_nis
@@ -61,12 +78,13 @@ def test_the_last_keyframes_reproduce_the_mappers_final_trajectory(mapped):
     frames, step, outs = mapped
     last = [o.value for o in outs if o.topic is topics.MAP_KEYFRAMES][-1]
     stamps = np.array([s.stamp_ns for _, s, _ in frames])
-    from_recording = final_poses(stamps, np.array([s.pose for _, s, _ in frames]), last)
+    local = np.array([o.value.local_pose for o in outs if o.topic is topics.MAP_POSE])
+    from_recording = final_poses(stamps, local, last)
     own_stamps, own = step.mapper.trajectory()
     np.testing.assert_array_equal(own_stamps, stamps)
     np.testing.assert_allclose(from_recording, own, atol=1e-9)
     # And it is better than the drifting input, against the truth.
-    truth = np.array([tp for _, _, tp in frames])
+    truth = np.array([f.true_pose for _, _, f in frames])
     drift = np.hypot(*(np.array([s.pose for _, s, _ in frames])[:, :2] - truth[:, :2]).T)
     final = np.hypot(*(own[:, :2] - truth[:, :2]).T)
     assert drift.max() > 1.0 and final.max() < 0.5 * drift.max()
@@ -86,3 +104,23 @@ def test_a_state_waits_for_its_scan_and_one_without_a_scan_is_placed_when_a_newe
     assert step.counts["scan_missing"] == 1
     placed = step.on_message(msg(Output(topics.SLAM_STATE, state3)))
     assert [o.value.scan_seq for o in placed if o.topic is topics.MAP_POSE] == [3]
+
+
+@pytest.mark.parametrize("with_motion, local_trajectory", [(True, "slam_pose"), (False, "slam_motion")])
+def test_the_slam_poses_are_the_local_trajectory_when_asked_or_when_states_carry_no_motion(with_motion,
+                                                                                            local_trajectory):
+    # States recorded before they carried their motion follow the filter's pose, jumps included.
+    frames = drifting_loop(120, with_motion)
+    step = build_step("mapper", sets=[f"local_trajectory={local_trajectory}"])
+    outs = []
+    for scan, state, _ in frames:
+        outs += step.on_message(msg(Output(topics.SCAN, scan)))
+        outs += step.on_message(msg(Output(topics.SLAM_STATE, state)))
+    local = np.array([o.value.local_pose for o in outs if o.topic is topics.MAP_POSE])
+    np.testing.assert_allclose(local, np.array([s.pose for _, s, _ in frames]), atol=1e-6)
+    assert step.counts.get("motion_missing", 0) == (0 if with_motion else len(frames) - 1)
+
+
+def test_an_unknown_local_trajectory_is_a_config_error():
+    with pytest.raises(ConfigError, match="local_trajectory"):
+        build_step("mapper", sets=["local_trajectory=ekf"])

@@ -39,12 +39,12 @@ def test_features_and_slam_state_round_trip(k, seed):
         np.testing.assert_array_equal(getattr(back, name), getattr(feats, name))
     state = t.SlamState(9, 1, 2, rng.normal(size=3), np.eye(3), np.arange(k), rng.normal(size=(k, 2)),
                         a @ a.transpose(0, 2, 1), rng.choice([1, 2], k), rng.integers(1, 9, k),
-                        rng.integers(0, 2, k).astype(bool), 1, 2, 3)
+                        rng.integers(0, 2, k).astype(bool), 1, 2, 3, rng.normal(size=3) if k % 2 else None, k % 3 == 0)
     back = codec.SLAM_STATE.decode(codec.SLAM_STATE.encode(state))
     for name in ("pose", "pose_cov", "landmark_ids", "landmark_xy_m", "landmark_cov_m2", "landmark_kind",
-                 "landmark_sightings", "landmark_confirmed"):
+                 "landmark_sightings", "landmark_confirmed", "motion"):
         np.testing.assert_array_equal(getattr(back, name), getattr(state, name))
-    assert (back.associated, back.added, back.rejected) == (1, 2, 3)
+    assert (back.associated, back.added, back.rejected, back.motion_matched) == (1, 2, 3, k % 3 == 0)
 
 
 def test_wall_direction_round_trips_and_absence_is_nan():
@@ -136,20 +136,20 @@ def test_robot_names_are_single_key_chunks():
 @given(k=st.integers(0, 50), seed=st.integers(0, 2**32 - 1))
 def test_map_messages_round_trip(k, seed):
     rng = np.random.default_rng(seed)
-    pose = t.MapPose(11, 4, 3, rng.normal(size=3), rng.normal(size=3), k, 2, 1)
+    pose = t.MapPose(11, 4, 3, rng.normal(size=3), rng.normal(size=3), k, 2, 1, rng.normal(size=3) if k % 2 else None)
     back = codec.MAP_POSE.decode(codec.MAP_POSE.encode(pose))
-    np.testing.assert_array_equal(back.pose, pose.pose)
-    np.testing.assert_array_equal(back.map_from_slam, pose.map_from_slam)
+    for name in ("pose", "map_from_slam", "local_pose"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(pose, name))
     assert (back.stamp_ns, back.seq, back.scan_seq, back.keyframes, back.closures, back.closures_rejected) == (
         11, 4, 3, k, 2, 1)
     kf = t.MapKeyframes(12, 5, rng.integers(0, 2**62, k), rng.normal(size=(k, 3)), rng.normal(size=(k, 3)))
     back = codec.MAP_KEYFRAMES.decode(codec.MAP_KEYFRAMES.encode(kf))
-    for name in ("scan_stamp_ns", "slam_pose", "map_pose"):
+    for name in ("scan_stamp_ns", "local_pose", "map_pose"):
         np.testing.assert_array_equal(getattr(back, name), getattr(kf, name))
 
 
 def test_keyframes_whose_poses_are_not_k_by_3_are_a_decode_error():
     from lrfslam.msgs.v1 import map_pb2
-    bad = map_pb2.MapKeyframes(scan_stamp_ns=[1, 2], slam_pose=[0.0] * 6, map_pose=[0.0] * 5)
+    bad = map_pb2.MapKeyframes(scan_stamp_ns=[1, 2], local_pose=[0.0] * 6, map_pose=[0.0] * 5)
     with pytest.raises(DecodeError):
         codec.MAP_KEYFRAMES.decode(bad.SerializeToString())

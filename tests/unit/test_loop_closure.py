@@ -43,7 +43,7 @@ def hallway_run():
     mapper = LoopClosingMapper()
     truth, odom, online = [], [], []
     for frame, _ in zip(sim, range(int(2 * lap_s * cfg.rate_hz / cfg.speed_mps)), strict=False):
-        online.append(mapper.add_scan(int(frame.t_s * 1e9), frame.odom_pose, np.zeros((3, 3)),
+        online.append(mapper.add_scan(int(frame.t_s * 1e9), frame.odom_pose,
                                       points(frame.scan.ranges_m, frame.scan.angles_rad)))
         truth.append(frame.true_pose)
         odom.append(frame.odom_pose)
@@ -72,7 +72,7 @@ def test_replay_is_deterministic(hallway_run):
     sim = Simulator(SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3, odometry=OdometryNoise(
         trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02)))
     for frame, _ in zip(sim, range(len(truth)), strict=False):
-        again.add_scan(int(frame.t_s * 1e9), frame.odom_pose, np.zeros((3, 3)),
+        again.add_scan(int(frame.t_s * 1e9), frame.odom_pose,
                        points(frame.scan.ranges_m, frame.scan.angles_rad))
     assert np.array_equal(again.trajectory()[1], mapper.trajectory()[1])
 
@@ -146,7 +146,7 @@ def test_a_twin_corridor_is_not_taken_for_the_original(gap_m):
         ekf.append(compose(ekf[-1], step + (0.0, 0.0, 0.002 * np.hypot(step[0], step[1]))))
     for k, pose in enumerate(truth):
         r = raycast(walls, pose, angles) + rng.normal(0.0, 0.01, angles.size)
-        mapper.add_scan(k, ekf[k], np.zeros((3, 3)), points(r, angles))
+        mapper.add_scan(k, ekf[k], points(r, angles))
     assert mapper.stats.searched > 0  # A's keyframes were searched from B...
     assert all(closures_are_right(mapper, truth))  # ...but no wrong closure is in the graph
     _, final = mapper.trajectory()
@@ -163,6 +163,32 @@ def test_bad_input_is_refused():
         LoopClosureParams(query_keyframes=0)
     mapper = LoopClosingMapper()
     with pytest.raises(InputError):
-        mapper.add_scan(0, (0.0, 0.0), np.zeros((3, 3)), np.zeros((0, 2)))
+        mapper.add_scan(0, (0.0, 0.0), np.zeros((0, 2)))
     with pytest.raises(InputError):
-        mapper.add_scan(0, (0.0, 0.0, np.nan), np.zeros((3, 3)), np.zeros((0, 2)))
+        mapper.add_scan(0, (0.0, 0.0, np.nan), np.zeros((0, 2)))
+
+
+@pytest.mark.parametrize("matched", [False, True])
+def test_a_jump_in_the_local_trajectory_is_replaced_by_the_scans_match_unless_the_steps_were_scan_matched(matched):
+    # The first 60 frames of the hallway, the local trajectory being the truth with a jump (4.6°)
+    # at frame 30: an EKF correcting itself. Its scans say the robot did not jump.
+    sim = Simulator(SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3))
+    mapper = LoopClosingMapper()
+    jump = np.array([0.1, 0.1, 0.08])
+    truth, local = [], []
+    for frame, _ in zip(sim, range(60), strict=False):
+        pose = compose(jump, frame.true_pose) if frame.index >= 30 else frame.true_pose
+        mapper.add_scan(int(frame.t_s * 1e9), pose, points(frame.scan.ranges_m, frame.scan.angles_rad), matched)
+        truth.append(frame.true_pose)
+        local.append(pose)
+    _, final = mapper.trajectory()
+    step = relative(final[29], final[30])
+    true_step = relative(truth[29], truth[30])
+    if matched:   # taken as motion, as the caller said it was
+        assert mapper.stats.ekf_jumps == 0
+        np.testing.assert_allclose(step, relative(local[29], local[30]), atol=1e-9)
+    else:         # the keyframes' match replaces the jump
+        assert mapper.stats.ekf_jumps >= 1
+        jumped = relative(local[29], local[30]) - true_step
+        assert abs(wrap_angle(step[2] - true_step[2])) < 0.01 < abs(wrap_angle(jumped[2]))
+        assert np.hypot(*(step - true_step)[:2]) < 0.5 * np.hypot(*jumped[:2])

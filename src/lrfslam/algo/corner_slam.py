@@ -33,10 +33,15 @@ FORWARD, BACKWARD = 0, 1   # the filter's feature kinds: right-angle corners, ju
 
 @dataclass(frozen=True)
 class LastUpdate:
-    """The last feature update.
+    """The last update.
 
     Attributes
     ----------
+    motion : ndarray, shape (3,), or None
+        What moved the filter to this scan (scan-matched, else odometry):
+        (dx m, dy m, dtheta rad) in the previous pose's frame; None if it did not move.
+    motion_matched : bool
+        ``motion`` was found by scan matching.
     xy_m : ndarray, shape (K, 2)
         The features given to the filter, robot frame (m).
     cov_m2 : ndarray, shape (K, 2, 2)
@@ -45,6 +50,8 @@ class LastUpdate:
         What the filter did with each of the K.
     """
 
+    motion: np.ndarray | None
+    motion_matched: bool
     xy_m: np.ndarray
     cov_m2: np.ndarray
     report: UpdateReport
@@ -116,7 +123,7 @@ class CornerSlam:
         keep = slice(None) if self.use_backward else kinds == FORWARD
         xy, cov = xy_m[keep], cov_m2[keep]
         report = self.ekf.observe(xy, cov, np.asarray(kinds[keep], dtype=np.int8))
-        self._last = LastUpdate(xy, cov, report)
+        self._last = LastUpdate(motion.increment, motion.matched, xy, cov, report)
         self.counts.update(scans=1, matched=report.n_matched, new=report.n_new,
                            ambiguous=report.n_ambiguous + report.n_rejected)
         # Consistency on data without ground truth: the NIS of matched observations averages 2

@@ -1,27 +1,32 @@
 """Loop closing behind the EKF: keyframes in a pose graph, closures found by correlative search.
 
-:class:`LoopClosingMapper` is fed every scan with the EKF's pose and the scan's
-points. It keeps a pose graph (:mod:`lrfslam.algo.pose_graph`) of keyframes
-joined by the EKF's relative motion, looks for each new keyframe in the maps
+:class:`LoopClosingMapper` is fed every scan with its pose on a *local trajectory* and the
+scan's points. It keeps a pose graph (:mod:`lrfslam.algo.pose_graph`) of keyframes
+joined by the local trajectory's relative motion, looks for each new keyframe in the maps
 of keyframes seen long before, adds what it finds as robust loop edges and
 optimises. Per scan it returns the corrected (online) pose; at any time it
 gives the optimised trajectory of every scan fed (:meth:`LoopClosingMapper.trajectory`).
 
 Design choices
 --------------
-* **Odometry edges** are the EKF's motion between keyframes, which is accurate
-  over seconds (relation error 0.014 m on Intel, 0.044 m on ACES under 2 s),
-  except where the EKF corrected itself on re-seeing landmarks: its pose then
-  jumps (2.3 m at once on ACES), and a jump is not motion. So the new keyframe's
-  scan is matched against the last few keyframes with the EKF's motion as the
+* **The local trajectory** is what the mapper service feeds: the chain of the
+  motions that moved the EKF (its scan-matched motion, else odometry), or the
+  EKF's poses (``services/mapper.py``, ``local_trajectory``). Both are accurate
+  over seconds; the EKF's poses also hold its landmark corrections, as jumps
+  (2.3 m at once on ACES), and a jump is not motion. So the new keyframe's
+  scan is matched against the last few keyframes with the local motion as the
   guess (standing still if that fails: a jump beyond the matcher's reach), and
-  where the two differ by more than ``ekf_jump_*`` the match is the edge.
+  where the two differ by more than ``ekf_jump_*`` the match is the edge. An
+  edge made only of scan-matched motions is not checked: it has no jump, and
+  the keyframes' match, no better than the slam stage's, would only add noise
+  (ACES 0.042 → 0.041 m; short spans 0.040 → 0.039 m). Odometry's motions
+  (the paper's filter, a failed match) are checked like jumps.
   The edge covariance grows with the distance and the angle travelled
-  (``odom_*``): a model of the drift the EKF does not see, not the EKF's own
+  (``odom_*``): a model of the drift the local trajectory does not see, not the EKF's
   covariance, which is absolute and shrinks whenever it re-observes a
   landmark (on ACES it claims 3° where the heading is 20° off).
 * **Two uncertainties.** The edges' covariance is the local one (0.2° and 1 cm
-  per half metre), so loop closures do not bend what the EKF got right; but
+  per half metre), so loop closures do not bend what the local trajectory got right; but
   the drift over a long loop is systematic (20° of heading round ACES's loops),
   far beyond what a random walk of local errors predicts. The search window and
   the gate therefore use the relative covariance scaled by ``drift_scale``²;
@@ -83,11 +88,11 @@ class LoopClosureParams:
     Attributes
     ----------
     keyframe_trans_m, keyframe_rot_rad : float
-        A scan becomes a keyframe once the EKF has moved this far (m) or turned
+        A scan becomes a keyframe once the local trajectory has moved this far (m) or turned
         this much (rad) since the last keyframe...
     max_scan_step_m : float
         ...or moved this far since the previous scan (m): faster than the robot
-        drives, so the EKF jumped; the jump then falls between two keyframes,
+        drives, so the local trajectory jumped (an EKF correction); the jump then falls between two keyframes,
         where the scan match replaces it, and not inside a keyframe's scans.
     max_range_m : float
         Points farther than this from the sensor are ignored (m); also drops a
@@ -168,10 +173,10 @@ class LoopClosureParams:
         keyframes from both, weighted by where it lies between them (Intel
         0.021 → 0.020 m, ACES 0.044 m either way); else from the earlier only.
     ekf_jump_m, ekf_jump_rad : float
-        An odometry edge is the EKF's motion between the keyframes unless it
-        differs from the keyframes' scans matched (point-to-line, the EKF's
+        An odometry edge is the local motion between the keyframes unless it
+        differs from the keyframes' scans matched (point-to-line, the local
         motion as the guess) by more than this (m, rad): then it is the match.
-        0 always takes the match, a large value (1e9) always the EKF.
+        0 always takes the match, a large value (1e9) always the local motion.
     """
 
     keyframe_trans_m: float = 0.5
@@ -254,7 +259,7 @@ class ClosureStats:
     optimisations : int
         Graph optimisations run.
     ekf_jumps : int
-        Odometry edges taken from matched scans because the EKF's motion jumped.
+        Odometry edges taken from matched scans because the local motion jumped.
     """
 
     searched: int = 0
@@ -271,10 +276,10 @@ class ClosureStats:
 
 @dataclass(frozen=True, eq=False)
 class _Keyframe:
-    ekf_pose: np.ndarray  # (3,) the EKF's pose when it was taken
+    local_pose: np.ndarray  # (3,) its pose on the local trajectory
     points_xy_m: np.ndarray  # (N, 2) its scan, robot frame, thinned
-    travel_m: float  # trajectory length from the first keyframe (EKF)
-    ekf_edge: bool  # the odometry edge into it is the EKF's motion (no jump)
+    travel_m: float  # local trajectory length from the first keyframe (m)
+    local_edge: bool  # the odometry edge into it is the local motion (no jump)
 
 
 class LoopClosingMapper:
@@ -290,13 +295,14 @@ class LoopClosingMapper:
         self.graph = PoseGraph(self.params.graph)
         self._keyframes: list[_Keyframe] = []
         self._scan_kf: list[int] = []  # per scan fed: its keyframe
-        self._scan_rel: list[np.ndarray] = []  # per scan: EKF pose relative to that keyframe's
+        self._scan_rel: list[np.ndarray] = []  # per scan: local pose relative to that keyframe's
         self._stamps: list[int] = []
         self._loop_edges: list[int] = []
         self._closure_nis: list[float] = []  # per closure that passed verification  # graph edge ids of the closures in the graph
         self._submaps: OrderedDict[int, tuple[LikelihoodGrid, ReferenceScan]] = OrderedDict()
         self._counts = dict.fromkeys(ClosureStats.__dataclass_fields__, 0)
-        self._last_ekf_pose = np.zeros(3)  # the previous scan's EKF pose
+        self._last_local_pose = np.zeros(3)  # the previous scan's local pose
+        self._matched_since_keyframe = True  # every local step since the last keyframe was scan-matched
         self._pending = 0  # closures added since the last optimisation
         self._last_wide_search_m = -np.inf  # travel at the last wide search
         self._tentative = None  # a closure from a wide window awaiting confirmation
@@ -310,38 +316,40 @@ class LoopClosingMapper:
     def keyframe_count(self) -> int:
         return len(self._keyframes)
 
-    def add_scan(self, stamp_ns: int, ekf_pose, ekf_cov, points_xy_m) -> np.ndarray:
+    def add_scan(self, stamp_ns: int, local_pose, points_xy_m, matched: bool = False) -> np.ndarray:
         """Take one scan; returns its corrected pose (3,), as known now.
 
         Parameters
         ----------
         stamp_ns : int
             The scan's stamp (ns); kept for :meth:`trajectory`.
-        ekf_pose : array_like, shape (3,)
-            The EKF's pose after this scan, ``(x_m, y_m, theta_rad)``.
-        ekf_cov : array_like, shape (3, 3)
-            Its covariance; checked for shape only (see the module notes on odometry edges).
+        local_pose : array_like, shape (3,)
+            The scan's pose on the local trajectory, ``(x_m, y_m, theta_rad)``.
         points_xy_m : array_like, shape (N, 2)
             The scan's points in the robot frame (m); non-finite rows are ignored.
+        matched : bool
+            The local trajectory's step from the previous scan to this one is a
+            scan-matched motion: it holds no jump, and an odometry edge made of
+            such steps only is not checked against the keyframes' scans (``ekf_jump_*``).
         """
-        pose = np.asarray(ekf_pose, dtype=float)
-        cov = np.asarray(ekf_cov, dtype=float)
-        if pose.shape != (3,) or cov.shape != (3, 3) or not (np.all(np.isfinite(pose))
-                                                              and np.all(np.isfinite(cov))):
-            raise InputError("ekf_pose must be (3,) and ekf_cov (3, 3), finite")
+        pose = np.asarray(local_pose, dtype=float)
+        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+            raise InputError("local_pose must be (3,) and finite")
         p = self.params
         if not self._keyframes:
             self._add_keyframe(pose, points_xy_m, None)
         else:
+            self._matched_since_keyframe &= bool(matched)
             last = self._keyframes[-1]
-            moved = relative(last.ekf_pose, pose)
-            jumped = np.hypot(*(pose[:2] - self._last_ekf_pose[:2])) > p.max_scan_step_m
+            moved = relative(last.local_pose, pose)
+            jumped = np.hypot(*(pose[:2] - self._last_local_pose[:2])) > p.max_scan_step_m
             if jumped or np.hypot(moved[0], moved[1]) >= p.keyframe_trans_m or abs(moved[2]) >= p.keyframe_rot_rad:
                 self._add_keyframe(pose, points_xy_m, moved)
+                self._matched_since_keyframe = True
                 self._close_loops()
-        self._last_ekf_pose = pose
+        self._last_local_pose = pose
         k = len(self._keyframes) - 1
-        rel = relative(self._keyframes[k].ekf_pose, pose)
+        rel = relative(self._keyframes[k].local_pose, pose)
         self._scan_kf.append(k)
         self._scan_rel.append(rel)
         self._stamps.append(int(stamp_ns))
@@ -352,8 +360,8 @@ class LoopClosingMapper:
         if self._pending:
             self._optimise()
         poses = place_scans(np.array(self._scan_kf, dtype=np.int64), np.array(self._scan_rel, dtype=float),
-                            self.graph.poses, self.keyframe_ekf_poses(), self.keyframe_scans(),
-                            self.keyframe_ekf_edges(), self.params.interpolate)
+                            self.graph.poses, self.keyframe_local_poses(), self.keyframe_scans(),
+                            self.keyframe_local_edges(), self.params.interpolate)
         return np.array(self._stamps, dtype=np.int64), poses
 
     @property
@@ -365,24 +373,24 @@ class LoopClosingMapper:
         """The keyframes' poses in the graph as it stands (optimised at the last optimisation), (K, 3)."""
         return self.graph.poses.copy()
 
-    def keyframe_ekf_poses(self) -> np.ndarray:
-        """The EKF's pose when each keyframe was taken, (K, 3)."""
-        return np.array([k.ekf_pose for k in self._keyframes], dtype=float).reshape(-1, 3)
+    def keyframe_local_poses(self) -> np.ndarray:
+        """Each keyframe's pose on the local trajectory, (K, 3)."""
+        return np.array([k.local_pose for k in self._keyframes], dtype=float).reshape(-1, 3)
 
-    def keyframe_ekf_edges(self) -> np.ndarray:
-        """Whether the odometry edge into each keyframe is the EKF's motion (no jump), (K,) bool."""
-        return np.array([k.ekf_edge for k in self._keyframes], dtype=bool)
+    def keyframe_local_edges(self) -> np.ndarray:
+        """Whether the odometry edge into each keyframe is the local motion (no jump), (K,) bool."""
+        return np.array([k.local_edge for k in self._keyframes], dtype=bool)
 
     def keyframe_scans(self) -> np.ndarray:
         """Index (in the order fed) of the scan that made each keyframe, (K,)."""
         kf = np.array(self._scan_kf, dtype=np.int64)
         return np.searchsorted(kf, np.arange(len(self._keyframes)))
 
-    def keyframe_slam_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """Stamps (ns, (K,)) of the scans that made the keyframes, and their EKF poses (K, 3)."""
+    def keyframe_stamped_local_poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stamps (ns, (K,)) of the scans that made the keyframes, and their local poses (K, 3)."""
         stamps = np.array(self._stamps, dtype=np.int64)[self.keyframe_scans()] if self._keyframes \
             else np.zeros(0, np.int64)
-        return stamps, self.keyframe_ekf_poses()
+        return stamps, self.keyframe_local_poses()
 
     def closures(self) -> list[tuple[int, int, np.ndarray]]:
         """The closures in the graph: (old keyframe, new keyframe, pose of the new in the old's frame (3,))."""
@@ -391,23 +399,31 @@ class LoopClosingMapper:
 
     # -- keyframes and odometry edges -----------------------------------------------------------
 
-    def _add_keyframe(self, ekf_pose: np.ndarray, points_xy_m, moved: np.ndarray | None) -> None:
+    def _add_keyframe(self, local_pose: np.ndarray, points_xy_m, moved: np.ndarray | None) -> None:
         p = self.params
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < p.max_range_m]
         pts = _thin(pts, p.keyframe_cell_m)
         if moved is None:
-            self.graph.add_node(ekf_pose)
-            self._keyframes.append(_Keyframe(ekf_pose.copy(), pts, 0.0, True))
+            self.graph.add_node(local_pose)
+            self._keyframes.append(_Keyframe(local_pose.copy(), pts, 0.0, True))
             return
         prev = len(self._keyframes) - 1
         dist = float(np.hypot(moved[0], moved[1]))
         cov = self._odometry_cov(dist, abs(moved[2]))
-        step = moved
-        # The EKF's motion holds its own landmark corrections as jumps (2.3 m at
-        # once on ACES), which are not local motion. The keyframes' scans,
-        # matched with the EKF's motion as the guess, say what the motion was:
+        step = moved if self._matched_since_keyframe else self._checked_motion(prev, pts, moved, cov)
+        node = self.graph.add_node(compose(self.graph.poses[prev], step))
+        self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
+        self._keyframes.append(_Keyframe(local_pose.copy(), pts, self._keyframes[-1].travel_m + dist,
+                                         step is moved))
+
+    def _checked_motion(self, prev: int, pts: np.ndarray, moved: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """``moved`` (3,), the local motion from keyframe ``prev`` to the new one, or the scans' match where it jumped."""
+        p = self.params
+        # The EKF's poses hold its landmark corrections as jumps (2.3 m at once
+        # on ACES), which are not motion. The keyframes' scans, matched with
+        # the local motion as the guess, say what the motion was:
         # where the two disagree by more than ``ekf_jump_*`` the match is taken.
         reference = self._recent_map(prev)
         found = match(reference, pts, moved, p.scan_match, cov)
@@ -418,12 +434,9 @@ class LoopClosingMapper:
         if found.ok:
             jump = relative(moved, found.pose)
             if np.hypot(jump[0], jump[1]) > p.ekf_jump_m or abs(jump[2]) > p.ekf_jump_rad:
-                step = found.pose
                 self._counts["ekf_jumps"] += 1
-        node = self.graph.add_node(compose(self.graph.poses[prev], step))
-        self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
-        self._keyframes.append(_Keyframe(ekf_pose.copy(), pts, self._keyframes[-1].travel_m + dist,
-                                         step is moved))
+                return found.pose
+        return moved
 
     def _recent_map(self, last: int) -> ReferenceScan:
         """The ``odometry_keyframes`` keyframes up to ``last`` merged in ``last``'s frame by their graph poses."""
@@ -629,8 +642,8 @@ def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     return sums / np.bincount(inverse, minlength=cells.shape[0])[:, None]
 
 
-def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray, kf_ekf_poses: np.ndarray,
-                kf_first_scan: np.ndarray, kf_ekf_edge: np.ndarray, interpolate: bool = True) -> np.ndarray:
+def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray, kf_local_poses: np.ndarray,
+                kf_first_scan: np.ndarray, kf_local_edge: np.ndarray, interpolate: bool = True) -> np.ndarray:
     """Every scan placed by the (optimised) keyframes: the one way the mapper and a recording's reader do it.
 
     Parameters
@@ -638,13 +651,13 @@ def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray,
     scan_kf : ndarray of int, shape (T,)
         Keyframe of each scan (the newest one made at or before it), ascending.
     scan_rel : ndarray, shape (T, 3)
-        Each scan's EKF pose relative to its keyframe's EKF pose.
-    kf_poses, kf_ekf_poses : ndarray, shape (K, 3)
-        The keyframes' optimised poses and their EKF poses.
+        Each scan's local pose relative to its keyframe's.
+    kf_poses, kf_local_poses : ndarray, shape (K, 3)
+        The keyframes' optimised poses and their local poses.
     kf_first_scan : ndarray of int, shape (K,)
         Index of the scan that made each keyframe.
-    kf_ekf_edge : ndarray of bool, shape (K,)
-        Whether the odometry edge into each keyframe is the EKF's motion.
+    kf_local_edge : ndarray of bool, shape (K,)
+        Whether the odometry edge into each keyframe is the local motion.
     interpolate : bool
         Blend a scan between two keyframes from both (see below).
 
@@ -659,14 +672,14 @@ def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray,
         return poses
     # A scan between two keyframes is placed from both, weighted by where it lies between
     # them, so the trajectory does not step at the next keyframe by what the optimisation
-    # changed in between. Not across an EKF jump: the EKF's motion from the scan to the
+    # changed in between. Not across a jump: the local motion from the scan to the
     # next keyframe would hold it.
     nxt = np.minimum(kf + 1, len(kf_poses) - 1)
-    blend = (nxt > kf) & np.asarray(kf_ekf_edge, dtype=bool)[nxt]
+    blend = (nxt > kf) & np.asarray(kf_local_edge, dtype=bool)[nxt]
     if blend.any():
         idx = np.flatnonzero(blend)
-        ekf_scan = _compose_rows(kf_ekf_poses[kf[idx]], rel[idx])
-        from_next = _compose_rows(kf_poses[nxt[idx]], _relative_rows(kf_ekf_poses[nxt[idx]], ekf_scan))
+        local_scan = _compose_rows(kf_local_poses[kf[idx]], rel[idx])
+        from_next = _compose_rows(kf_poses[nxt[idx]], _relative_rows(kf_local_poses[nxt[idx]], local_scan))
         first = np.asarray(kf_first_scan, dtype=np.int64)
         w = (idx - first[kf[idx]]) / (first[nxt[idx]] - first[kf[idx]]).astype(float)
         poses[idx] = _compose_rows(poses[idx], _relative_rows(poses[idx], from_next) * w[:, None])

@@ -49,11 +49,14 @@ class Motion:
     events : tuple of str
         What happened, as counter names: ``no_odometry``, ``scan_missing``,
         ``match_<status>``.
+    matched : bool
+        The increment was found by scan matching (else it is odometry's, or None).
     """
 
     increment: np.ndarray | None
     cov: np.ndarray | None
     events: tuple[str, ...]
+    matched: bool = False
 
 
 class MotionSource:
@@ -113,5 +116,5 @@ class MotionSource:
         step = self._tracker.step(scan_xy_m, guess, guess_cov)
         events.append(f"match_{step.match.status.name.lower()}")
         if started and (step.matched or increment is not None):
-            return Motion(step.increment, step.cov, tuple(events))
+            return Motion(step.increment, step.cov, tuple(events), step.matched)
         return Motion(None, None, tuple(events))

@@ -1,9 +1,11 @@
 """The mapper's trajectories from a recording: as published at each scan, and final.
 
 The *online* trajectory is ``map/pose``: each scan's pose as the mapper knew it then.
-The *final* trajectory places every ``slam/state`` by the last ``map/keyframes``: a
-scan belongs to the newest keyframe made at or before it, and keeps the slam pose
-relative to that keyframe's slam pose — exactly how the mapper places its own scans.
+The *final* trajectory places every scan of ``map/pose`` by the last ``map/keyframes``:
+a scan belongs to the newest keyframe made at or before it, and keeps its local pose
+relative to that keyframe's — exactly how the mapper places its own scans. Recordings
+made before ``map/pose`` carried the local pose place the ``slam/state`` poses instead
+(the mapper's local trajectory was the slam poses then).
 """
 
 from __future__ import annotations
@@ -20,16 +22,16 @@ from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_recording
 
 
-def final_poses(stamps_ns: np.ndarray, slam_poses: np.ndarray, keyframes: t.MapKeyframes,
+def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.MapKeyframes,
                 interpolate: bool = True) -> np.ndarray:
-    """Every slam pose corrected by the optimised keyframes, as the mapper places its scans.
+    """Every scan's local pose corrected by the optimised keyframes, as the mapper places its scans.
 
     Parameters
     ----------
     stamps_ns : ndarray of int, shape (T,)
-        Stamps of the slam states the mapper was fed, ascending.
-    slam_poses : ndarray, shape (T, 3)
-        Their poses ``(x_m, y_m, theta_rad)``.
+        Stamps of the scans the mapper was fed, ascending.
+    local_poses : ndarray, shape (T, 3)
+        Their poses on the mapper's local trajectory ``(x_m, y_m, theta_rad)``.
     keyframes : MapKeyframes
         The last one of the recording (K keyframes, their scans' stamps ascending).
     interpolate : bool
@@ -38,28 +40,27 @@ def final_poses(stamps_ns: np.ndarray, slam_poses: np.ndarray, keyframes: t.MapK
     Returns
     -------
     ndarray, shape (T, 3)
-        Final poses; states before the first keyframe keep their slam pose.
+        Final poses; scans before the first keyframe keep their local pose.
     """
     stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
-    slam_poses = np.asarray(slam_poses, dtype=float).reshape(-1, 3)
-    out = slam_poses.copy()
+    local_poses = np.asarray(local_poses, dtype=float).reshape(-1, 3)
+    out = local_poses.copy()
     k = np.searchsorted(keyframes.scan_stamp_ns, stamps_ns, side="right") - 1
     placed = np.flatnonzero(k >= 0)
     if placed.size:
         kk = k[placed]
-        rel = np.asarray(relative(keyframes.slam_pose[kk].T, slam_poses[placed].T)).T
+        rel = np.asarray(relative(keyframes.local_pose[kk].T, local_poses[placed].T)).T
         first = np.searchsorted(stamps_ns[placed], keyframes.scan_stamp_ns)
-        out[placed] = place_scans(kk, rel, keyframes.map_pose, keyframes.slam_pose, first, keyframes.slam_edge,
+        out[placed] = place_scans(kk, rel, keyframes.map_pose, keyframes.local_pose, first, keyframes.local_edge,
                                   interpolate)
     return out
 
 
 def final_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """Stamps (ns, (T,)) and final poses ((T, 3)) of a recording's slam states; None without ``map/keyframes``."""
-    stamps: list[int] = []
-    poses: list[np.ndarray] = []
+    """Stamps (ns, (T,)) and final poses ((T, 3)) of a recording's scans; None without ``map/keyframes``."""
+    local: dict[str, tuple[list[int], list[np.ndarray]]] = {"map": ([], []), "slam": ([], [])}
     last: t.MapKeyframes | None = None
-    for rec in read_recording(path, [topics.SLAM_STATE.name, topics.MAP_KEYFRAMES.name]):
+    for rec in read_recording(path, [topics.SLAM_STATE.name, topics.MAP_POSE.name, topics.MAP_KEYFRAMES.name]):
         topic = topics.by_name(rec.topic)
         try:
             value = topic.codec.decode(rec.data, rec.schema)
@@ -67,9 +68,13 @@ def final_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
             continue
         if topic is topics.MAP_KEYFRAMES:
             last = value
-        else:
-            stamps.append(value.stamp_ns)
-            poses.append(value.pose)
+        elif topic is topics.SLAM_STATE:
+            local["slam"][0].append(value.stamp_ns)
+            local["slam"][1].append(value.pose)
+        elif value.local_pose is not None:
+            local["map"][0].append(value.stamp_ns)
+            local["map"][1].append(value.local_pose)
+    stamps, poses = local["map"] if local["map"][0] else local["slam"]
     if last is None or not stamps:
         return None
     order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")

@@ -218,6 +218,9 @@ def _slam_to(m: t.SlamState):
         lm.confirmed = bool(m.landmark_confirmed[i])
     p.scan_seq = m.scan_seq
     p.associated, p.added, p.rejected = m.associated, m.added, m.rejected
+    if m.motion is not None:
+        _pose2d(p.motion, m.motion)
+    p.motion_matched = bool(m.motion_matched)
     return p
 
 
@@ -233,12 +236,20 @@ def _slam_from(p) -> t.SlamState:
         [lm.id for lm in lms], [(lm.x_m, lm.y_m) for lm in lms],
         np.array([list(lm.covariance_m2) for lm in lms], np.float64).reshape(-1, 2, 2),
         [lm.kind for lm in lms], [lm.sightings for lm in lms], [lm.confirmed for lm in lms],
-        p.associated, p.added, p.rejected,
+        p.associated, p.added, p.rejected, _pose2d_or_none(p, "motion"), p.motion_matched,
     )
 
 
 def _pose2d(target, pose) -> None:
     target.x_m, target.y_m, target.theta_rad = (float(v) for v in pose)
+
+
+def _pose2d_or_none(p, name: str) -> tuple[float, float, float] | None:
+    """The optional Pose2D field ``name`` of ``p`` as (x, y, theta), None where it is absent."""
+    if not p.HasField(name):
+        return None
+    q = getattr(p, name)
+    return q.x_m, q.y_m, q.theta_rad
 
 
 def _map_pose_to(m: t.MapPose):
@@ -247,6 +258,8 @@ def _map_pose_to(m: t.MapPose):
     _header(p.header, m.stamp_ns, m.seq, "map")
     _pose2d(p.pose, m.pose)
     _pose2d(p.map_from_slam, m.map_from_slam)
+    if m.local_pose is not None:
+        _pose2d(p.local_pose, m.local_pose)
     return p
 
 
@@ -254,26 +267,26 @@ def _map_pose_from(p) -> t.MapPose:
     pose = (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)
     t_map = (p.map_from_slam.x_m, p.map_from_slam.y_m, p.map_from_slam.theta_rad)
     return t.MapPose(p.header.stamp_ns, p.header.seq, p.scan_seq, pose, t_map, p.keyframes, p.closures,
-                     p.closures_rejected)
+                     p.closures_rejected, _pose2d_or_none(p, "local_pose"))
 
 
 def _keyframes_to(m: t.MapKeyframes):
     p = map_pb2.MapKeyframes()
     _header(p.header, m.stamp_ns, m.seq, "map")
     p.scan_stamp_ns.extend(m.scan_stamp_ns.tolist())
-    p.slam_pose.extend(m.slam_pose.ravel().tolist())
+    p.local_pose.extend(m.local_pose.ravel().tolist())
     p.map_pose.extend(m.map_pose.ravel().tolist())
-    p.slam_edge.extend(m.slam_edge.tolist())
+    p.local_edge.extend(m.local_edge.tolist())
     return p
 
 
 def _keyframes_from(p) -> t.MapKeyframes:
     k = len(p.scan_stamp_ns)
-    if len(p.slam_pose) != 3 * k or len(p.map_pose) != 3 * k or len(p.slam_edge) not in (0, k):
+    if len(p.local_pose) != 3 * k or len(p.map_pose) != 3 * k or len(p.local_edge) not in (0, k):
         raise ValueError("keyframe poses are not K x 3, or the edge flags not K")
     return t.MapKeyframes(p.header.stamp_ns, p.header.seq, list(p.scan_stamp_ns),
-                          np.array(p.slam_pose, np.float64).reshape(k, 3), np.array(p.map_pose, np.float64).reshape(k, 3),
-                          list(p.slam_edge))
+                          np.array(p.local_pose, np.float64).reshape(k, 3),
+                          np.array(p.map_pose, np.float64).reshape(k, 3), list(p.local_edge))
 
 
 def _truth_to(m: t.GroundTruth):

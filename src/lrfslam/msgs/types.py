@@ -155,7 +155,8 @@ class Features:
 @dataclass(frozen=True, eq=False)
 class MapPose:
     """The loop-closing back end after one scan: ``pose`` (3,) corrected by the closures so far,
-    and ``map_from_slam`` (3,), the transform with ``pose = map_from_slam ⊕ slam pose``."""
+    ``map_from_slam`` (3,), the transform with ``pose = map_from_slam ⊕ slam pose``, and
+    ``local_pose`` (3,), the scan on the mapper's local trajectory (None in older recordings)."""
 
     stamp_ns: int
     seq: int
@@ -165,32 +166,36 @@ class MapPose:
     keyframes: int = 0
     closures: int = 0
     closures_rejected: int = 0
+    local_pose: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "pose", _array(self.pose, np.float64, (3,)))
         object.__setattr__(self, "map_from_slam", _array(self.map_from_slam, np.float64, (3,)))
+        if self.local_pose is not None:
+            object.__setattr__(self, "local_pose", _array(self.local_pose, np.float64, (3,)))
 
 
 @dataclass(frozen=True, eq=False)
 class MapKeyframes:
     """The pose graph's K keyframes after an optimisation: ``scan_stamp_ns`` (K,) of the scan
-    that made each, its ``slam_pose`` (K, 3), its optimised ``map_pose`` (K, 3), and
-    ``slam_edge`` (K,) bool, whether the edge into it is the slam motion (no jump)."""
+    that made each, its ``local_pose`` (K, 3) on the mapper's local trajectory, its optimised
+    ``map_pose`` (K, 3), and ``local_edge`` (K,) bool, whether the edge into it is the local
+    motion (no jump)."""
 
     stamp_ns: int
     seq: int
     scan_stamp_ns: np.ndarray
-    slam_pose: np.ndarray
+    local_pose: np.ndarray
     map_pose: np.ndarray
-    slam_edge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    local_edge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "scan_stamp_ns", _array(self.scan_stamp_ns, np.int64))
         k = self.scan_stamp_ns.size
-        object.__setattr__(self, "slam_pose", _array(self.slam_pose, np.float64, (k, 3)))
+        object.__setattr__(self, "local_pose", _array(self.local_pose, np.float64, (k, 3)))
         object.__setattr__(self, "map_pose", _array(self.map_pose, np.float64, (k, 3)))
-        edge = np.zeros(k, bool) if np.size(self.slam_edge) == 0 else self.slam_edge
-        object.__setattr__(self, "slam_edge", _array(edge, bool, (k,)))
+        edge = np.zeros(k, bool) if np.size(self.local_edge) == 0 else self.local_edge
+        object.__setattr__(self, "local_edge", _array(edge, bool, (k,)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,7 +204,10 @@ class SlamState:
 
     ``pose`` (3,), ``pose_cov`` (3, 3); landmarks: ``landmark_ids`` (L,) stable ids,
     ``landmark_xy_m`` (L, 2), ``landmark_cov_m2`` (L, 2, 2), ``landmark_kind`` (L,),
-    ``landmark_sightings`` (L,), ``landmark_confirmed`` (L,) bool.
+    ``landmark_sightings`` (L,), ``landmark_confirmed`` (L,) bool; ``motion`` (3,), what
+    moved the filter to this scan (scan-matched, else odometry: dx m, dy m, dtheta rad in
+    the previous pose's frame), zero where it did not move, None in recordings made before
+    slam states carried it; ``motion_matched``, whether it was found by scan matching.
     """
 
     stamp_ns: int
@@ -216,10 +224,14 @@ class SlamState:
     associated: int = 0
     added: int = 0
     rejected: int = 0
+    motion: np.ndarray | None = None
+    motion_matched: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "pose", _array(self.pose, np.float64, (3,)))
         object.__setattr__(self, "pose_cov", _array(self.pose_cov, np.float64, (3, 3)))
+        if self.motion is not None:
+            object.__setattr__(self, "motion", _array(self.motion, np.float64, (3,)))
         object.__setattr__(self, "landmark_ids", _array(self.landmark_ids, np.int64))
         object.__setattr__(self, "landmark_xy_m", _array(self.landmark_xy_m, np.float64, (-1, 2)))
         object.__setattr__(self, "landmark_cov_m2", _array(self.landmark_cov_m2, np.float64, (-1, 2, 2)))

@@ -29,9 +29,13 @@ from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
 from lrfslam.evaluation.map_trajectory import final_trajectory
 from lrfslam.evaluation.relations import (
     DEFAULT_MAX_STAMP_GAP_S,
+    SPANS_S,
+    Relations,
     RelationStats,
+    errors_by_span,
     load_relations,
     relation_errors,
+    span_label,
     stamp_s,
 )
 from lrfslam.io.textfile import open_log
@@ -106,17 +110,21 @@ def evaluate_relations(path: str | Path, relations_path: str | Path,
             undecodable)
 
 
-def format_table(results: Mapping[str, RelationStats]) -> str:
-    """Mean ± std of the absolute and squared translational (m, m²) and rotational (deg, deg²) errors."""
+def format_table(results: Mapping[str, RelationStats], relations: Relations | None = None) -> str:
+    """Mean ± std of the absolute and squared translational (m, m²) and rotational (deg, deg²) errors;
+    with ``relations``, the mean translational error (m) per relation span too."""
+    spans = [span_label(span) for span in SPANS_S] if relations is not None else []
     head = (f"{'trajectory':15s} {'used':>6s} {'unmatched':>9s} {'trans abs (m)':>17s} {'trans sqr (m^2)':>17s} "
-            f"{'rot abs (deg)':>15s} {'rot sqr (deg^2)':>17s} {'max trans (m)':>13s}")
+            f"{'rot abs (deg)':>15s} {'rot sqr (deg^2)':>17s} {'max trans (m)':>13s}"
+            + "".join(f" {label:>8s}" for label in spans))
     lines = [head, "-" * len(head)]
     for label, s in results.items():
+        by_span = errors_by_span(s, relations) if relations is not None else {}
         lines.append(
             f"{label:15s} {s.n_used:6d} {s.n_unmatched:9d} "
             f"{s.trans_abs_m.mean:8.3f} ± {s.trans_abs_m.std:6.3f} {s.trans_sqr_m2.mean:8.3f} ± {s.trans_sqr_m2.std:6.3f} "
             f"{s.rot_abs_deg.mean:6.2f} ± {s.rot_abs_deg.std:6.2f} {s.rot_sqr_deg2.mean:7.1f} ± {s.rot_sqr_deg2.std:7.1f} "
-            f"{s.trans_abs_m.max:13.3f}")
+            f"{s.trans_abs_m.max:13.3f}" + "".join(f" {by_span[k][1].mean:8.3f}" for k in spans))
     return "\n".join(lines)
 
 
@@ -190,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     first = next(iter(results.values()))
     print(f"{args.recording} vs {args.relations}: {first.n_relations} relations, "
           f"stamps matched within {args.max_gap_s} s")
-    print(format_table(results))
+    with open_log(args.relations) as f:
+        print(format_table(results, load_relations(f)))
     missing = [label for label in TRAJECTORIES if label not in results]
     if missing:
         print(f"(no {', '.join(missing)} in the recording)")

@@ -8,7 +8,7 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class MapPose(_message.Message):
-    __slots__ = ("header", "scan_seq", "pose", "map_from_slam", "keyframes", "closures", "closures_rejected")
+    __slots__ = ("header", "scan_seq", "pose", "map_from_slam", "keyframes", "closures", "closures_rejected", "local_pose")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     SCAN_SEQ_FIELD_NUMBER: _ClassVar[int]
     POSE_FIELD_NUMBER: _ClassVar[int]
@@ -16,6 +16,7 @@ class MapPose(_message.Message):
     KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
     CLOSURES_FIELD_NUMBER: _ClassVar[int]
     CLOSURES_REJECTED_FIELD_NUMBER: _ClassVar[int]
+    LOCAL_POSE_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     scan_seq: int
     pose: _common_pb2.Pose2D
@@ -23,18 +24,19 @@ class MapPose(_message.Message):
     keyframes: int
     closures: int
     closures_rejected: int
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., map_from_slam: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., keyframes: _Optional[int] = ..., closures: _Optional[int] = ..., closures_rejected: _Optional[int] = ...) -> None: ...
+    local_pose: _common_pb2.Pose2D
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., map_from_slam: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., keyframes: _Optional[int] = ..., closures: _Optional[int] = ..., closures_rejected: _Optional[int] = ..., local_pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ...) -> None: ...
 
 class MapKeyframes(_message.Message):
-    __slots__ = ("header", "scan_stamp_ns", "slam_pose", "map_pose", "slam_edge")
+    __slots__ = ("header", "scan_stamp_ns", "local_pose", "map_pose", "local_edge")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     SCAN_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
-    SLAM_POSE_FIELD_NUMBER: _ClassVar[int]
+    LOCAL_POSE_FIELD_NUMBER: _ClassVar[int]
     MAP_POSE_FIELD_NUMBER: _ClassVar[int]
-    SLAM_EDGE_FIELD_NUMBER: _ClassVar[int]
+    LOCAL_EDGE_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     scan_stamp_ns: _containers.RepeatedScalarFieldContainer[int]
-    slam_pose: _containers.RepeatedScalarFieldContainer[float]
+    local_pose: _containers.RepeatedScalarFieldContainer[float]
     map_pose: _containers.RepeatedScalarFieldContainer[float]
-    slam_edge: _containers.RepeatedScalarFieldContainer[bool]
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_stamp_ns: _Optional[_Iterable[int]] = ..., slam_pose: _Optional[_Iterable[float]] = ..., map_pose: _Optional[_Iterable[float]] = ..., slam_edge: _Optional[_Iterable[bool]] = ...) -> None: ...
+    local_edge: _containers.RepeatedScalarFieldContainer[bool]
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_stamp_ns: _Optional[_Iterable[int]] = ..., local_pose: _Optional[_Iterable[float]] = ..., map_pose: _Optional[_Iterable[float]] = ..., local_edge: _Optional[_Iterable[bool]] = ...) -> None: ...

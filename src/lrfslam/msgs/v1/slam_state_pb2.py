@@ -26,7 +26,7 @@ from lrfslam.msgs.v1 import common_pb2 as lrfslam_dot_msgs_dot_v1_dot_common__pb
 from lrfslam.msgs.v1 import features_pb2 as lrfslam_dot_msgs_dot_v1_dot_features__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n lrfslam/msgs/v1/slam_state.proto\x12\x0flrfslam.msgs.v1\x1a\x1clrfslam/msgs/v1/common.proto\x1a\x1elrfslam/msgs/v1/features.proto\"\x99\x01\n\x08Landmark\x12\n\n\x02id\x18\x01 \x01(\x04\x12\x0b\n\x03x_m\x18\x02 \x01(\x01\x12\x0b\n\x03y_m\x18\x03 \x01(\x01\x12\x15\n\rcovariance_m2\x18\x04 \x03(\x01\x12*\n\x04kind\x18\x05 \x01(\x0e\x32\x1c.lrfslam.msgs.v1.FeatureKind\x12\x11\n\tsightings\x18\x06 \x01(\r\x12\x11\n\tconfirmed\x18\x07 \x01(\x08\"\xe9\x01\n\tSlamState\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12%\n\x04pose\x18\x02 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\x12\x17\n\x0fpose_covariance\x18\x03 \x03(\x01\x12,\n\tlandmarks\x18\x04 \x03(\x0b\x32\x19.lrfslam.msgs.v1.Landmark\x12\x10\n\x08scan_seq\x18\x05 \x01(\x04\x12\x12\n\nassociated\x18\x06 \x01(\r\x12\r\n\x05\x61\x64\x64\x65\x64\x18\x07 \x01(\r\x12\x10\n\x08rejected\x18\x08 \x01(\rb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n lrfslam/msgs/v1/slam_state.proto\x12\x0flrfslam.msgs.v1\x1a\x1clrfslam/msgs/v1/common.proto\x1a\x1elrfslam/msgs/v1/features.proto\"\x99\x01\n\x08Landmark\x12\n\n\x02id\x18\x01 \x01(\x04\x12\x0b\n\x03x_m\x18\x02 \x01(\x01\x12\x0b\n\x03y_m\x18\x03 \x01(\x01\x12\x15\n\rcovariance_m2\x18\x04 \x03(\x01\x12*\n\x04kind\x18\x05 \x01(\x0e\x32\x1c.lrfslam.msgs.v1.FeatureKind\x12\x11\n\tsightings\x18\x06 \x01(\r\x12\x11\n\tconfirmed\x18\x07 \x01(\x08\"\xaa\x02\n\tSlamState\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12%\n\x04pose\x18\x02 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\x12\x17\n\x0fpose_covariance\x18\x03 \x03(\x01\x12,\n\tlandmarks\x18\x04 \x03(\x0b\x32\x19.lrfslam.msgs.v1.Landmark\x12\x10\n\x08scan_seq\x18\x05 \x01(\x04\x12\x12\n\nassociated\x18\x06 \x01(\r\x12\r\n\x05\x61\x64\x64\x65\x64\x18\x07 \x01(\r\x12\x10\n\x08rejected\x18\x08 \x01(\r\x12\'\n\x06motion\x18\t \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\x12\x16\n\x0emotion_matched\x18\n \x01(\x08\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -36,5 +36,5 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_LANDMARK']._serialized_start=116
   _globals['_LANDMARK']._serialized_end=269
   _globals['_SLAMSTATE']._serialized_start=272
-  _globals['_SLAMSTATE']._serialized_end=505
+  _globals['_SLAMSTATE']._serialized_end=570
 # @@protoc_insertion_point(module_scope)

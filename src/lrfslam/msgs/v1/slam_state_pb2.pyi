@@ -27,7 +27,7 @@ class Landmark(_message.Message):
     def __init__(self, id: _Optional[int] = ..., x_m: _Optional[float] = ..., y_m: _Optional[float] = ..., covariance_m2: _Optional[_Iterable[float]] = ..., kind: _Optional[_Union[_features_pb2.FeatureKind, str]] = ..., sightings: _Optional[int] = ..., confirmed: _Optional[bool] = ...) -> None: ...
 
 class SlamState(_message.Message):
-    __slots__ = ("header", "pose", "pose_covariance", "landmarks", "scan_seq", "associated", "added", "rejected")
+    __slots__ = ("header", "pose", "pose_covariance", "landmarks", "scan_seq", "associated", "added", "rejected", "motion", "motion_matched")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     POSE_FIELD_NUMBER: _ClassVar[int]
     POSE_COVARIANCE_FIELD_NUMBER: _ClassVar[int]
@@ -36,6 +36,8 @@ class SlamState(_message.Message):
     ASSOCIATED_FIELD_NUMBER: _ClassVar[int]
     ADDED_FIELD_NUMBER: _ClassVar[int]
     REJECTED_FIELD_NUMBER: _ClassVar[int]
+    MOTION_FIELD_NUMBER: _ClassVar[int]
+    MOTION_MATCHED_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     pose: _common_pb2.Pose2D
     pose_covariance: _containers.RepeatedScalarFieldContainer[float]
@@ -44,4 +46,6 @@ class SlamState(_message.Message):
     associated: int
     added: int
     rejected: int
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., pose_covariance: _Optional[_Iterable[float]] = ..., landmarks: _Optional[_Iterable[_Union[Landmark, _Mapping]]] = ..., scan_seq: _Optional[int] = ..., associated: _Optional[int] = ..., added: _Optional[int] = ..., rejected: _Optional[int] = ...) -> None: ...
+    motion: _common_pb2.Pose2D
+    motion_matched: bool
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., pose_covariance: _Optional[_Iterable[float]] = ..., landmarks: _Optional[_Iterable[_Union[Landmark, _Mapping]]] = ..., scan_seq: _Optional[int] = ..., associated: _Optional[int] = ..., added: _Optional[int] = ..., rejected: _Optional[int] = ..., motion: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., motion_matched: _Optional[bool] = ...) -> None: ...
