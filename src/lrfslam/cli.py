@@ -9,14 +9,23 @@
     lrfslam eval features|slam|relations ...
     lrfslam import carmen LOG -o FILE.mcap
     lrfslam emulate-lms200             an LMS200 on a pseudo-terminal
+
+Exit codes: 0 done; 1 the command ran and reports a problem (``status``: a service
+unhealthy); 2 error (usage, configuration, a missing or unreadable input, a stage
+of ``up`` that failed to start), printed as one line ``lrfslam <command>: error: ...``
+and with no output written; 128 + N stopped by signal N (130 Ctrl-C, 143 SIGTERM),
+with the offline commands' outputs removed (:mod:`lrfslam.runtime.outputs`).
 """
 
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 
 from lrfslam import services
+from lrfslam.errors import LrfSlamError
+from lrfslam.runtime.outputs import Interrupted, raise_on_signals
 
 # command -> (module, function, one-line help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -30,6 +39,11 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "emulate-lms200": ("lrfslam.drivers.lms200.emulator", "main", "emulate an LMS200 on a pseudo-terminal"),
     "export": ("lrfslam.tools.export", "main", "export the map and trajectory of a recording (JSON, PNG)"),
 }
+
+#: Commands that run to an end and write files (and any service with ``--replay``): SIGTERM
+#: stops them like Ctrl-C, removing what they had not finished (the live services and
+#: ``up`` handle the signals themselves and stop cleanly).
+OFFLINE = frozenset({"info", "pipeline", "eval", "import", "export"})
 
 
 def usage() -> str:
@@ -48,14 +62,26 @@ def main(argv: list[str] | None = None) -> int:
         print(usage())
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
-    if command in services.NAMES:
-        from lrfslam.runtime.runner import main as run_service
-        return run_service(services.spec(command), rest, services.CONFIG_TABLES)
-    if command not in COMMANDS:
+    if command not in COMMANDS and command not in services.NAMES:
         print(f"lrfslam: unknown command {command!r}\n\n{usage()}", file=sys.stderr)
         return 2
-    module, func, _ = COMMANDS[command]
-    return int(getattr(importlib.import_module(module), func)(rest) or 0)
+    if command in OFFLINE or (command in services.NAMES and any(a.split("=")[0] == "--replay" for a in rest)):
+        raise_on_signals()
+    try:
+        if command in services.NAMES:
+            from lrfslam.runtime.runner import main as run_service
+            return run_service(services.spec(command), rest, services.CONFIG_TABLES)
+        module, func, _ = COMMANDS[command]
+        return int(getattr(importlib.import_module(module), func)(rest) or 0)
+    except Interrupted as exc:
+        print(f"lrfslam {command}: stopped by {signal.Signals(exc.signum).name}", file=sys.stderr)
+        return 128 + exc.signum
+    except KeyboardInterrupt:
+        print(f"lrfslam {command}: interrupted", file=sys.stderr)
+        return 128 + signal.SIGINT
+    except (LrfSlamError, OSError) as exc:
+        print(f"lrfslam {command}: error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

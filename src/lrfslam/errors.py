@@ -56,3 +56,7 @@ class DeviceError(LrfSlamError):
 
 class RecordingError(LrfSlamError):
     """An MCAP recording cannot be read or written."""
+
+
+class StartupError(LrfSlamError):
+    """A process of ``lrfslam up`` exited, or never came up, while the pipeline was starting."""

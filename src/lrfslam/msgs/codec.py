@@ -1,5 +1,10 @@
 """Codecs between :mod:`lrfslam.msgs.types` and the versioned protobuf schemas.
 
+Decoding also checks what the consumers rely on (finite poses and points within
+:data:`MAX_ABS`, positive definite feature covariances, bearings that start within a turn,
+no negative range): a payload that breaks it is a :class:`DecodeError`, so a
+hostile or corrupted message is counted and skipped instead of poisoning a filter.
+
 Every payload on the bus and in a recording is named by its schema's full name,
 which carries the version (``lrfslam.msgs.v1.LaserScan``). A decoder is chosen
 by that name: the current version decodes directly; an older version, once a v2
@@ -31,6 +36,14 @@ from lrfslam.msgs.v1 import (
 )
 
 T = TypeVar("T")
+
+#: The farthest a scan's first bearing may lie from 0, and its widest step between beams (rad).
+MAX_TURN_RAD = 2 * np.pi
+
+#: The largest magnitude a decoded coordinate or range (m), pose angle (rad) or velocity may have;
+#: a covariance entry may be its square. Far beyond any sensor or map, and far enough below
+#: the float limit that the filters' squares and sums stay finite.
+MAX_ABS = 1e6
 
 #: Zenoh encoding prefix; the schema name follows the ``;`` (``application/protobuf;<schema>``).
 ENCODING_PREFIX = "application/protobuf"
@@ -75,8 +88,11 @@ class Codec(Generic[T]):
             return convert(_parse(old_proto, data, schema))
         msg = _parse(self.proto, data, self.schema)
         try:
-            return self.from_proto(msg)
-        except (ValueError, TypeError) as exc:
+            # A float32 signalling NaN (a flipped bit) warns when widened; the checks reject NaN
+            # wherever it is not a legal value.
+            with np.errstate(invalid="ignore"):
+                return self.from_proto(msg)
+        except (ValueError, TypeError, OverflowError) as exc:  # OverflowError: an enum value beyond int8
             raise DecodeError(self.schema, str(exc)) from exc
 
 
@@ -87,6 +103,23 @@ def _parse(proto: type, data: bytes, schema: str) -> Any:
     except (ProtobufDecodeError, RuntimeWarning, ValueError) as exc:
         raise DecodeError(schema, f"malformed payload ({exc})") from exc
     return msg
+
+
+def _bounded(name: str, values, limit: float = MAX_ABS) -> np.ndarray:
+    """``values`` as a float array, if every one is finite and within ±``limit``; else ValueError."""
+    a = np.asarray(values, np.float64)
+    if a.size and not np.all(np.abs(a) <= limit):   # NaN compares False too
+        raise ValueError(f"{name} must be finite and within ±{limit:g}")
+    return a
+
+
+def _covariances(name: str, values, k: int) -> np.ndarray:
+    """``values`` as (k, 2, 2) positive definite covariances; else ValueError."""
+    c = _bounded(name, values, MAX_ABS ** 2).reshape(k, 2, 2)
+    a, b, d = c[:, 0, 0], 0.5 * (c[:, 0, 1] + c[:, 1, 0]), c[:, 1, 1]
+    if not np.all((a > 0) & (d > 0) & (a * d - b * b > 0)):
+        raise ValueError(f"{name}: a covariance is not positive definite")
+    return c
 
 
 def parse_encoding(encoding: str) -> str:
@@ -123,8 +156,18 @@ def _scan_from(p) -> t.LaserScan:
         raise ValueError(f"{len(p.ranges_m)} ranges but {len(p.status)} status codes")
     if not p.angle_increment_rad > 0:
         raise ValueError(f"angle_increment_rad must be > 0, got {p.angle_increment_rad}")
+    # numpy would wrap a code of 256 round to 0, BEAM_VALID.
+    if any(not 0 <= s <= 255 for s in p.status):
+        raise ValueError("a beam status code is outside 0..255")
+    # Bearings in the laser frame: the first within a turn either way, a step of at most a turn.
+    if not (abs(p.angle_min_rad) <= MAX_TURN_RAD and p.angle_increment_rad <= MAX_TURN_RAD):
+        raise ValueError(f"beams from {p.angle_min_rad} rad in steps of {p.angle_increment_rad} rad: "
+                         "not within a turn")
+    ranges = np.array(p.ranges_m, np.float64)
+    if np.any(ranges < 0) or np.any(np.isfinite(ranges) & (ranges > MAX_ABS)):
+        raise ValueError(f"a range is negative or beyond {MAX_ABS:g} m (no return is +inf)")
     return t.LaserScan(
-        p.header.stamp_ns, p.header.seq, np.array(p.ranges_m, np.float64), np.array(p.status, np.uint8),
+        p.header.stamp_ns, p.header.seq, ranges, np.array(p.status, np.uint8),
         p.angle_min_rad, p.angle_increment_rad, p.range_max_m, p.range_min_m, p.header.frame_id,
         p.scan_time_s, p.source,
     )
@@ -140,8 +183,9 @@ def _odom_to(m: t.Odometry):
 
 
 def _odom_from(p) -> t.Odometry:
-    return t.Odometry(p.header.stamp_ns, p.header.seq, (p.pose.x_m, p.pose.y_m, p.pose.theta_rad),
-                      p.linear_mps, p.angular_radps, p.header.frame_id)
+    pose = _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad))
+    _bounded("velocity", (p.linear_mps, p.angular_radps))
+    return t.Odometry(p.header.stamp_ns, p.header.seq, pose, p.linear_mps, p.angular_radps, p.header.frame_id)
 
 
 def _filtered_to(m: t.FilteredScan):
@@ -164,8 +208,8 @@ def _filtered_from(p) -> t.FilteredScan:
     kept = np.array(p.kept_beams, np.int64)
     if k and (kept.max() >= scan.ranges_m.size or np.any(np.diff(kept) <= 0)):
         raise ValueError("kept_beams must be ascending indices into the scan")
-    return t.FilteredScan(p.header.stamp_ns, p.header.seq, scan, kept,
-                          np.column_stack((p.x_m, p.y_m)) if k else np.zeros((0, 2)), p.max_range_m, p.mode)
+    points = _bounded("points", np.column_stack((p.x_m, p.y_m))) if k else np.zeros((0, 2))
+    return t.FilteredScan(p.header.stamp_ns, p.header.seq, scan, kept, points, p.max_range_m, p.mode)
 
 
 def _features_to(m: t.Features):
@@ -193,12 +237,13 @@ def _features_from(p) -> t.Features:
     wall, wall_sigma = float("nan"), float("nan")
     if p.HasField("wall_direction"):
         wall, wall_sigma = p.wall_direction.direction_rad, p.wall_direction.sigma_rad
-        if not (np.isfinite(wall) and np.isfinite(wall_sigma) and wall_sigma > 0):
-            raise ValueError("wall_direction needs a finite direction and a finite sigma > 0")
+        # An angle modulo 90°: within [-pi/4, pi/4] (with rounding), and a sigma no wider than a turn.
+        if not (abs(wall) <= np.pi / 4 * (1 + 1e-9) and 0 < wall_sigma <= 2 * np.pi):
+            raise ValueError("wall_direction needs a direction within ±pi/4 and a sigma in (0, 2 pi]")
     return t.Features(
         p.header.stamp_ns, p.header.seq, p.scan_seq,
-        [f.kind for f in fs], [(f.x_m, f.y_m) for f in fs],
-        np.array([list(f.covariance_m2) for f in fs], np.float64).reshape(-1, 2, 2),
+        [f.kind for f in fs], _bounded("feature xy", [(f.x_m, f.y_m) for f in fs]),
+        _covariances("feature covariance", [list(f.covariance_m2) for f in fs], len(fs)),
         [f.beam for f in fs], [f.angle_deg for f in fs], wall, wall_sigma,
     )
 
@@ -231,10 +276,10 @@ def _slam_from(p) -> t.SlamState:
     if any(len(lm.covariance_m2) != 4 for lm in lms):
         raise ValueError("a landmark covariance is not 2x2")
     return t.SlamState(
-        p.header.stamp_ns, p.header.seq, p.scan_seq, (p.pose.x_m, p.pose.y_m, p.pose.theta_rad),
-        np.array(p.pose_covariance).reshape(3, 3),
-        [lm.id for lm in lms], [(lm.x_m, lm.y_m) for lm in lms],
-        np.array([list(lm.covariance_m2) for lm in lms], np.float64).reshape(-1, 2, 2),
+        p.header.stamp_ns, p.header.seq, p.scan_seq, _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
+        _bounded("pose_covariance", p.pose_covariance, MAX_ABS ** 2).reshape(3, 3),
+        [lm.id for lm in lms], _bounded("landmark xy", [(lm.x_m, lm.y_m) for lm in lms]),
+        _bounded("landmark covariance", [list(lm.covariance_m2) for lm in lms], MAX_ABS ** 2).reshape(-1, 2, 2),
         [lm.kind for lm in lms], [lm.sightings for lm in lms], [lm.confirmed for lm in lms],
         p.associated, p.added, p.rejected, _pose2d_or_none(p, "motion"), p.motion_matched,
     )
@@ -244,12 +289,12 @@ def _pose2d(target, pose) -> None:
     target.x_m, target.y_m, target.theta_rad = (float(v) for v in pose)
 
 
-def _pose2d_or_none(p, name: str) -> tuple[float, float, float] | None:
-    """The optional Pose2D field ``name`` of ``p`` as (x, y, theta), None where it is absent."""
+def _pose2d_or_none(p, name: str) -> np.ndarray | None:
+    """The optional Pose2D field ``name`` of ``p`` as (x, y, theta) (3,), checked as any pose; None where absent."""
     if not p.HasField(name):
         return None
     q = getattr(p, name)
-    return q.x_m, q.y_m, q.theta_rad
+    return _bounded(name, (q.x_m, q.y_m, q.theta_rad))
 
 
 def _map_pose_to(m: t.MapPose):
@@ -264,8 +309,8 @@ def _map_pose_to(m: t.MapPose):
 
 
 def _map_pose_from(p) -> t.MapPose:
-    pose = (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)
-    t_map = (p.map_from_slam.x_m, p.map_from_slam.y_m, p.map_from_slam.theta_rad)
+    pose = _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad))
+    t_map = _bounded("map_from_slam", (p.map_from_slam.x_m, p.map_from_slam.y_m, p.map_from_slam.theta_rad))
     return t.MapPose(p.header.stamp_ns, p.header.seq, p.scan_seq, pose, t_map, p.keyframes, p.closures,
                      p.closures_rejected, _pose2d_or_none(p, "local_pose"))
 
@@ -285,8 +330,8 @@ def _keyframes_from(p) -> t.MapKeyframes:
     if len(p.local_pose) != 3 * k or len(p.map_pose) != 3 * k or len(p.local_edge) not in (0, k):
         raise ValueError("keyframe poses are not K x 3, or the edge flags not K")
     return t.MapKeyframes(p.header.stamp_ns, p.header.seq, list(p.scan_stamp_ns),
-                          np.array(p.local_pose, np.float64).reshape(k, 3),
-                          np.array(p.map_pose, np.float64).reshape(k, 3), list(p.local_edge))
+                          _bounded("local_pose", p.local_pose).reshape(k, 3),
+                          _bounded("map_pose", p.map_pose).reshape(k, 3), list(p.local_edge))
 
 
 def _truth_to(m: t.GroundTruth):
@@ -302,8 +347,8 @@ def _truth_to(m: t.GroundTruth):
 
 def _truth_from(p) -> t.GroundTruth:
     cs = p.visible_corners
-    return t.GroundTruth(p.header.stamp_ns, p.header.seq, (p.pose.x_m, p.pose.y_m, p.pose.theta_rad),
-                         [c.id for c in cs], [(c.x_m, c.y_m) for c in cs], p.world)
+    return t.GroundTruth(p.header.stamp_ns, p.header.seq, _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
+                         [c.id for c in cs], _bounded("corners", [(c.x_m, c.y_m) for c in cs]), p.world)
 
 
 def _status_to(m: t.ServiceStatus):

@@ -273,3 +273,13 @@ class ServiceStatus:
     schemas: tuple = ()
     pid: int = 0
     host: str = ""
+
+    @property
+    def stamp_ns(self) -> int:
+        """The stamp a received message carries (ns): for a status, its wall-clock time."""
+        return self.wall_stamp_ns
+
+    @property
+    def seq(self) -> int:
+        """Statuses are not numbered (their publisher's attachment is); 0."""
+        return 0

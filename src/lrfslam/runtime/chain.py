@@ -33,10 +33,12 @@ from lrfslam.errors import InputError
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
 from lrfslam.runtime.decoding import LogOnce, decode_message
+from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import (
     ReadReport,
     RecordedMessage,
     RecordingWriter,
+    check_recording,
     read_recording,
 )
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec
@@ -241,7 +243,8 @@ def replay_recording(stages: Iterable[Stage], robot: str, in_path: str | Path, o
     stage's outputs replace them, and they are not fed to later stages). With
     ``copy_inputs`` the other input messages are written too, as recorded.
     Deterministic: nothing reads the clock and the output carries no wall-clock
-    metadata, so two runs give the same bytes.
+    metadata, so two runs give the same bytes. ``out_path`` appears only when the
+    run has finished (:func:`~lrfslam.runtime.outputs.atomic_output`).
 
     Returns
     -------
@@ -249,8 +252,21 @@ def replay_recording(stages: Iterable[Stage], robot: str, in_path: str | Path, o
         Per stage, :meth:`Chain.counts`; under ``"input"``: messages ``read``,
         ``copied``, ``dropped``, undecodable (``error.decode``/``error.schema``)
         and ``truncated``.
+
+    Raises
+    ------
+    RecordingError
+        ``in_path`` is no MCAP recording (checked before anything is written).
     """
-    in_path = Path(in_path)
+    in_path = check_recording(in_path)
+    if out_path is None:
+        return _replay(stages, robot, in_path, None, copy_inputs, metadata, progress)
+    with atomic_output(out_path) as partial:
+        return _replay(stages, robot, in_path, partial, copy_inputs, metadata, progress)
+
+
+def _replay(stages: Iterable[Stage], robot: str, in_path: Path, out_path: Path | None, copy_inputs: bool,
+            metadata: dict[str, dict[str, str]], progress: bool) -> dict[str, Counter]:
     chain = Chain(stages, robot=robot, replay=True)
     specs = [st.spec for st in chain.stages]
     produced = {tp.name for sp in specs for tp in sp.outputs}

@@ -1,8 +1,9 @@
 """Turning received payloads into messages, the same way live, on replay and offline.
 
-A payload that does not decode with the schema it names (or names an unknown
-version) is counted as ``error.decode`` / ``error.schema``, logged once per
-topic and kind, and skipped: one bad sample never stops a stage.
+A payload that does not decode with the schema it names, names an unknown
+version, or is larger than :data:`MAX_PAYLOAD_BYTES` is counted as
+``error.decode`` / ``error.schema`` / ``error.oversize``, logged once per topic
+and kind, and skipped: one bad sample never stops a stage.
 """
 
 from __future__ import annotations
@@ -14,6 +15,10 @@ from typing import Any
 from lrfslam.errors import DecodeError, SchemaVersionError
 from lrfslam.msgs.topics import Topic
 from lrfslam.runtime.step import Message
+
+#: Payloads larger than this are refused unparsed. The largest real message, ``map/keyframes``
+#: with 20 000 keyframes, is about 1 MB; a scan of the LMS200 about 3 kB.
+MAX_PAYLOAD_BYTES = 64 * 1024 * 1024
 
 
 class LogOnce:
@@ -45,9 +50,14 @@ def decode_message(topic: Topic, payload: bytes, schema: str, counts: Counter, o
     try:
         if not schema:
             raise DecodeError("", "the sample names no schema")
+        if len(payload) > MAX_PAYLOAD_BYTES:
+            raise DecodeError(schema, f"{len(payload)} bytes, more than the {MAX_PAYLOAD_BYTES} accepted")
         value = topic.codec.decode(payload, schema)
     except DecodeError as exc:
-        kind = "error.schema" if isinstance(exc, SchemaVersionError) or not schema else "error.decode"
+        if isinstance(exc, SchemaVersionError) or not schema:
+            kind = "error.schema"
+        else:
+            kind = "error.oversize" if len(payload) > MAX_PAYLOAD_BYTES else "error.decode"
         counts[kind] += 1
         once.warning(kind, f"{topic.name}:{exc.schema}", "skipping a message on %s: %s", where, exc)
         return None

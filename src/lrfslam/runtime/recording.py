@@ -16,7 +16,7 @@ from typing import BinaryIO, Self
 
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from lrfslam import __name__ as _lib
@@ -127,6 +127,26 @@ class ReadReport:
     reason: str = ""
 
 
+def check_recording(path: str | Path) -> Path:
+    """``path``, if it is a file that starts as an MCAP file does (complete or not).
+
+    Raises
+    ------
+    RecordingError
+        It does not exist, is a folder, or holds something else.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"recording {path} does not exist")
+    if not path.is_file():
+        raise RecordingError(f"recording {path} is not a file")
+    with open(path, "rb") as f:
+        head = f.read(len(MCAP0_MAGIC))
+    if head != MCAP0_MAGIC:
+        raise RecordingError(f"{path} is not an MCAP recording ({'empty' if not head else 'no MCAP magic'})")
+    return path
+
+
 def read_recording(path: str | Path, topics: Iterable[str] | None = None,
                    report: ReadReport | None = None) -> Iterator[RecordedMessage]:
     """Yield the messages of ``topics`` (all if None) in log-time order.
@@ -134,11 +154,11 @@ def read_recording(path: str | Path, topics: Iterable[str] | None = None,
     A file whose writer was killed has no footer: the indexed reader refuses it,
     so the messages of its complete chunks are read sequentially instead (in file
     order, which is log-time order for our recorder), and ``report.truncated`` is set.
+    A path that is no MCAP file at all raises :class:`RecordingError` (see
+    :func:`check_recording`) when the first message is asked for.
     """
     topic_set = set(topics) if topics is not None else None
-    path = Path(path)
-    if not path.exists():
-        raise RecordingError(f"recording {path} does not exist")
+    path = check_recording(path)
     report = report if report is not None else ReadReport()
     f = open(path, "rb")  # noqa: SIM115 - the generator's finally closes it, also when abandoned
     try:
@@ -178,5 +198,5 @@ def _recorded(schema, channel, message) -> RecordedMessage:
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """The named metadata records of a finished recording."""
-    with open(path, "rb") as f:
+    with open(check_recording(path), "rb") as f:
         return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}

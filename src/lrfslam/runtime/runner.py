@@ -103,7 +103,7 @@ def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[st
         if args.out:
             raise ConfigError("--out needs --replay")
         return run_live(spec, cfg, bus)
-    except LrfSlamError as exc:
+    except (LrfSlamError, OSError) as exc:
         log.error("%s", exc)
         return 2
 

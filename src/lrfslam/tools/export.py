@@ -16,31 +16,44 @@ from pathlib import Path
 import numpy as np
 
 from lrfslam.algo.geometry import compose, relative
-from lrfslam.errors import MissingExtraError
+from lrfslam.errors import DecodeError, MissingExtraError, RecordingError
 from lrfslam.extras import require
-from lrfslam.msgs import codec, topics
+from lrfslam.msgs import topics
+from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import read_recording
 
 CHI2_2D_95 = 5.991
 
 
 def collect(path: Path) -> dict:
-    """Trajectory, odometry, truth and the last SLAM state of a recording."""
+    """Trajectory, odometry, truth and the last SLAM state of a recording.
+
+    Undecodable messages are skipped and counted (``"undecodable"``).
+
+    Raises
+    ------
+    RecordingError
+        ``path`` is no recording, or has no decodable ``slam/state``.
+    """
     states, odom, truth = [], {}, {}
     last = None
+    undecodable = 0
     for m in read_recording(path, [topics.SLAM_STATE.name, topics.ODOM.name, topics.TRUTH.name]):
+        try:
+            value = topics.by_name(m.topic).codec.decode(m.data, m.schema)
+        except DecodeError:
+            undecodable += 1
+            continue
         if m.topic == topics.SLAM_STATE.name:
-            last = codec.SLAM_STATE.decode(m.data, m.schema)
+            last = value
             states.append((last.stamp_ns, last.pose))
         elif m.topic == topics.ODOM.name:
-            o = codec.ODOMETRY.decode(m.data, m.schema)
-            odom[o.stamp_ns] = o.pose
+            odom[value.stamp_ns] = value.pose
         else:
-            g = codec.GROUND_TRUTH.decode(m.data, m.schema)
-            truth[g.stamp_ns] = g
+            truth[value.stamp_ns] = value
     if last is None:
-        raise SystemExit(f"lrfslam export: {path} has no {topics.SLAM_STATE.name} messages")
-    return {"states": states, "odom": odom, "truth": truth, "last": last}
+        raise RecordingError(f"{path} has no decodable {topics.SLAM_STATE.name} messages")
+    return {"states": states, "odom": odom, "truth": truth, "last": last, "undecodable": undecodable}
 
 
 def anchor_of(states, frames: dict) -> np.ndarray:
@@ -125,15 +138,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-png", action="store_true", help="write map.json only (no plotting extra needed)")
     args = parser.parse_args(argv)
     data = collect(args.recording)
-    args.out_dir.mkdir(parents=True, exist_ok=True)
-    (args.out_dir / "map.json").write_text(json.dumps(to_json(data), indent=1))
+    if data["undecodable"]:
+        print(f"lrfslam export: skipped {data['undecodable']} undecodable messages", file=sys.stderr)
+    with atomic_output(args.out_dir / "map.json") as partial:
+        partial.write_text(json.dumps(to_json(data), indent=1))
     if args.no_png:
         print(f"wrote {args.out_dir / 'map.json'}")
         return 0
     try:
-        plot(data, args.out_dir / "map.png")
+        with atomic_output(args.out_dir / "map.png") as partial:
+            plot(data, partial)
     except MissingExtraError as exc:
-        print(f"lrfslam export: wrote {args.out_dir / 'map.json'}; {exc} (or pass --no-png)", file=sys.stderr)
+        print(f"lrfslam export: error: wrote {args.out_dir / 'map.json'}; {exc} (or pass --no-png)",
+              file=sys.stderr)
         return 2
     print(f"wrote {args.out_dir / 'map.json'} and {args.out_dir / 'map.png'}")
     return 0

@@ -64,12 +64,17 @@ from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.bus import BusConfig
+from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import RecordingWriter
 
 IMPORTER = "lrfslam.tools.importers.carmen"
 
 #: Malformed lines printed one by one before only their number is reported.
 MAX_REPORTED_ISSUES = 20
+#: Names of skipped messages listed in the summary (a binary file has thousands).
+MAX_SKIPPED_NAMES = 5
+#: The most of a bad line's text echoed to the terminal.
+ECHO_CHARS = 80
 
 
 @dataclass(frozen=True)
@@ -167,8 +172,13 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
     ------
     ConfigError
         ``robot`` or ``no_return_min_m`` is invalid.
+    InputError
+        The log holds no valid laser line (nothing is written).
     OSError
         The log cannot be read or the recording written.
+
+    ``out_path`` appears only once the import has finished
+    (:func:`~lrfslam.runtime.outputs.atomic_output`).
     """
     topics.check_robot(robot)
     log_path = Path(log_path)
@@ -182,7 +192,7 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
     mount = found.mount
     mounted = bool(np.any(mount != 0.0))   # else the logged poses pass through bit for bit
     metadata = {"lrfslam": {"robot": robot, "importer": IMPORTER, "source_file": log_path.name, **facts}}
-    with open_log(log_path) as lines, RecordingWriter(out_path, metadata) as writer, \
+    with open_log(log_path) as lines, atomic_output(out_path) as partial, RecordingWriter(partial, metadata) as writer, \
             tqdm(desc=f"import {log_path.name}", unit=" lines", disable=not progress, file=sys.stderr) as bar:
         reader = CarmenReader(lines, no_return_min_m=no_return)
         for item in reader:
@@ -211,17 +221,36 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
                 writer.write(topic.name, topic.schema, topic.codec.encode(value), ns, ns, scans)
         bar.update(reader.lines_read - bar.n)
         skipped = Counter(reader.skipped)
-    if odom_lines:
-        skipped["ODOM"] += odom_lines
+        if odom_lines:
+            skipped["ODOM"] += odom_lines
+        if not scans:
+            raise InputError(f"{log_path} holds no valid laser line (FLASER, RLASER, ROBOTLASERk): "
+                             f"{len(issues)} malformed, skipped {skipped_text(skipped)}")
     return CarmenImport(scans, scans, dict(skipped), tuple(issues), backsteps, facts)
+
+
+def printable(text: str, limit: int = ECHO_CHARS) -> str:
+    """``text`` as one printable line of at most about ``limit`` characters (escaped, cut with '...')."""
+    shown = text if text.isprintable() else repr(text)[1:-1]
+    return shown if len(shown) <= limit else shown[:limit] + "..."
+
+
+def skipped_text(skipped: dict[str, int]) -> str:
+    """``"ODOM 12, PARAM 3, blank 1"``: the most frequent few names (printable, short), then how many more."""
+    names = sorted(skipped.items(), key=lambda kv: (-kv[1], kv[0]))
+    shown = ", ".join(f"{printable(name, 20) if name else 'blank'} {n}" for name, n in names[:MAX_SKIPPED_NAMES])
+    if len(names) > MAX_SKIPPED_NAMES:
+        rest = names[MAX_SKIPPED_NAMES:]
+        shown += f" and {sum(n for _, n in rest)} lines of {len(rest)} other names"
+    return f"{sum(skipped.values())} lines ({shown or 'none'})"
 
 
 def _print_issue(count: list[int]) -> Callable[[CarmenIssue], None]:
     def report(issue: CarmenIssue) -> None:
         count[0] += 1
         if count[0] <= MAX_REPORTED_ISSUES:
-            tqdm.write(f"line {issue.line_no}: malformed {issue.message_type or 'line'}: {issue.reason} (skipped)",
-                       file=sys.stderr)
+            tqdm.write(f"line {issue.line_no}: malformed {printable(issue.message_type, 20) or 'line'}: "
+                       f"{printable(issue.reason)} (skipped)", file=sys.stderr)
     return report
 
 
@@ -245,13 +274,13 @@ def main(argv: list[str] | None = None) -> int:
                                on_issue=_print_issue(shown),
                                progress=not args.quiet and sys.stderr.isatty())
     except (LrfSlamError, OSError) as exc:
-        print(f"lrfslam import: {exc}", file=sys.stderr)
+        print(f"lrfslam import: error: {exc}", file=sys.stderr)
         return 2
-    if shown[0] > MAX_REPORTED_ISSUES:
-        print(f"... and {shown[0] - MAX_REPORTED_ISSUES} more malformed lines (skipped)", file=sys.stderr)
-    skipped = ", ".join(f"{name or 'blank'} {n}" for name, n in sorted(result.skipped.items()))
+    finally:
+        if shown[0] > MAX_REPORTED_ISSUES:
+            print(f"... and {shown[0] - MAX_REPORTED_ISSUES} more malformed lines (skipped)", file=sys.stderr)
     print(f"{args.log} -> {args.out}: {result.scans} scans, {result.odom} odom, "
-          f"{sum(result.skipped.values())} lines skipped ({skipped or 'none'}), "
+          f"skipped {skipped_text(result.skipped)}, "
           f"{len(result.issues)} malformed, {result.stamp_backsteps} backward stamps")
     sensor = result.sensor
     print(f"  laser: {sensor['beams']}; no return = {sensor['no_return_m'] or '-'} m "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -75,6 +76,6 @@ def main(argv: list[str] | None = None) -> int:
         try:
             print(describe(path))
         except RecordingError as exc:
-            print(f"lrfslam info: {exc}")
-            code = 1
+            print(f"lrfslam info: error: {exc}", file=sys.stderr)
+            code = 2
     return code

@@ -124,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
             log.info("%s config %s", stage.spec.name, config_mod.to_json(stage.config))
         counts = run_pipeline(stages, robot, Path(args.replay), Path(args.out) if args.out else None,
                               progress=not args.quiet and sys.stderr.isatty())
-    except LrfSlamError as exc:
+    except (LrfSlamError, OSError) as exc:
         log.error("%s", exc)
         return 2
     for name, c in counts.items():

@@ -1,7 +1,10 @@
 """``lrfslam up``: the whole pipeline as separate processes, supervised, with a summary.
 
-Starts a Zenoh router, then recorder, slam, features and denoise, waits until each
-has declared its liveliness token, then starts the sensor. A service that dies
+Checks every stage's settings, starts a Zenoh router, then recorder, mapper, slam,
+features and denoise, waits until each has declared its liveliness token, then starts
+the sensor. A stage that exits while starting (or has no token after 30 s) stops
+everything at once: ``up`` exits with code 2 and removes the recording if it holds
+nothing. A service that dies
 is restarted (up to ``--max-restarts`` times). On Ctrl-C, SIGTERM or after
 ``--duration`` seconds the sensor stops first, the pipeline drains, the rest stop
 in order, and a summary compares the SLAM estimate with the simulator's ground truth.
@@ -11,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import subprocess
 import sys
@@ -23,9 +27,11 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from lrfslam import services
 from lrfslam.algo.geometry import compose, relative, wrap_angle
-from lrfslam.errors import DecodeError
+from lrfslam.errors import ConfigError, DecodeError, LrfSlamError, StartupError
 from lrfslam.msgs import codec, topics
+from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import parse_attachment
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.runner import install_signal_handlers, setup_logging
@@ -34,6 +40,8 @@ from lrfslam.tools.status import client_config
 log = logging.getLogger("lrfslam.up")
 
 START_ORDER = ("recorder", "mapper", "slam", "features", "denoise", "sensor")
+#: How long the stages before the sensor have to declare their liveliness tokens.
+START_TIMEOUT_S = 30.0
 #: Stages ``--skip`` may leave out (every other one is needed for SLAM to run at all).
 OPTIONAL = ("mapper",)
 
@@ -107,16 +115,65 @@ def child_argv(name: str, args: argparse.Namespace, endpoint: str, extra: list[s
     return argv + extra
 
 
-def wait_alive(session: zenoh.Session, robot: str, names: list[str], timeout_s: float) -> set[str]:
-    """Names among ``names`` whose liveliness token appeared within ``timeout_s``."""
+def wait_alive(session: zenoh.Session, robot: str, children: list[Child], timeout_s: float,
+               stop: threading.Event) -> bool:
+    """Wait until every one of ``children`` has declared its liveliness token.
+
+    Returns False if ``stop`` was set first.
+
+    Raises
+    ------
+    StartupError
+        One of them exited meanwhile (a bad setting, a file it cannot write), or
+        ``timeout_s`` passed without all tokens.
+    """
     deadline = time.monotonic() + timeout_s
+    names = {c.name for c in children}
     seen: set[str] = set()
-    while time.monotonic() < deadline and not set(names) <= seen:
-        for reply in session.liveliness().get(topics.alive(robot, topics.ANY), timeout=1.0):
+    while not names <= seen:
+        for child in children:
+            if not child.alive():
+                raise StartupError(f"{child.name} exited with code {child.proc.returncode} while starting "
+                                   "(its error is above)")
+        if stop.is_set():
+            return False
+        if time.monotonic() > deadline:
+            raise StartupError(f"no liveliness token from {', '.join(sorted(names - seen))} within "
+                               f"{timeout_s:.0f} s")
+        for reply in session.liveliness().get(topics.alive(robot, topics.ANY), timeout=0.5):
             if reply.ok is not None:
                 seen.add(topics.robot_and_service(str(reply.ok.key_expr))[1])
         time.sleep(0.1)
-    return seen & set(names)
+    return True
+
+
+def check_configs(sets: dict[str, list[str]], config: str | None) -> None:
+    """Layer every stage's config as its process will, so a bad setting stops ``up`` before it starts anything.
+
+    Raises
+    ------
+    ConfigError
+        Naming the stage.
+    """
+    file = config_mod.read_file(config, services.CONFIG_TABLES)
+    for name, items in sets.items():
+        try:
+            config_mod.service_config(services.spec(name), sets=items, file=file, env=os.environ)
+        except ConfigError as exc:
+            raise ConfigError(f"{name}: {exc}") from exc
+
+
+def remove_if_empty(recording: Path) -> None:
+    """Delete ``recording`` if it holds no data (only health), as after a failed start."""
+    if not recording.is_file():
+        return
+    try:
+        empty = all(topics.is_health(m.topic) for m in read_recording(recording))
+    except LrfSlamError:
+        empty = True
+    if empty:
+        recording.unlink(missing_ok=True)
+        log.info("removed %s: nothing was recorded", recording)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -141,16 +198,19 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging("up", "INFO")
 
     order = tuple(n for n in START_ORDER if n not in args.skip)
-    extra: dict[str, list[str]] = {n: [] for n in order}
+    sets: dict[str, list[str]] = {n: [] for n in order}
     for item in args.sets:
         service, dot, rest = item.partition(".")
-        if not dot or service not in extra:
+        if not dot or service not in sets:
             parser.error(f"--set expects SERVICE.NAME=VALUE with SERVICE in {', '.join(order)}: {item!r}")
-        extra[service] += ["--set", rest]
+        sets[service].append(rest)
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     recording = Path(args.recordings) / f"{stamp}_{args.robot}.mcap"
-    extra["recorder"] += ["--set", f"directory={recording.parent}", "--set", f"filename={recording.name}"]
-    extra["sensor"] += ["--set", f"speedup={args.speedup}", "--set", f"seed={args.seed}"]
+    sets["recorder"] += [f"directory={recording.parent}", f"filename={recording.name}"]
+    sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
+    topics.check_robot(args.robot)
+    check_configs(sets, args.config)
+    extra = {n: [a for item in items for a in ("--set", item)] for n, items in sets.items()}
 
     endpoint = f"tcp/127.0.0.1:{args.port}"
     stop = threading.Event()
@@ -174,11 +234,18 @@ def main(argv: list[str] | None = None) -> int:
                 session.declare_subscriber(topics.health_key(args.robot, topics.ANY), observer.on_health)]
         for name in order[:-1]:
             children[name].start()
-        ready = wait_alive(session, args.robot, list(order[:-1]), 30.0)
-        missing = set(order[:-1]) - ready
-        if missing:
-            log.warning("no liveliness token yet from %s; starting the sensor anyway", ", ".join(sorted(missing)))
-        children["sensor"].start()
+        try:
+            up = wait_alive(session, args.robot, [children[n] for n in order[:-1]], START_TIMEOUT_S, stop)
+        except StartupError:
+            for child in children.values():
+                child.stop(5)
+            for sub in subs:
+                sub.undeclare()
+            router.stop(5)
+            remove_if_empty(recording)
+            raise
+        if up:
+            children["sensor"].start()
         log.info("pipeline up: robot %s, router %s, recording %s", args.robot, endpoint, recording)
         deadline = started + args.duration if args.duration > 0 else None
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
