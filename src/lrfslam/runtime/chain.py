@@ -36,7 +36,9 @@ from lrfslam.runtime.decoding import LogOnce, decode_message
 from lrfslam.runtime.recording import (
     ReadReport,
     RecordedMessage,
+    RecordingSource,
     RecordingWriter,
+    describe_source,
     read_recording,
 )
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec
@@ -232,10 +234,10 @@ class Chain:
         return Item(Message.of(out), None, payload)
 
 
-def replay_recording(stages: Iterable[Stage], robot: str, in_path: str | Path, out_path: str | Path | None, *,
+def replay_recording(stages: Iterable[Stage], robot: str, in_path: RecordingSource, out_path: str | Path | None, *,
                      copy_inputs: bool, metadata: dict[str, dict[str, str]], progress: bool = False
                      ) -> dict[str, Counter]:
-    """Run ``stages`` over the recording ``in_path``, in log-time order; write ``out_path``.
+    """Run ``stages`` over the recording ``in_path`` (file, folder or files), in log-time order; write ``out_path``.
 
     Input messages on a topic one of the stages produces are dropped (that
     stage's outputs replace them, and they are not fed to later stages). With
@@ -250,7 +252,7 @@ def replay_recording(stages: Iterable[Stage], robot: str, in_path: str | Path, o
         ``copied``, ``dropped``, undecodable (``error.decode``/``error.schema``)
         and ``truncated``.
     """
-    in_path = Path(in_path)
+    name = describe_source(in_path)
     chain = Chain(stages, robot=robot, replay=True)
     specs = [st.spec for st in chain.stages]
     produced = {tp.name for sp in specs for tp in sp.outputs}
@@ -275,7 +277,7 @@ def replay_recording(stages: Iterable[Stage], robot: str, in_path: str | Path, o
 
     try:
         records = read_recording(in_path, None if everything else list(consumed), report)
-        for rec in tqdm(records, desc=f"{in_path.name}", unit=" msgs", disable=not progress, file=sys.stderr):
+        for rec in tqdm(records, desc=name, unit=" msgs", disable=not progress, file=sys.stderr):
             read["read"] += 1
             if rec.topic in produced:
                 read["dropped"] += 1
@@ -283,7 +285,7 @@ def replay_recording(stages: Iterable[Stage], robot: str, in_path: str | Path, o
             topic = consumed.get(rec.topic)
             msg = None
             if topic is not None:
-                msg = decode_message(topic, rec.data, rec.schema, read, once, f"{in_path.name}:{rec.topic}")
+                msg = decode_message(topic, rec.data, rec.schema, read, once, f"{name}:{rec.topic}")
             write(chain.push_item(Item(msg, rec)))
         write(chain.finish_items())
     finally:

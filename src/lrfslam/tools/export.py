@@ -1,4 +1,6 @@
-"""``lrfslam export FILE.mcap -o DIR``: the final map and the trajectory as JSON and a PNG plot.
+"""``lrfslam export RECORDING -o DIR``: the final map and the trajectory as JSON and a PNG plot.
+
+RECORDING is an MCAP file, a recording folder or several files (one stream).
 
 The plot shows landmarks with their 95 % covariance ellipses, the estimated
 trajectory, raw odometry, and — when the recording has it — the ground truth
@@ -16,16 +18,16 @@ from pathlib import Path
 import numpy as np
 
 from lrfslam.algo.geometry import compose, relative
-from lrfslam.errors import MissingExtraError
+from lrfslam.errors import MissingExtraError, RecordingError
 from lrfslam.extras import require
 from lrfslam.msgs import codec, topics
-from lrfslam.runtime.recording import read_recording
+from lrfslam.runtime.recording import RecordingSource, describe_source, read_recording
 
 CHI2_2D_95 = 5.991
 
 
-def collect(path: Path) -> dict:
-    """Trajectory, odometry, truth and the last SLAM state of a recording."""
+def collect(path: RecordingSource) -> dict:
+    """Trajectory, odometry, truth and the last SLAM state of a recording (file, folder or files)."""
     states, odom, truth = [], {}, {}
     last = None
     for m in read_recording(path, [topics.SLAM_STATE.name, topics.ODOM.name, topics.TRUTH.name]):
@@ -39,7 +41,7 @@ def collect(path: Path) -> dict:
             g = codec.GROUND_TRUTH.decode(m.data, m.schema)
             truth[g.stamp_ns] = g
     if last is None:
-        raise SystemExit(f"lrfslam export: {path} has no {topics.SLAM_STATE.name} messages")
+        raise SystemExit(f"lrfslam export: {describe_source(path)} has no {topics.SLAM_STATE.name} messages")
     return {"states": states, "odom": odom, "truth": truth, "last": last}
 
 
@@ -120,11 +122,16 @@ def plot(data: dict, png: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lrfslam export", description=__doc__.splitlines()[0])
-    parser.add_argument("recording", type=Path, help="recording (or --replay output) with slam/state")
+    parser.add_argument("recording", type=Path, nargs="+",
+                        help="recording (or --replay output) with slam/state: a file, a folder or several files")
     parser.add_argument("-o", "--out-dir", type=Path, default=Path("."), help="folder for map.json and map.png")
     parser.add_argument("--no-png", action="store_true", help="write map.json only (no plotting extra needed)")
     args = parser.parse_args(argv)
-    data = collect(args.recording)
+    try:
+        data = collect(args.recording)
+    except RecordingError as exc:
+        print(f"lrfslam export: {exc}", file=sys.stderr)
+        return 2
     args.out_dir.mkdir(parents=True, exist_ok=True)
     (args.out_dir / "map.json").write_text(json.dumps(to_json(data), indent=1))
     if args.no_png:

@@ -24,11 +24,12 @@ import numpy as np
 import zenoh
 
 from lrfslam.algo.geometry import compose, relative, wrap_angle
-from lrfslam.errors import DecodeError
+from lrfslam.errors import DecodeError, RecordingError
 from lrfslam.msgs import codec, topics
 from lrfslam.runtime.bus import parse_attachment
-from lrfslam.runtime.recording import read_recording
+from lrfslam.runtime.recording import ReadReport, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, setup_logging
+from lrfslam.tools.info import segment_lines
 from lrfslam.tools.status import client_config
 
 log = logging.getLogger("lrfslam.up")
@@ -134,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--skip", action="append", default=[], choices=OPTIONAL, metavar="SERVICE",
                         help="leave a stage out: --skip mapper runs the EKF without loop closing (with "
                              "--set slam.scan_matching=false, the paper's filter alone)")
-    parser.add_argument("--recordings", default="recordings", help="folder for the MCAP recording")
+    parser.add_argument("--recordings", default="recordings",
+                        help="parent of the recording folder (<UTC time>_<robot>/, one MCAP segment per recorder start)")
     parser.add_argument("--max-restarts", type=int, default=3)
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
     args = parser.parse_args(argv)
@@ -148,8 +150,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--set expects SERVICE.NAME=VALUE with SERVICE in {', '.join(order)}: {item!r}")
         extra[service] += ["--set", rest]
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    recording = Path(args.recordings) / f"{stamp}_{args.robot}.mcap"
-    extra["recorder"] += ["--set", f"directory={recording.parent}", "--set", f"filename={recording.name}"]
+    # One folder for the run: a restarted recorder adds the next segment to it.
+    recording = Path(args.recordings) / f"{stamp}_{args.robot}"
+    extra["recorder"] += ["--set", f"directory={recording.parent}", "--set", f"name={recording.name}"]
     extra["sensor"] += ["--set", f"speedup={args.speedup}", "--set", f"seed={args.seed}"]
 
     endpoint = f"tcp/127.0.0.1:{args.port}"
@@ -282,12 +285,19 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
                      f"({err['confirmed']:.0f} confirmed)")
         lines.append(f"      final pose error {err['final_xy_m'] * 100:.1f} cm, {err['final_heading_deg']:.2f} deg; "
                      f"trajectory RMSE {err['ate_rmse_m'] * 100:.1f} cm (first pose anchored)")
-    if recording.exists():
-        per_topic = Counter(m.topic for m in read_recording(recording))
-        lines.append(f"recording: {recording} ({recording.stat().st_size / 1e6:.1f} MB, "
-                     f"{sum(per_topic.values())} messages: "
-                     + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not topics.is_health(k))
-                     + ")")
-    else:
-        lines.append(f"recording: {recording} was not written")
+    lines += recording_lines(recording)
     return "\n".join(lines)
+
+
+def recording_lines(recording: Path) -> list[str]:
+    """The recording folder: messages per topic, then each segment (size, messages, whether it needs recovering)."""
+    report = ReadReport()
+    try:
+        per_topic = Counter(m.topic for m in read_recording(recording, report=report))
+    except RecordingError as exc:
+        return [f"recording: {recording} was not written ({exc})"]
+    size = sum(seg.path.stat().st_size for seg in report.segments)
+    return [f"recording: {recording}/ ({len(report.segments)} segment{'s' * (len(report.segments) > 1)}, "
+            f"{size / 1e6:.1f} MB, {sum(per_topic.values())} messages: "
+            + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not topics.is_health(k)) + ")",
+            *segment_lines(report)]
