@@ -220,20 +220,25 @@ from lrfslam.errors import RecordingError
 from lrfslam.runtime.recording import RecordingWriter
 w = RecordingWriter({path!r}, chunk_size_bytes=2048)
 try:
-    for i in range(1000):
+    for i in range({n}):
         _write_scans(w, [i])
+    w.close()
 except RecordingError as exc:
     print(exc)
     sys.exit(3)
 """
 
 
+def write_on_a_small_disk(path: Path, limit: int, n: int) -> subprocess.CompletedProcess:
+    script = FULL_DISK.format(paths=[str(Path(__file__).parent)], limit=limit, path=str(path), n=n)
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=False,
+                          env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})
+
+
 @pytest.mark.parametrize("limit", [20_000, 20_000 + 7, 65_536])
 def test_a_full_disk_leaves_a_valid_file_up_to_that_point(tmp_path, limit):
     path = tmp_path / "full.mcap"
-    script = FULL_DISK.format(paths=[str(Path(__file__).parent)], limit=limit, path=str(path))
-    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=False,
-                         env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})
+    res = write_on_a_small_disk(path, limit, 1000)
     assert res.returncode == 3, res.stderr
     assert "cannot write" in res.stdout and "File too large" in res.stdout and "ended validly" in res.stdout
     assert path.stat().st_size <= limit
@@ -242,3 +247,16 @@ def test_a_full_disk_leaves_a_valid_file_up_to_that_point(tmp_path, limit):
     assert len(seqs) > 5 and seqs == list(range(len(seqs)))
     report = _report(path)
     assert not report.truncated and report.segments[0].state == UNINDEXED
+
+
+def test_a_disk_full_while_writing_the_summary_keeps_every_message(tmp_path):
+    with RecordingWriter(tmp_path / "probe.mcap", chunk_size_bytes=2048) as w:
+        _write_scans(w, range(30))
+        w.flush()
+        data_end = w.bytes_written          # the same bytes again below: room for the data, not the index
+    path = tmp_path / "full.mcap"
+    res = write_on_a_small_disk(path, data_end + 100, 30)
+    assert res.returncode == 3 and "cannot finish" in res.stdout, res.stdout + res.stderr
+    with open(path, "rb") as f:
+        assert [m.sequence for _, _, m in make_reader(f).iter_messages()] == list(range(30))
+    assert _report(path).segments[0].state == UNINDEXED

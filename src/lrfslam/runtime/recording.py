@@ -100,8 +100,10 @@ class _OutFile:
         self.pos = 0
         #: Ends of the last complete writes (bytes), newest last.
         self.boundaries: deque[int] = deque([0], maxlen=16)
-        #: Where the data section may be cut: after the header and metadata.
+        #: Where the data section may be cut: after the header and metadata, and (once the
+        #: summary is being written) not after the data section's end.
         self.floor = 0
+        self.ceiling: int | None = None
 
     def write(self, data: bytes) -> int:
         view = memoryview(data)
@@ -129,6 +131,8 @@ class _OutFile:
         """
         end = _minimal_end()
         for cut in reversed(self.boundaries):
+            if self.ceiling is not None and cut > self.ceiling:
+                continue  # inside a half-written summary: end the data section instead
             if cut < self.floor or not self.floor:
                 break  # no header yet, or it would cut into the header: nothing valid to end
             try:
@@ -255,6 +259,7 @@ class RecordingWriter:
         with self._on_error("finish"):
             self._writer.flush()
             self.messages_flushed = self.messages_written
+            self._file.ceiling = self._file.pos
             self._writer.finish()
             self._closed = True
             self._file.close()

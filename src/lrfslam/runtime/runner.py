@@ -3,9 +3,9 @@
 ``lrfslam <service> [options]`` ends up in :func:`main`. Live, it opens a Zenoh
 session, declares a liveliness token ``lrf/<robot>/alive/<service>``, answers
 ``lrf/<robot>/svc/<service>/status``, publishes ``lrf/<robot>/health/<service>``
-and drives the service's step until SIGTERM/SIGINT. With ``--replay IN.mcap`` it
-drives the same step over a recording, as fast as the CPU allows, and writes the
-outputs to ``--out OUT.mcap``.
+and drives the service's step until SIGTERM/SIGINT. With ``--replay IN`` (an MCAP
+file, a recording folder, or several files) it drives the same step over the
+recording, as fast as the CPU allows, and writes the outputs to ``--out OUT.mcap``.
 """
 
 from __future__ import annotations
