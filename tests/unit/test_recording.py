@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -15,6 +16,7 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from lrfslam import cli
 from lrfslam.errors import RecordingError
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
@@ -27,6 +29,7 @@ from lrfslam.runtime.recording import (
     read_recording,
     recover,
 )
+from lrfslam.tools import info
 
 
 def _scan(i: int) -> t.LaserScan:
@@ -216,6 +219,7 @@ sys.path[:0] = {paths!r}
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)          # a write past the limit fails (EFBIG) like a full disk
 resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit}))
 from test_recording import _write_scans
+from lrfslam import cli
 from lrfslam.errors import RecordingError
 from lrfslam.runtime.recording import RecordingWriter
 w = RecordingWriter({path!r}, chunk_size_bytes=2048)
@@ -260,3 +264,22 @@ def test_a_disk_full_while_writing_the_summary_keeps_every_message(tmp_path):
     with open(path, "rb") as f:
         assert [m.sequence for _, _, m in make_reader(f).iter_messages()] == list(range(30))
     assert _report(path).segments[0].state == UNINDEXED
+
+
+def test_info_names_the_recover_command_and_it_works(tmp_path, capsys):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    shutil.move(_crashed_copy(tmp_path, 20, 3), folder / "run_0.mcap")
+    with RecordingWriter(folder / "run_1.mcap") as w:
+        _write_scans(w, range(100, 110))
+    before = list(read_recording(folder))
+    text = info.describe(folder)
+    (line,) = [line for line in text.splitlines() if "NOT FINISHED" in line]
+    assert "run_0.mcap" in line
+    command = re.search(r"lrfslam (recover \S+ -o \S+)$", line)[1].split()
+    assert cli.main(command) == 0
+    assert "20 messages" in capsys.readouterr().out
+    assert list(read_recording(folder)) == before          # the copy beside the segments is not one of them
+    assert "WARNING" not in info.describe(Path(command[-1]))
+    assert cli.main(command) == 2                          # never overwrites
+    assert "exists" in capsys.readouterr().err

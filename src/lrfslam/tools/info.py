@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from collections import defaultdict
 from pathlib import Path
 
@@ -85,17 +86,17 @@ def describe(source: RecordingSource) -> str:
         s[1] = min(s[1], m.log_time_ns)
         s[2] = max(s[2], m.log_time_ns)
     size = sum(p.stat().st_size for p in files)
-    single = len(files) == 1
-    name = files[0] if single else (Path(source) if isinstance(source, (str, Path)) else ", ".join(map(str, source)))
-    lines = [f"file:      {name} ({size / 1e6:.2f} MB)" if single
-             else f"recording: {name} ({len(files)} files, {size / 1e6:.2f} MB)"]
-    if not single:
-        lines += segment_lines(report)
-    elif (note := state_note(report.segments[0])):
-        lines.append(f"WARNING:   {note}")
-        lines.append(f"           ({report.segments[0].reason}; the complete chunks were read)"
-                     if report.truncated else "")
-    lines = [line for line in lines if line]
+    if isinstance(source, (str, os.PathLike)) and Path(source).is_file():
+        lines = [f"file:      {source} ({size / 1e6:.2f} MB)"]
+        seg = report.segments[0]
+        if note := state_note(seg):
+            lines.append(f"WARNING:   {note}")
+        if seg.state == TRUNCATED:
+            lines.append(f"           ({seg.reason}; its complete chunks were read)")
+    else:
+        name = source if isinstance(source, (str, os.PathLike)) else ", ".join(map(str, source))
+        lines = [f"recording: {name} ({len(files)} file{'s' * (len(files) > 1)}, {size / 1e6:.2f} MB)",
+                 *segment_lines(report)]
     if not stats:
         return "\n".join([*lines, "no messages"])
     start = min(s[1] for s in stats.values())
