@@ -64,8 +64,8 @@ RecordingSource = str | os.PathLike | Sequence[str | os.PathLike]
 #: Segment files of a recording folder: ``<name>_<n>.mcap``.
 SEGMENT = re.compile(r"^(?P<stem>.+)_(?P<index>\d+)\.mcap$")
 
-#: Everything an unreadable tail may raise while parsing (the mcap library has no single base).
-_PARSE_ERRORS = (McapError, ValueError, EOFError, struct.error, KeyError, RuntimeError)
+#: What the mcap library raises on a file without a valid end (it has no single base).
+_PARSE_ERRORS = (McapError, ValueError, EOFError, struct.error)
 
 
 def _known_protos() -> dict[str, type]:
@@ -547,7 +547,7 @@ def _read_file(path: Path, topics: list[str] | None, seg: SegmentReport,
                 schema, channel, message = next(it)
             except StopIteration:
                 break
-            except _PARSE_ERRORS as exc:
+            except Exception as exc:  # noqa: BLE001 - any parse error (CRC, zstd, EOF) ends the readable part
                 if seg.state != TRUNCATED:  # the footer was there, yet the data section is damaged
                     seg.state, report.truncated = TRUNCATED, True
                 seg.reason = f"stopped at {type(exc).__name__}: {exc}".rstrip(": ")
@@ -576,11 +576,9 @@ def read_metadata(source: RecordingSource) -> dict[str, dict[str, str]]:
             return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
         except _PARSE_ERRORS:
             f.seek(0)
-        found: dict[str, dict[str, str]] = {}
-        with contextlib.suppress(*_PARSE_ERRORS):
-            for m in NonSeekingReader(f).iter_metadata():
-                found[m.name] = dict(m.metadata)
-        return found
+        # Metadata records sit outside chunks: no need to open those.
+        return {r.name: dict(r.metadata) for r in _records_until_damaged(f, emit_chunks=True)
+                if isinstance(r, Metadata)}
 
 
 # ---- recovery ----------------------------------------------------------------------------------
@@ -639,41 +637,51 @@ def recover(in_path: str | Path, out_path: str | Path, chunk_size_bytes: int = 1
     return report
 
 
+def _records_until_damaged(f: BinaryIO, report: RecoverReport | None = None,
+                           emit_chunks: bool = False) -> Iterator[object]:
+    """The records of ``f`` in file order up to its end or first damaged record (``report.reason`` says which)."""
+    records = StreamReader(f, validate_crcs=True, emit_chunks=emit_chunks).records
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            return
+        except Exception as exc:  # noqa: BLE001 - any parse error (CRC, zstd, EOF) ends the readable part
+            if report is not None:
+                report.reason = f"{type(exc).__name__}: {exc}".rstrip(": ")
+            return
+        yield record
+
+
 def _copy_records(f: BinaryIO, out: BinaryIO, report: RecoverReport, chunk_size_bytes: int) -> None:
     writer = Writer(out, chunk_size=chunk_size_bytes, compression=CompressionType.ZSTD)
     schemas: dict[int, int] = {0: 0}
     channels: dict[int, int] = {}
     started = False
-    records = StreamReader(f, validate_crcs=True).records
-    try:
-        for record in records:
-            if isinstance(record, Header):
-                writer.start(profile=record.profile, library=record.library)
-                started = True
-            elif not started:
-                raise RecordingError(f"{f.name} does not start with an MCAP header")
-            elif isinstance(record, Schema) and record.id not in schemas:
-                schemas[record.id] = writer.register_schema(record.name, record.encoding, record.data)
-            elif isinstance(record, Channel) and record.id not in channels:
-                channels[record.id] = writer.register_channel(record.topic, record.message_encoding,
-                                                              schemas.get(record.schema_id, 0), record.metadata)
-            elif isinstance(record, Message) and record.channel_id in channels:
-                writer.add_message(channels[record.channel_id], record.log_time, record.data,
-                                   record.publish_time, record.sequence)
-                report.messages += 1
-            elif isinstance(record, Metadata):
-                writer.add_metadata(record.name, record.metadata)
-            elif isinstance(record, Attachment):
-                writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type,
-                                      record.data)
-            elif isinstance(record, DataEnd):
-                report.read_bytes = report.total_bytes
-                break  # the summary only repeats what came before
-            report.read_bytes = f.tell()
-    except _PARSE_ERRORS as exc:
-        if not started:
-            raise RecordingError(f"{f.name} is not an MCAP file ({type(exc).__name__}: {exc})") from exc
-        report.reason = f"{type(exc).__name__}: {exc}".rstrip(": ")
+    for record in _records_until_damaged(f, report):
+        if isinstance(record, Header):
+            writer.start(profile=record.profile, library=record.library)
+            started = True
+        elif not started:
+            break
+        elif isinstance(record, Schema) and record.id not in schemas:
+            schemas[record.id] = writer.register_schema(record.name, record.encoding, record.data)
+        elif isinstance(record, Channel) and record.id not in channels:
+            channels[record.id] = writer.register_channel(record.topic, record.message_encoding,
+                                                          schemas.get(record.schema_id, 0), record.metadata)
+        elif isinstance(record, Message) and record.channel_id in channels:
+            writer.add_message(channels[record.channel_id], record.log_time, record.data,
+                               record.publish_time, record.sequence)
+            report.messages += 1
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, record.metadata)
+        elif isinstance(record, Attachment):
+            writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
+        elif isinstance(record, DataEnd):
+            report.read_bytes = report.total_bytes
+            break  # the summary only repeats what came before
+        report.read_bytes = f.tell()
+    if not started:
+        raise RecordingError(f"{f.name} is not an MCAP file ({report.reason or 'no header'})")
     report.channels = len(channels)
     writer.finish()
-
