@@ -1,12 +1,20 @@
-"""recorder: everything under the robot's namespace into an MCAP file.
+"""recorder: everything under the robot's namespace into a recording folder of MCAP segments.
 
 in:  lrf/<robot>/** (raw payloads, any schema)
-out: recordings/<UTC time>_<robot>.mcap — zstd chunks, flushed every second, finished on SIGTERM
+out: recordings/<name>/<name>_<n>.mcap, name <UTC YYYYmmdd-HHMMSS>_<robot> by default — zstd
+     chunks, flushed every second, finished on SIGTERM
 
 Payloads are stored as received, never re-encoded, with each channel's schema
-(name with version, protobuf FileDescriptorSet) embedded. A write error such as a
-full disk is counted and logged once; the recorder keeps running and the other
-services never notice.
+(name with version, protobuf FileDescriptorSet) embedded. Each start of the
+recorder opens the next free segment number of its folder (never an existing
+file), so a recorder restarted after a crash continues the recording; a segment
+is also closed and the next one opened by size or age (rosbag2's split).
+
+A recorder that cannot open its first segment fails to start. Later, a write
+error such as a full disk ends the segment validly at its last complete
+chunk and is logged once; the recorder keeps running (the other services never
+notice), counts what it cannot record, and tries a new segment every
+``retry_period_s``.
 """
 
 from __future__ import annotations
@@ -14,12 +22,12 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
+from lrfslam.errors import ConfigError, RecordingError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.decoding import LogOnce
-from lrfslam.runtime.recording import RecordingWriter
+from lrfslam.runtime.recording import SegmentedWriter
 from lrfslam.runtime.step import Message, RunContext, ServiceSpec, StepBase
 
 log = logging.getLogger(__name__)
@@ -27,34 +35,56 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class RecorderConfig:
-    directory: str = "recordings"   # created if missing
-    filename: str = ""              # default: <YYYYmmdd-HHMMSS>_<robot>.mcap (UTC)
+    directory: str = "recordings"   # parent of the recording folder; created if missing
+    name: str = ""                  # recording folder and segment stem; default <YYYYmmdd-HHMMSS>_<robot> (UTC)
     flush_period_s: float = 1.0     # a killed recorder loses at most this much
     chunk_size_kb: int = 256
+    max_segment_mb: float = 0.0     # start the next segment past this size (MB); 0: no limit
+    max_segment_s: float = 0.0      # start the next segment at this age (s); 0: no limit
+    retry_period_s: float = 10.0    # after a write error (full disk), try a new segment this often
     include_health: bool = True     # also record health/<service>
+
+    def __post_init__(self) -> None:
+        if min(self.flush_period_s, self.max_segment_mb, self.max_segment_s, self.retry_period_s) < 0:
+            raise ConfigError("recorder periods and segment limits must be ≥ 0")
 
 
 class RecorderStep(StepBase):
     def __init__(self, cfg: RecorderConfig, ctx: RunContext) -> None:
         super().__init__()
         self.cfg = cfg
-        name = cfg.filename or time.strftime("%Y%m%d-%H%M%S", time.gmtime()) + f"_{ctx.robot}.mcap"
-        self.path = Path(cfg.directory) / name
-        self.writer = RecordingWriter(self.path, metadata={"lrfslam": {"robot": ctx.robot}},
-                                      chunk_size_bytes=cfg.chunk_size_kb * 1024)
+        name = cfg.name or time.strftime("%Y%m%d-%H%M%S", time.gmtime()) + f"_{ctx.robot}"
+        self.writer = SegmentedWriter(f"{cfg.directory}/{name}", name,
+                                      metadata={"lrfslam": {"robot": ctx.robot, "recording": name}},
+                                      chunk_size_bytes=cfg.chunk_size_kb * 1024,
+                                      max_bytes=int(cfg.max_segment_mb * 1e6), max_duration_s=cfg.max_segment_s)
+        self.folder = self.writer.folder
         self._next_flush = time.monotonic() + cfg.flush_period_s
         self._once = LogOnce(log)
-        self._failing = False
-        log.info("recording to %s", self.path)
+        self._blocked_until: float | None = None   # set while writes fail
+        # Where the first segment cannot even be opened (a folder it may not create), the
+        # recorder fails to start, so `up` stops at once instead of running without a recording.
+        self.writer.open_next()
+
+    def _open(self) -> None:
+        try:
+            self.writer.open_next()
+            self._blocked_until = None
+        except RecordingError as exc:
+            self._failed("open", exc)
 
     def on_message(self, msg: Message):
         if not self.cfg.include_health and topics.is_health(msg.name):
             return ()
+        if self._blocked_until is not None:
+            self.counts["drop.unwritable"] += 1
+            return ()
         stamp = msg.stamp_ns or time.time_ns()
         try:
             self.writer.write(msg.name, msg.schema, msg.value, stamp, time.time_ns(), msg.seq)
-        except OSError as exc:
-            self._write_failed("write", exc)
+        except RecordingError as exc:
+            self._failed("write", exc)
+            self.counts["drop.unwritable"] += 1
             return ()
         self.counts["messages"] += 1
         self.counts[f"topic.{msg.name}"] += 1
@@ -62,36 +92,48 @@ class RecorderStep(StepBase):
 
     def tick(self) -> None:
         now = time.monotonic()
+        if self._blocked_until is not None:
+            if now >= self._blocked_until:
+                self._open()
+            return
         if now < self._next_flush:
             return
         self._next_flush = now + self.cfg.flush_period_s
         try:
             self.writer.flush()
-            self._failing = False
-        except OSError as exc:
-            self._write_failed("flush", exc)
+        except RecordingError as exc:
+            self._failed("write", exc)
+            return
+        self.counts["flushed"] = self.writer.messages_flushed
 
-    def _write_failed(self, what: str, exc: OSError) -> None:
+    def _failed(self, what: str, exc: RecordingError) -> None:
         self.counts[f"error.{what}"] += 1
-        self._failing = True
-        self._once.warning(what, str(exc.errno), "recording %s failed on %s: %s", what, self.path, exc)
+        self._blocked_until = time.monotonic() + self.cfg.retry_period_s
+        cause = exc.__cause__
+        self._once.warning(what, str(getattr(cause, "errno", "")), "recording stopped: %s; retrying in a "
+                           "new segment every %.0f s", exc, self.cfg.retry_period_s)
 
     def health(self) -> tuple[int, str]:
-        if self._failing:
-            return t.HEALTH_ERROR, f"cannot write {self.path}"
-        return t.HEALTH_OK, f"recording {self.path}"
+        if self._blocked_until is not None:
+            return t.HEALTH_ERROR, f"cannot write to {self.folder}"
+        current = self.writer.current
+        return t.HEALTH_OK, f"recording {current.path if current else self.folder}"
 
     def close(self) -> None:
+        current = self.writer.current
         try:
             self.writer.close()
-            log.info("closed %s (%d messages)", self.path, self.writer.messages_written)
-        except OSError as exc:
-            self._write_failed("finish", exc)
+        except RecordingError as exc:
+            self._failed("finish", exc)
+            return
+        if current is not None:
+            log.info("closed %s (%d messages in %d segment(s) of %s)", current.path, self.writer.messages_written,
+                     len(self.writer.segments), self.folder)
 
 
 SPEC = ServiceSpec(
     name="recorder",
-    summary="Record every key of the robot to an MCAP file (zstd chunks, flushed every second).",
+    summary="Record every key of the robot to a folder of MCAP segments (zstd chunks, flushed every second).",
     config_type=RecorderConfig,
     inputs=(),
     outputs=(),

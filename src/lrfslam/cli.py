@@ -4,7 +4,8 @@
     lrfslam <service> [...]            one service live, or on a recording with --replay IN --out OUT
     lrfslam status                     live services and their statistics
     lrfslam router                     a Zenoh router
-    lrfslam info FILE.mcap             topics, schemas, counts and duration of a recording
+    lrfslam info RECORDING             topics, schemas, counts and duration of a recording (file or folder)
+    lrfslam recover IN.mcap -o OUT.mcap   an indexed copy of a file whose writer was killed
     lrfslam pipeline --replay IN.mcap --out OUT.mcap [--stages denoise,features,slam]
     lrfslam eval features|slam|relations ...
     lrfslam import carmen LOG -o FILE.mcap
@@ -32,7 +33,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "up": ("lrfslam.tools.up", "main", "run the whole pipeline (router + five services) and summarise"),
     "status": ("lrfslam.tools.status", "main", "list live services and their statistics"),
     "router": ("lrfslam.tools.router", "main", "run a Zenoh router"),
-    "info": ("lrfslam.tools.info", "main", "describe an MCAP recording"),
+    "info": ("lrfslam.tools.info", "main", "describe an MCAP recording (a file or a recording folder)"),
+    "recover": ("lrfslam.tools.recover", "main", "rewrite a file whose writer was killed as an indexed MCAP"),
     "pipeline": ("lrfslam.tools.pipeline", "main", "run several stages over a recording in one process (offline)"),
     "eval": ("lrfslam.tools.evaluate", "main", "accuracy evaluations (features, slam, relations)"),
     "import": ("lrfslam.tools.importers", "main", "convert a log (CARMEN) into a recording"),

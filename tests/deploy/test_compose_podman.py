@@ -161,8 +161,9 @@ def test_compose_up_status_down_recording(engine, tmp_path):
         dep("down", timeout=180, check=False)
     total_s = time.monotonic() - t0
 
-    files = sorted(dep.recordings.glob("*.mcap"))
-    assert len(files) == 1, files
+    # One recorder start, one recording folder holding one segment.
+    files = sorted(dep.recordings.glob("*/*.mcap"))
+    assert len(files) == 1 and files[0].name.endswith("_0.mcap"), files
     report = ReadReport()
     messages = list(read_recording(files[0], report=report))
     assert not report.truncated, f"the recorder did not finish its file: {report.reason}"

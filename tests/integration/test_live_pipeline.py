@@ -30,7 +30,7 @@ def out(statuses, service, topic):
 
 def test_pipeline_runs_end_to_end_over_zenoh(cluster):
     for name in STAGES:
-        cluster.start(name, *(("filename=run.mcap",) if name == "recorder" else ()))
+        cluster.start(name, *(("name=run",) if name == "recorder" else ()))
     session = cluster.session()
     with session:
         cluster.wait_for(session, lambda alive, st: {s for _, s in alive} >= set(STAGES), 30, "liveliness")
@@ -60,7 +60,7 @@ def test_pipeline_runs_end_to_end_over_zenoh(cluster):
     for name in ("sensor", "denoise", "features", "slam", "recorder"):
         assert cluster.stop(name) == 0, f"{name} did not exit cleanly on SIGTERM"
 
-    path = cluster.tmp / "recordings" / "run.mcap"
+    path = cluster.tmp / "recordings" / "run" / "run_0.mcap"
     per_topic, schemas, undecodable = Counter(), {}, []
     factory = DecoderFactory()
     with open(path, "rb") as f:

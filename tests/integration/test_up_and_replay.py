@@ -28,7 +28,8 @@ def up_run(tmp_path_factory):
     cwd = tmp_path_factory.mktemp("up")
     res = lrfslam("up", "--duration", "12", "--speedup", "4", "--port", str(port), "--robot", "r7", cwd=cwd)
     assert res.returncode == 0, res.stderr[-3000:]
-    (recording,) = (cwd / "recordings").glob("*_r7.mcap")
+    (recording,) = (cwd / "recordings").glob("*_r7")
+    assert [p.name for p in recording.iterdir()] == [f"{recording.name}_0.mcap"]
     return res.stdout, recording, cwd
 
 
@@ -43,7 +44,7 @@ def test_up_summarises_every_stage_and_the_pose_error(up_run):
     assert rows["features"][0] == scans and rows["slam"][1] == scans
     err = re.search(r"final pose error ([\d.]+) cm", stdout)
     assert err and float(err.group(1)) < 50, stdout
-    assert str(recording.name) in stdout
+    assert f"{recording.name}_0.mcap" in stdout     # the summary lists the segments
 
 
 def test_a_stage_replays_its_recording_deterministically(up_run):

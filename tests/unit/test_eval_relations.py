@@ -10,7 +10,7 @@ import pytest
 
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.recording import RecordingWriter
+from lrfslam.runtime.recording import RecordingWriter, SegmentedWriter, read_recording
 from lrfslam.tools import evaluate
 from lrfslam.tools.evaluate import evaluate_relations, stamp_s
 from lrfslam.tools.importers import stamp_ns
@@ -130,3 +130,17 @@ def test_delegated_subcommands(tmp_path, monkeypatch, capsys):
     with pytest.raises(ModuleNotFoundError):
         evaluate.main(["slam"])
     sys.modules.pop("fake_eval_ok", None)
+
+
+def test_a_recording_folder_scores_as_its_single_file(tmp_path, capsys):
+    single, rel = write_recording(tmp_path / "r.mcap"), write_relations(tmp_path / "r.relations")
+    # The same messages in a folder of one-message segments.
+    folder = SegmentedWriter(tmp_path / "run", "run", max_bytes=1)
+    for m in read_recording(single):
+        folder.write(m.topic, m.schema, m.data, m.log_time_ns)
+    folder.close()
+    assert len(folder.segments) == 2 * len(STAMPS_S)
+    assert evaluate.main(["relations", str(single), str(rel)]) == 0
+    from_file = capsys.readouterr().out.splitlines()[1:]
+    assert evaluate.main(["relations", str(tmp_path / "run"), str(rel)]) == 0
+    assert capsys.readouterr().out.splitlines()[1:] == from_file

@@ -37,9 +37,11 @@ from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import (
     ReadReport,
     RecordedMessage,
+    RecordingSource,
     RecordingWriter,
-    check_recording,
+    describe_source,
     read_recording,
+    recording_files,
 )
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec
 
@@ -234,10 +236,10 @@ class Chain:
         return Item(Message.of(out), None, payload)
 
 
-def replay_recording(stages: Iterable[Stage], robot: str, in_path: str | Path, out_path: str | Path | None, *,
+def replay_recording(stages: Iterable[Stage], robot: str, in_path: RecordingSource, out_path: str | Path | None, *,
                      copy_inputs: bool, metadata: dict[str, dict[str, str]], progress: bool = False
                      ) -> dict[str, Counter]:
-    """Run ``stages`` over the recording ``in_path``, in log-time order; write ``out_path``.
+    """Run ``stages`` over the recording ``in_path`` (file, folder or files), in log-time order; write ``out_path``.
 
     Input messages on a topic one of the stages produces are dropped (that
     stage's outputs replace them, and they are not fed to later stages). With
@@ -258,15 +260,16 @@ def replay_recording(stages: Iterable[Stage], robot: str, in_path: str | Path, o
     RecordingError
         ``in_path`` is no MCAP recording (checked before anything is written).
     """
-    in_path = check_recording(in_path)
+    recording_files(in_path)
     if out_path is None:
         return _replay(stages, robot, in_path, None, copy_inputs, metadata, progress)
     with atomic_output(out_path) as partial:
         return _replay(stages, robot, in_path, partial, copy_inputs, metadata, progress)
 
 
-def _replay(stages: Iterable[Stage], robot: str, in_path: Path, out_path: Path | None, copy_inputs: bool,
-            metadata: dict[str, dict[str, str]], progress: bool) -> dict[str, Counter]:
+def _replay(stages: Iterable[Stage], robot: str, in_path: RecordingSource, out_path: Path | None,
+            copy_inputs: bool, metadata: dict[str, dict[str, str]], progress: bool) -> dict[str, Counter]:
+    name = describe_source(in_path)
     chain = Chain(stages, robot=robot, replay=True)
     specs = [st.spec for st in chain.stages]
     produced = {tp.name for sp in specs for tp in sp.outputs}
@@ -291,7 +294,7 @@ def _replay(stages: Iterable[Stage], robot: str, in_path: Path, out_path: Path |
 
     try:
         records = read_recording(in_path, None if everything else list(consumed), report)
-        for rec in tqdm(records, desc=f"{in_path.name}", unit=" msgs", disable=not progress, file=sys.stderr):
+        for rec in tqdm(records, desc=name, unit=" msgs", disable=not progress, file=sys.stderr):
             read["read"] += 1
             if rec.topic in produced:
                 read["dropped"] += 1
@@ -299,7 +302,7 @@ def _replay(stages: Iterable[Stage], robot: str, in_path: Path, out_path: Path |
             topic = consumed.get(rec.topic)
             msg = None
             if topic is not None:
-                msg = decode_message(topic, rec.data, rec.schema, read, once, f"{in_path.name}:{rec.topic}")
+                msg = decode_message(topic, rec.data, rec.schema, read, once, f"{name}:{rec.topic}")
             write(chain.push_item(Item(msg, rec)))
         write(chain.finish_items())
     finally:

@@ -3,9 +3,9 @@
 ``lrfslam <service> [options]`` ends up in :func:`main`. Live, it opens a Zenoh
 session, declares a liveliness token ``lrf/<robot>/alive/<service>``, answers
 ``lrf/<robot>/svc/<service>/status``, publishes ``lrf/<robot>/health/<service>``
-and drives the service's step until SIGTERM/SIGINT. With ``--replay IN.mcap`` it
-drives the same step over a recording, as fast as the CPU allows, and writes the
-outputs to ``--out OUT.mcap``.
+and drives the service's step until SIGTERM/SIGINT. With ``--replay IN`` (an MCAP
+file, a recording folder, or several files) it drives the same step over the
+recording, as fast as the CPU allows, and writes the outputs to ``--out OUT.mcap``.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
 from lrfslam.runtime.chain import Stage, replay_recording
 from lrfslam.runtime.decoding import LogOnce
+from lrfslam.runtime.recording import RecordingSource, describe_source
 from lrfslam.runtime.step import RunContext, ServiceSpec, Source
 
 log = logging.getLogger("lrfslam")
@@ -85,7 +86,9 @@ def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[st
     """``lrfslam <service>``; ``tables``: the config-file tables there may be (others are errors)."""
     parser = argparse.ArgumentParser(prog=f"lrfslam {spec.name}", description=spec.summary)
     add_common_arguments(parser)
-    parser.add_argument("--replay", metavar="IN.mcap", help="run on a recording instead of the bus")
+    parser.add_argument("--replay", nargs="+", metavar="IN",
+                        help="run on a recording instead of the bus: an MCAP file, a recording folder, or "
+                             "several files (one stream)")
     parser.add_argument("--out", metavar="OUT.mcap", help="with --replay: write the outputs here")
     for flag, name, help_text in spec.flags:
         parser.add_argument(flag, dest=name, help=f"{help_text} (same as --set {name}=...)")
@@ -97,7 +100,7 @@ def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[st
         cfg = config_mod.service_config(spec, sets=flag_sets(spec, args), file=file, env=os.environ)
         log.info("config %s", config_mod.to_json(cfg))
         if args.replay:
-            counts = replay(spec, cfg, bus.robot, Path(args.replay), Path(args.out) if args.out else None)
+            counts = replay(spec, cfg, bus.robot, [Path(p) for p in args.replay], Path(args.out) if args.out else None)
             log.info("replay done: %s", ", ".join(f"{k}={v}" for k, v in sorted(counts.items())))
             return 0
         if args.out:
@@ -111,15 +114,15 @@ def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[st
 # ---- replay ------------------------------------------------------------------------------
 
 
-def replay(spec: ServiceSpec, cfg: Any, robot: str, in_path: Path, out_path: Path | None) -> Counter:
-    """Run ``spec``'s step over the recording ``in_path``; write its outputs to ``out_path``.
+def replay(spec: ServiceSpec, cfg: Any, robot: str, in_path: RecordingSource, out_path: Path | None) -> Counter:
+    """Run ``spec``'s step over the recording ``in_path`` (file, folder or files); write its outputs to ``out_path``.
 
     A one-stage :func:`~lrfslam.runtime.chain.replay_recording`: the same input
     gives the same output bytes.
     """
     if not spec.inputs and not spec.raw_inputs:
         raise ConfigError(f"{spec.name} is a source; it has no inputs to replay")
-    metadata = {"lrfslam": {"robot": robot, "service": spec.name, "replay_of": in_path.name,
+    metadata = {"lrfslam": {"robot": robot, "service": spec.name, "replay_of": describe_source(in_path),
                             "config": config_mod.to_json(cfg)}}
     counts = replay_recording([Stage(spec, cfg)], robot, in_path, out_path, copy_inputs=False, metadata=metadata)
     merged = Counter(counts[spec.name])

@@ -4,9 +4,10 @@
         Every CARMEN log in the folders under DIR through the whole pipeline with one
         configuration; one table of relation errors (overall and by span) for those
         with relations, a map for those without (lrfslam.tools.eval_logs).
-    lrfslam eval relations FILE.mcap RELATIONS [--max-gap-s S] [--scan-matching [--set NAME=VALUE ...]]
+    lrfslam eval relations RECORDING RELATIONS [--max-gap-s S] [--scan-matching [--set NAME=VALUE ...]]
         Kümmerle et al. (2009) relation metric of the SLAM estimate (``slam/state``)
-        and of the raw odometry (``odom``) of a recording, as a table; with
+        and of the raw odometry (``odom``) of a recording (an MCAP file or a recording
+        folder), as a table; with
         ``--scan-matching`` also of the slam service's scan matching alone, run on
         the recording's ``scan`` and ``odom`` (NAME: a ``ScanMatchParams`` field).
     lrfslam eval features ...    corner-feature accuracy (lrfslam.evaluation.features)
@@ -150,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="{relations,features,slam}")
     rel = sub.add_parser("relations", help="relation metric of the SLAM estimate and of raw odometry")
-    rel.add_argument("recording", metavar="FILE.mcap", nargs="?", help="recording with slam/state and odom")
+    rel.add_argument("recording", metavar="RECORDING", nargs="?",
+                     help="recording with slam/state and odom: an MCAP file or a recording folder")
     rel.add_argument("relations", metavar="RELATIONS", nargs="?",
                      help="ground-truth relations file (t1 t2 x y z roll pitch yaw)")
     rel.add_argument("--all", metavar="DIR", type=Path, dest="all_logs",

@@ -1,4 +1,6 @@
-"""``lrfslam export FILE.mcap -o DIR``: the final map and the trajectory as JSON and a PNG plot.
+"""``lrfslam export RECORDING -o DIR``: the final map and the trajectory as JSON and a PNG plot.
+
+RECORDING is an MCAP file, a recording folder or several files (one stream).
 
 The plot shows landmarks with their 95 % covariance ellipses, the estimated
 trajectory, raw odometry, and — when the recording has it — the ground truth
@@ -20,13 +22,13 @@ from lrfslam.errors import DecodeError, MissingExtraError, RecordingError
 from lrfslam.extras import require
 from lrfslam.msgs import topics
 from lrfslam.runtime.outputs import atomic_output
-from lrfslam.runtime.recording import read_recording
+from lrfslam.runtime.recording import RecordingSource, describe_source, read_recording
 
 CHI2_2D_95 = 5.991
 
 
-def collect(path: Path) -> dict:
-    """Trajectory, odometry, truth and the last SLAM state of a recording.
+def collect(path: RecordingSource) -> dict:
+    """Trajectory, odometry, truth and the last SLAM state of a recording (file, folder or files).
 
     Undecodable messages are skipped and counted (``"undecodable"``).
 
@@ -52,7 +54,7 @@ def collect(path: Path) -> dict:
         else:
             truth[value.stamp_ns] = value
     if last is None:
-        raise RecordingError(f"{path} has no decodable {topics.SLAM_STATE.name} messages")
+        raise RecordingError(f"{describe_source(path)} has no decodable {topics.SLAM_STATE.name} messages")
     return {"states": states, "odom": odom, "truth": truth, "last": last, "undecodable": undecodable}
 
 
@@ -133,7 +135,8 @@ def plot(data: dict, png: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lrfslam export", description=__doc__.splitlines()[0])
-    parser.add_argument("recording", type=Path, help="recording (or --replay output) with slam/state")
+    parser.add_argument("recording", type=Path, nargs="+",
+                        help="recording (or --replay output) with slam/state: a file, a folder or several files")
     parser.add_argument("-o", "--out-dir", type=Path, default=Path("."), help="folder for map.json and map.png")
     parser.add_argument("--no-png", action="store_true", help="write map.json only (no plotting extra needed)")
     args = parser.parse_args(argv)

@@ -1,16 +1,32 @@
-"""``lrfslam info FILE.mcap``: topics, schemas, message counts, rates and duration of a recording."""
+"""``lrfslam info RECORDING``: topics, schemas, message counts, rates and duration of a recording.
+
+RECORDING is a file, a recording folder (its segments ``<name>_<n>.mcap``) or
+several files, read as one stream. Each file that was not finished (its writer
+was killed) is named with the ``lrfslam recover`` command that makes it an
+indexed file again.
+"""
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from collections import defaultdict
 from pathlib import Path
 
 from lrfslam.errors import DecodeError, RecordingError
 from lrfslam.msgs import topics
-from lrfslam.runtime.recording import ReadReport, read_metadata, read_recording
+from lrfslam.runtime.recording import (
+    TRUNCATED,
+    UNINDEXED,
+    ReadReport,
+    RecordingSource,
+    SegmentReport,
+    read_metadata,
+    read_recording,
+    recording_files,
+)
 
 #: Metadata of an imported log that says what the laser is (see lrfslam.tools.importers).
 SENSOR_KEYS = (("beams", "beams"), ("no_return_m", "no return (m)"), ("no_return_from", "  from"),
@@ -36,28 +52,59 @@ def laser_lines(first_scan: tuple[bytes, str] | None, metadata: dict[str, dict[s
     return lines
 
 
-def describe(path: Path) -> str:
+def recover_command(path: Path) -> str:
+    """The command that rewrites ``path`` as an indexed file beside it (a name the folder reader skips)."""
+    return f"lrfslam recover {path} -o {path.with_name(path.stem + '.recovered.mcap')}"
+
+
+def state_note(seg: SegmentReport) -> str:
+    """What a file's state asks of the user ("" for a finished, indexed file)."""
+    if seg.state == TRUNCATED:
+        return f"NOT FINISHED (its writer was killed?): {recover_command(seg.path)}"
+    if seg.state == UNINDEXED:
+        return f"not indexed (its writer stopped on a write error); an indexed copy: {recover_command(seg.path)}"
+    return ""
+
+
+def segment_lines(report: ReadReport, indent: str = "  ") -> list[str]:
+    """One line per file read: name, size, messages, and what to do if it was not finished."""
+    width = max(len(str(seg.path)) for seg in report.segments)
+    return [f"{indent}{str(seg.path).ljust(width)}  {seg.path.stat().st_size / 1e6:8.2f} MB  {seg.messages:>7} msgs"
+            + (f"  {note}" if (note := state_note(seg)) else "") for seg in report.segments]
+
+
+def describe(source: RecordingSource) -> str:
+    """Everything ``lrfslam info`` prints about the recording ``source`` (file, folder or files)."""
+    files = recording_files(source)
     report = ReadReport()
     stats: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 2**63, 0])
     first_scan = None
-    for m in read_recording(path, report=report):
+    for m in read_recording(files, report=report):
         if first_scan is None and m.topic == topics.SCAN.name:
             first_scan = (m.data, m.schema)
         s = stats[(m.topic, m.schema)]
         s[0] += 1
         s[1] = min(s[1], m.log_time_ns)
         s[2] = max(s[2], m.log_time_ns)
+    size = sum(p.stat().st_size for p in files)
+    if isinstance(source, (str, os.PathLike)) and Path(source).is_file():
+        lines = [f"file:      {source} ({size / 1e6:.2f} MB)"]
+        seg = report.segments[0]
+        if note := state_note(seg):
+            lines.append(f"WARNING:   {note}")
+        if seg.state == TRUNCATED:
+            lines.append(f"           ({seg.reason}; its complete chunks were read)")
+    else:
+        name = source if isinstance(source, (str, os.PathLike)) else ", ".join(map(str, source))
+        lines = [f"recording: {name} ({len(files)} file{'s' * (len(files) > 1)}, {size / 1e6:.2f} MB)",
+                 *segment_lines(report)]
     if not stats:
-        return f"{path}: no messages" + (f" ({report.reason})" if report.truncated else "")
+        return "\n".join([*lines, "no messages"])
     start = min(s[1] for s in stats.values())
     end = max(s[2] for s in stats.values())
     duration = (end - start) / 1e9
-    lines = [f"file:      {path} ({path.stat().st_size / 1e6:.2f} MB)",
-             f"duration:  {duration:.2f} s", f"messages:  {sum(s[0] for s in stats.values())}"]
-    if report.truncated:
-        lines.append(f"WARNING:   not finished cleanly ({report.reason}); complete chunks were read")
-    if not report.truncated:
-        lines += laser_lines(first_scan, read_metadata(path))
+    lines += [f"duration:  {duration:.2f} s", f"messages:  {sum(s[0] for s in stats.values())}"]
+    lines += laser_lines(first_scan, read_metadata(files))
     lines.append("")
     width = max(len(t) for t, _ in stats)
     lines.append(f"{'topic'.ljust(width)}  {'count':>7}  {'rate_hz':>8}  schema")
@@ -68,14 +115,13 @@ def describe(path: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="lrfslam info", description=__doc__)
-    parser.add_argument("files", nargs="+", type=Path, metavar="FILE.mcap")
+    parser = argparse.ArgumentParser(prog="lrfslam info", description=__doc__.splitlines()[0])
+    parser.add_argument("recording", nargs="+", type=Path, metavar="RECORDING",
+                        help="an MCAP file, a recording folder, or several files (one stream)")
     args = parser.parse_args(argv)
-    code = 0
-    for path in args.files:
-        try:
-            print(describe(path))
-        except RecordingError as exc:
-            print(f"lrfslam info: error: {exc}", file=sys.stderr)
-            code = 2
-    return code
+    try:
+        print(describe(args.recording[0] if len(args.recording) == 1 else args.recording))
+    except RecordingError as exc:
+        print(f"lrfslam info: error: {exc}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,4 +1,6 @@
-"""``lrfslam pipeline --replay IN.mcap --out OUT.mcap``: several services' steps in one process, offline.
+"""``lrfslam pipeline --replay IN --out OUT.mcap``: several services' steps in one process, offline.
+
+IN is an MCAP file, a recording folder (its segments in order) or several files, read as one stream.
 
 Equivalent to replaying the services one after the other, each on a recording
 holding its inputs, without the intermediate files and merges: the stages are
@@ -33,6 +35,7 @@ from lrfslam.errors import ConfigError, LrfSlamError
 from lrfslam.runtime import chain
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
+from lrfslam.runtime.recording import RecordingSource, describe_source
 from lrfslam.runtime.runner import setup_logging
 
 log = logging.getLogger("lrfslam.pipeline")
@@ -72,9 +75,9 @@ def stage_sets(sets: Iterable[str], names: Iterable[str]) -> dict[str, list[str]
     return out
 
 
-def run_pipeline(stages: Iterable[chain.Stage], robot: str, in_path: str | Path, out_path: str | Path | None,
+def run_pipeline(stages: Iterable[chain.Stage], robot: str, in_path: RecordingSource, out_path: str | Path | None,
                  progress: bool = False) -> dict[str, Counter]:
-    """Run ``stages`` (in pipeline order) over the recording ``in_path``; write ``out_path``.
+    """Run ``stages`` (in pipeline order) over the recording ``in_path`` (file, folder or files); write ``out_path``.
 
     Returns
     -------
@@ -84,8 +87,7 @@ def run_pipeline(stages: Iterable[chain.Stage], robot: str, in_path: str | Path,
         dropped (replaced by a stage's outputs) and undecodable.
     """
     stages = tuple(stages)
-    in_path = Path(in_path)
-    metadata = {"lrfslam": {"robot": robot, "service": "pipeline", "replay_of": in_path.name,
+    metadata = {"lrfslam": {"robot": robot, "service": "pipeline", "replay_of": describe_source(in_path),
                             "stages": ",".join(s.spec.name for s in stages),
                             **{f"config.{s.spec.name}": config_mod.to_json(s.config) for s in stages}}}
     return chain.replay_recording(stages, robot, in_path, out_path, copy_inputs=True, metadata=metadata,
@@ -102,7 +104,8 @@ def build_stages(names: Iterable[str], sets: Iterable[str], file: Mapping, env: 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lrfslam pipeline", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--replay", required=True, metavar="IN.mcap", help="recording to run on")
+    parser.add_argument("--replay", required=True, nargs="+", metavar="IN",
+                        help="recording to run on: an MCAP file, a recording folder, or several files (one stream)")
     parser.add_argument("--out", metavar="OUT.mcap", help="write the input and every stage's outputs here")
     parser.add_argument("--stages", default=",".join(DEFAULT_STAGES),
                         help=f"comma-separated services, run in pipeline order (default {','.join(DEFAULT_STAGES)})")
@@ -122,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         stages = build_stages(stage_names(args.stages), args.sets, file, os.environ)
         for stage in stages:
             log.info("%s config %s", stage.spec.name, config_mod.to_json(stage.config))
-        counts = run_pipeline(stages, robot, Path(args.replay), Path(args.out) if args.out else None,
+        counts = run_pipeline(stages, robot, [Path(p) for p in args.replay], Path(args.out) if args.out else None,
                               progress=not args.quiet and sys.stderr.isatty())
     except (LrfSlamError, OSError) as exc:
         log.error("%s", exc)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -29,12 +30,19 @@ import zenoh
 
 from lrfslam import services
 from lrfslam.algo.geometry import compose, relative, wrap_angle
-from lrfslam.errors import ConfigError, DecodeError, LrfSlamError, StartupError
+from lrfslam.errors import (
+    ConfigError,
+    DecodeError,
+    LrfSlamError,
+    RecordingError,
+    StartupError,
+)
 from lrfslam.msgs import codec, topics
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import parse_attachment
-from lrfslam.runtime.recording import read_recording
+from lrfslam.runtime.recording import ReadReport, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, setup_logging
+from lrfslam.tools.info import segment_lines
 from lrfslam.tools.status import client_config
 
 log = logging.getLogger("lrfslam.up")
@@ -164,15 +172,15 @@ def check_configs(sets: dict[str, list[str]], config: str | None) -> None:
 
 
 def remove_if_empty(recording: Path) -> None:
-    """Delete ``recording`` if it holds no data (only health), as after a failed start."""
-    if not recording.is_file():
+    """Delete the run's recording folder if it holds no data (only health), as after a failed start."""
+    if not recording.is_dir():
         return
     try:
         empty = all(topics.is_health(m.topic) for m in read_recording(recording))
     except LrfSlamError:
         empty = True
     if empty:
-        recording.unlink(missing_ok=True)
+        shutil.rmtree(recording)
         log.info("removed %s: nothing was recorded", recording)
 
 
@@ -191,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--skip", action="append", default=[], choices=OPTIONAL, metavar="SERVICE",
                         help="leave a stage out: --skip mapper runs the EKF without loop closing (with "
                              "--set slam.scan_matching=false, the paper's filter alone)")
-    parser.add_argument("--recordings", default="recordings", help="folder for the MCAP recording")
+    parser.add_argument("--recordings", default="recordings",
+                        help="parent of the recording folder (<UTC time>_<robot>/, one MCAP segment per recorder start)")
     parser.add_argument("--max-restarts", type=int, default=3)
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
     args = parser.parse_args(argv)
@@ -205,8 +214,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--set expects SERVICE.NAME=VALUE with SERVICE in {', '.join(order)}: {item!r}")
         sets[service].append(rest)
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    recording = Path(args.recordings) / f"{stamp}_{args.robot}.mcap"
-    sets["recorder"] += [f"directory={recording.parent}", f"filename={recording.name}"]
+    # One folder for the run: a restarted recorder adds the next segment to it.
+    recording = Path(args.recordings) / f"{stamp}_{args.robot}"
+    sets["recorder"] += [f"directory={recording.parent}", f"name={recording.name}"]
     sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
     topics.check_robot(args.robot)
     check_configs(sets, args.config)
@@ -349,12 +359,19 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
                      f"({err['confirmed']:.0f} confirmed)")
         lines.append(f"      final pose error {err['final_xy_m'] * 100:.1f} cm, {err['final_heading_deg']:.2f} deg; "
                      f"trajectory RMSE {err['ate_rmse_m'] * 100:.1f} cm (first pose anchored)")
-    if recording.exists():
-        per_topic = Counter(m.topic for m in read_recording(recording))
-        lines.append(f"recording: {recording} ({recording.stat().st_size / 1e6:.1f} MB, "
-                     f"{sum(per_topic.values())} messages: "
-                     + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not topics.is_health(k))
-                     + ")")
-    else:
-        lines.append(f"recording: {recording} was not written")
+    lines += recording_lines(recording)
     return "\n".join(lines)
+
+
+def recording_lines(recording: Path) -> list[str]:
+    """The recording folder: messages per topic, then each segment (size, messages, whether it needs recovering)."""
+    report = ReadReport()
+    try:
+        per_topic = Counter(m.topic for m in read_recording(recording, report=report))
+    except RecordingError as exc:
+        return [f"recording: {recording} was not written ({exc})"]
+    size = sum(seg.path.stat().st_size for seg in report.segments)
+    return [f"recording: {recording}/ ({len(report.segments)} segment{'s' * (len(report.segments) > 1)}, "
+            f"{size / 1e6:.1f} MB, {sum(per_topic.values())} messages: "
+            + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not topics.is_health(k)) + ")",
+            *segment_lines(report)]
