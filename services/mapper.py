@@ -80,9 +80,9 @@ class MapperStep(StepBase):
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
         local = self._local_pose(state)
-        # The filter's poses can jump (landmark corrections); a chain of scan-matched motions cannot.
-        matched = self.cfg.local_trajectory == "slam_motion" and state.motion is not None and state.motion_matched
-        pose = self.mapper.add_scan(state.stamp_ns, local, points, matched)
+        # The scan-matched motion is the reference the local motion is checked against for jumps.
+        reference = state.motion if state.motion is not None and state.motion_matched else None
+        pose = self.mapper.add_scan(state.stamp_ns, local, points, reference)
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats
         nis = self.mapper.closure_nis[self.counts["closures_verified"]:]

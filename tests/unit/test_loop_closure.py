@@ -168,27 +168,34 @@ def test_bad_input_is_refused():
         mapper.add_scan(0, (0.0, 0.0, np.nan), np.zeros((0, 2)))
 
 
-@pytest.mark.parametrize("matched", [False, True])
-def test_a_jump_in_the_local_trajectory_is_replaced_by_the_scans_match_unless_the_steps_were_scan_matched(matched):
+@pytest.mark.parametrize("reference", ["none", "jumping", "true"])
+def test_a_jump_in_the_local_trajectory_is_replaced_by_the_reference_motion_or_the_scans_match(reference):
     # The first 60 frames of the hallway, the local trajectory being the truth with a jump (4.6°)
-    # at frame 30: an EKF correcting itself. Its scans say the robot did not jump.
+    # at frame 30: an EKF correcting itself. Its scans say the robot did not jump; so does a
+    # scan-matched reference motion that follows the truth, not one that jumps too.
     sim = Simulator(SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3))
     mapper = LoopClosingMapper()
     jump = np.array([0.1, 0.1, 0.08])
     truth, local = [], []
     for frame, _ in zip(sim, range(60), strict=False):
         pose = compose(jump, frame.true_pose) if frame.index >= 30 else frame.true_pose
-        mapper.add_scan(int(frame.t_s * 1e9), pose, points(frame.scan.ranges_m, frame.scan.angles_rad), matched)
+        step = None
+        if truth and reference != "none":
+            step = relative(local[-1], pose) if reference == "jumping" else relative(truth[-1], frame.true_pose)
+        mapper.add_scan(int(frame.t_s * 1e9), pose, points(frame.scan.ranges_m, frame.scan.angles_rad), step)
         truth.append(frame.true_pose)
         local.append(pose)
     _, final = mapper.trajectory()
     step = relative(final[29], final[30])
     true_step = relative(truth[29], truth[30])
-    if matched:   # taken as motion, as the caller said it was
+    jumped = relative(local[29], local[30]) - true_step
+    if reference == "jumping":   # the reference agrees: taken as motion
         assert mapper.stats.ekf_jumps == 0
         np.testing.assert_allclose(step, relative(local[29], local[30]), atol=1e-9)
-    else:         # the keyframes' match replaces the jump
+    elif reference == "true":    # the reference motion replaces the jump
+        assert mapper.stats.ekf_jumps == 1
+        np.testing.assert_allclose(step, true_step, atol=1e-9)
+    else:                        # the keyframes' match replaces the jump
         assert mapper.stats.ekf_jumps >= 1
-        jumped = relative(local[29], local[30]) - true_step
         assert abs(wrap_angle(step[2] - true_step[2])) < 0.01 < abs(wrap_angle(jumped[2]))
         assert np.hypot(*(step - true_step)[:2]) < 0.5 * np.hypot(*jumped[:2])

@@ -302,7 +302,8 @@ class LoopClosingMapper:
         self._submaps: OrderedDict[int, tuple[LikelihoodGrid, ReferenceScan]] = OrderedDict()
         self._counts = dict.fromkeys(ClosureStats.__dataclass_fields__, 0)
         self._last_local_pose = np.zeros(3)  # the previous scan's local pose
-        self._matched_since_keyframe = True  # every local step since the last keyframe was scan-matched
+        # The reference steps since the last keyframe composed (3,); None once one was missing.
+        self._reference: np.ndarray | None = np.zeros(3)
         self._pending = 0  # closures added since the last optimisation
         self._last_wide_search_m = -np.inf  # travel at the last wide search
         self._tentative = None  # a closure from a wide window awaiting confirmation
@@ -316,7 +317,7 @@ class LoopClosingMapper:
     def keyframe_count(self) -> int:
         return len(self._keyframes)
 
-    def add_scan(self, stamp_ns: int, local_pose, points_xy_m, matched: bool = False) -> np.ndarray:
+    def add_scan(self, stamp_ns: int, local_pose, points_xy_m, reference_step=None) -> np.ndarray:
         """Take one scan; returns its corrected pose (3,), as known now.
 
         Parameters
@@ -327,10 +328,11 @@ class LoopClosingMapper:
             The scan's pose on the local trajectory, ``(x_m, y_m, theta_rad)``.
         points_xy_m : array_like, shape (N, 2)
             The scan's points in the robot frame (m); non-finite rows are ignored.
-        matched : bool
-            The local trajectory's step from the previous scan to this one is a
-            scan-matched motion: it holds no jump, and an odometry edge made of
-            such steps only is not checked against the keyframes' scans (``ekf_jump_*``).
+        reference_step : array_like, shape (3,), optional
+            The motion from the previous scan to this one found by scan matching
+            (dx m, dy m, dtheta rad), if it was: an odometry edge whose every step
+            has one is checked against their chain (``ekf_jump_*``), the others
+            against the keyframes' scans matched.
         """
         pose = np.asarray(local_pose, dtype=float)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
@@ -339,13 +341,16 @@ class LoopClosingMapper:
         if not self._keyframes:
             self._add_keyframe(pose, points_xy_m, None)
         else:
-            self._matched_since_keyframe &= bool(matched)
+            if self._reference is not None and reference_step is not None:
+                self._reference = compose(self._reference, np.asarray(reference_step, dtype=float))
+            else:
+                self._reference = None
             last = self._keyframes[-1]
             moved = relative(last.local_pose, pose)
             jumped = np.hypot(*(pose[:2] - self._last_local_pose[:2])) > p.max_scan_step_m
             if jumped or np.hypot(moved[0], moved[1]) >= p.keyframe_trans_m or abs(moved[2]) >= p.keyframe_rot_rad:
                 self._add_keyframe(pose, points_xy_m, moved)
-                self._matched_since_keyframe = True
+                self._reference = np.zeros(3)
                 self._close_loops()
         self._last_local_pose = pose
         k = len(self._keyframes) - 1
@@ -412,11 +417,22 @@ class LoopClosingMapper:
         prev = len(self._keyframes) - 1
         dist = float(np.hypot(moved[0], moved[1]))
         cov = self._odometry_cov(dist, abs(moved[2]))
-        step = moved if self._matched_since_keyframe else self._checked_motion(prev, pts, moved, cov)
+        if self._reference is None:
+            step = self._checked_motion(prev, pts, moved, cov)
+        else:
+            step = self._step_or_jump(moved, self._reference)
         node = self.graph.add_node(compose(self.graph.poses[prev], step))
         self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
         self._keyframes.append(_Keyframe(local_pose.copy(), pts, self._keyframes[-1].travel_m + dist,
                                          step is moved))
+
+    def _step_or_jump(self, moved: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """``moved`` (3,), or ``reference`` (3,) where the two differ by more than ``ekf_jump_*``."""
+        jump = relative(moved, reference)
+        if np.hypot(jump[0], jump[1]) > self.params.ekf_jump_m or abs(jump[2]) > self.params.ekf_jump_rad:
+            self._counts["ekf_jumps"] += 1
+            return reference
+        return moved
 
     def _checked_motion(self, prev: int, pts: np.ndarray, moved: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """``moved`` (3,), the local motion from keyframe ``prev`` to the new one, or the scans' match where it jumped."""
@@ -425,18 +441,13 @@ class LoopClosingMapper:
         # on ACES), which are not motion. The keyframes' scans, matched with
         # the local motion as the guess, say what the motion was:
         # where the two disagree by more than ``ekf_jump_*`` the match is taken.
-        reference = self._recent_map(prev)
-        found = match(reference, pts, moved, p.scan_match, cov)
+        recent = self._recent_map(prev)
+        found = match(recent, pts, moved, p.scan_match, cov)
         if not found.ok:
             # A jump beyond the matcher's reach (its largest correction): the keyframes
             # are at most ``keyframe_*`` apart, so standing still is a guess within it.
-            found = match(reference, pts, np.zeros(3), p.scan_match, cov)
-        if found.ok:
-            jump = relative(moved, found.pose)
-            if np.hypot(jump[0], jump[1]) > p.ekf_jump_m or abs(jump[2]) > p.ekf_jump_rad:
-                self._counts["ekf_jumps"] += 1
-                return found.pose
-        return moved
+            found = match(recent, pts, np.zeros(3), p.scan_match, cov)
+        return self._step_or_jump(moved, found.pose) if found.ok else moved
 
     def _recent_map(self, last: int) -> ReferenceScan:
         """The ``odometry_keyframes`` keyframes up to ``last`` merged in ``last``'s frame by their graph poses."""
