@@ -204,7 +204,7 @@ class LoopClosureParams:
     min_score: float = 0.5
     max_second_ratio: float = 0.9
     gate_chi2: float = 16.0
-    match_cov_scale: float = 4.0
+    match_cov_scale: float = 16.0
     min_weight: float = 0.25
     correlative: CorrelativeParams = field(default_factory=CorrelativeParams)
     scan_match: ScanMatchParams = field(default_factory=ScanMatchParams)
