@@ -199,3 +199,21 @@ def test_a_jump_in_the_local_trajectory_is_replaced_by_the_reference_motion_or_t
         assert mapper.stats.ekf_jumps >= 1
         assert abs(wrap_angle(step[2] - true_step[2])) < 0.01 < abs(wrap_angle(jumped[2]))
         assert np.hypot(*(step - true_step)[:2]) < 0.5 * np.hypot(*jumped[:2])
+
+
+def test_keyframes_without_points_are_kept_and_never_searched():
+    # Scans lost on the way (an overloaded stage): the slam states still come, with no points.
+    # Round a 12 m square twice, points only on the first lap: the second lap's keyframes
+    # are candidates for closures but have nothing to search with.
+    mapper = LoopClosingMapper()
+    wall = np.column_stack((np.full(50, 2.0), np.linspace(-2, 2, 50)))
+    k = 0
+    for lap in range(2):
+        for side in range(4):
+            for i in range(30):
+                pose = compose((0.0, 0.0, side * np.pi / 2), (-6.0 + 0.4 * i, -6.0, 0.0))
+                mapper.add_scan(k, pose, wall if lap == 0 else np.zeros((0, 2)))
+                k += 1
+    stamps, poses = mapper.trajectory()
+    assert stamps.shape == (k,) and np.all(np.isfinite(poses))
+    assert mapper.keyframe_stamped_local_poses()[0].shape == (mapper.keyframe_count,)

@@ -501,6 +501,8 @@ class LoopClosingMapper:
                 self._last_wide_search_m = travel[n]
             if query is None:
                 query = self._query(n)
+            if query.shape[0] == 0:
+                return   # the last keyframes came without their scans (lost): nothing to search with
             closure = self._try_closure(k, n, query, *window)
             if closure is None:
                 continue
