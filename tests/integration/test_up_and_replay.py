@@ -47,6 +47,16 @@ def test_up_summarises_every_stage_and_the_pose_error(up_run):
     assert f"{recording.name}_0.mcap" in stdout     # the summary lists the segments
 
 
+def test_up_loses_nothing_at_40_hz_and_says_so(up_run):
+    stdout, recording, _ = up_run
+    # stage, in, out, dropped (full input queue), gaps (sequence numbers never received)
+    rows = re.findall(r"^(\w+)\s+\d+\s+\d+\s+(\d+)\s+(\d+)\s+\d+\s+\d+\s+\S+$", stdout, re.MULTILINE)
+    assert {name for name, _, _ in rows} >= {"sensor", "denoise", "features", "slam", "mapper", "recorder"}, stdout
+    assert all(dropped == gaps == "0" for _, dropped, gaps in rows), stdout
+    recorded = sum(1 for _ in read_recording(recording, ["scan"]))
+    assert f"scans published by the sensor {recorded} / scans in the recording {recorded} / lost 0" in stdout, stdout
+
+
 def test_a_stage_replays_its_recording_deterministically(up_run):
     _, recording, cwd = up_run
     outs = []

@@ -20,13 +20,47 @@ ROOT = "lrf"
 _ROBOT_RE = re.compile(r"^[A-Za-z0-9_\-.]+$")
 
 
+PRIORITIES = ("real_time", "interactive_high", "interactive_low", "data_high", "data", "data_low", "background")
+
+
+@dataclass(frozen=True)
+class Delivery:
+    """How Zenoh carries a topic: the publisher's QoS (docs/delivery.md has the table and the measurements).
+
+    ``congestion`` is what a publisher does when its transmit queue is full: ``"drop"`` the
+    sample (the consumers count the gap in the sequence numbers) or ``"block"`` the put (Zenoh
+    closes the link after 5 s of it). ``priority`` is a Zenoh priority name, highest first in
+    :data:`PRIORITIES`; ``express`` sends at once instead of batching.
+    """
+
+    reliable: bool = True
+    congestion: str = "drop"
+    priority: str = "data"
+    express: bool = False
+
+    def __post_init__(self) -> None:
+        if self.congestion not in ("drop", "block") or self.priority not in PRIORITIES:
+            raise ConfigError(f"bad delivery policy {self}")
+
+
+#: Sensor-rate streams: never stall a producer (the sensor's serial reader least of all); a
+#: sample Zenoh cannot queue is dropped, and every consumer counts it as a gap.
+STREAM = Delivery()
+#: Low-rate, large, needed whole (the mapper's keyframes): wait for room rather than lose one,
+#: below the streams' priority so a megabyte snapshot never delays a scan.
+SNAPSHOT = Delivery(congestion="block", priority="data_low")
+#: Health: small, once a second, needed most when the network is busiest: ahead of the data,
+#: unbatched. Dropping one is harmless (the next follows in a second) and counted.
+HEALTH = Delivery(priority="data_high", express=True)
+
+
 @dataclass(frozen=True)
 class Topic(Generic[T]):
-    """A data stream: relative key, codec, and whether a slow consumer may lose samples."""
+    """A data stream: relative key, codec, and its delivery policy."""
 
     name: str
     codec: c.Codec[T]
-    droppable: bool = True  # sensor-rate streams drop under congestion rather than stall the producer
+    delivery: Delivery = STREAM
 
     @property
     def schema(self) -> str:
@@ -40,7 +74,7 @@ FEATURES: Topic = Topic("features", c.FEATURES)
 SLAM_STATE: Topic = Topic("slam/state", c.SLAM_STATE)
 TRUTH: Topic = Topic("truth", c.GROUND_TRUTH)
 MAP_POSE: Topic = Topic("map/pose", c.MAP_POSE)
-MAP_KEYFRAMES: Topic = Topic("map/keyframes", c.MAP_KEYFRAMES, droppable=False)
+MAP_KEYFRAMES: Topic = Topic("map/keyframes", c.MAP_KEYFRAMES, SNAPSHOT)
 
 #: Data topics in pipeline order.
 DATA_TOPICS: tuple[Topic, ...] = (SCAN, ODOM, TRUTH, SCAN_FILTERED, FEATURES, SLAM_STATE, MAP_POSE, MAP_KEYFRAMES)
@@ -48,7 +82,7 @@ DATA_TOPICS: tuple[Topic, ...] = (SCAN, ODOM, TRUTH, SCAN_FILTERED, FEATURES, SL
 
 def health(service: str) -> Topic:
     """Periodic status of ``service``."""
-    return Topic(f"health/{service}", c.SERVICE_STATUS)
+    return Topic(f"health/{service}", c.SERVICE_STATUS, HEALTH)
 
 
 def is_health(name: str) -> bool:

@@ -2,8 +2,14 @@
 
 Subscriber callbacks only copy the payload into a bounded queue (Zenoh forbids
 API calls or blocking inside callbacks); decoding happens in the service's main
-thread. A full queue drops the sample and counts it, so a slow stage never
-stalls Zenoh's receive thread and with it every other stream of the session.
+thread. A full queue drops the sample and counts it (``drop.queue``), so a slow
+stage never stalls Zenoh's receive thread and with it every other stream of the
+session. Before queueing, the callback checks the sample's sequence number
+against what its producer sent before (``runtime/sequence.py``): what went
+missing between the producer and this process counts as ``gap.<topic>``.
+
+Publishers take their QoS from the topic's delivery policy (``msgs/topics.py``,
+docs/delivery.md).
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import struct
 import threading
 from collections import Counter
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import zenoh
 
@@ -22,13 +29,17 @@ from lrfslam.msgs import topics
 from lrfslam.msgs.codec import parse_encoding
 from lrfslam.msgs.topics import Topic
 from lrfslam.runtime.decoding import LogOnce, decode_message
+from lrfslam.runtime.sequence import SequenceTracker
 from lrfslam.runtime.step import Message, Output
 
 log = logging.getLogger(__name__)
 
-# rmw_zenoh-style attachment: sequence number and data stamp, so raw consumers
-# (the recorder) get both without decoding the payload.
-_ATTACHMENT = struct.Struct("<QQ")
+# rmw_zenoh-style attachment: sequence number, data stamp and the publishing session's id, so
+# raw consumers (the recorder) get them without decoding the payload, and every consumer can
+# tell a lost message from a restarted producer.
+_ATTACHMENT = struct.Struct("<QQ16s")
+# Before the producer id was added (recordings and peers of older versions).
+_ATTACHMENT_V0 = struct.Struct("<QQ")
 
 
 @dataclass(frozen=True)
@@ -42,12 +53,29 @@ class BusConfig:
     zenoh_config: str = ""                              # optional Zenoh JSON5 file applied first
     queue_size: int = 512                               # received samples waiting for the step
     health_period_s: float = 1.0                        # how often health/<service> is published
+    #: For overload measurements only (docs/delivery.md): "<service>:<ms>" makes that service
+    #: sleep <ms> after each input message. Every process of ``lrfslam up`` reads the same
+    #: LRFSLAM_BUS_DEBUG_SLOW, so the service is named. Shows in the service's counters.
+    debug_slow: str = ""
 
     def __post_init__(self) -> None:
+        from lrfslam.errors import ConfigError
         topics.check_robot(self.robot)
         if self.mode not in ("peer", "client", "router"):
-            from lrfslam.errors import ConfigError
             raise ConfigError(f"bus.mode must be peer, client or router, got {self.mode!r}")
+        if self.debug_slow:
+            service, _, ms = self.debug_slow.partition(":")
+            try:
+                ok = bool(service) and float(ms) >= 0
+            except ValueError:
+                ok = False
+            if not ok:
+                raise ConfigError(f"bus.debug_slow must be <service>:<ms>, got {self.debug_slow!r}")
+
+    def debug_delay_s(self, service: str) -> float:
+        """How long ``service`` sleeps after each input (0: not slowed)."""
+        name, _, ms = self.debug_slow.partition(":")
+        return float(ms) / 1000.0 if self.debug_slow and name == service else 0.0
 
 
 def zenoh_config(cfg: BusConfig) -> zenoh.Config:
@@ -80,15 +108,47 @@ def open_session(conf: zenoh.Config, stop: threading.Event, endpoints: tuple[str
             delay = min(delay * 2, 2.0)
 
 
-def attachment(seq: int, stamp_ns: int) -> bytes:
-    return _ATTACHMENT.pack(int(seq) & 0xFFFFFFFFFFFFFFFF, int(stamp_ns))
+class Attachment(NamedTuple):
+    """What a sample carries beside its payload."""
+
+    seq: int            # the producer's message number on this topic, from 1
+    stamp_ns: int       # the data's stamp (ns)
+    producer: bytes     # the publishing Zenoh session's id (16 bytes; b"" from older publishers)
 
 
-def parse_attachment(data: bytes | None) -> tuple[int, int]:
-    """(seq, stamp_ns) from an attachment, (0, 0) when absent or malformed."""
-    if not data or len(data) != _ATTACHMENT.size:
-        return 0, 0
-    return _ATTACHMENT.unpack(data)
+NO_ATTACHMENT = Attachment(0, 0, b"")
+
+
+def attachment(seq: int, stamp_ns: int, producer: bytes = b"") -> bytes:
+    return _ATTACHMENT.pack(int(seq) & 0xFFFFFFFFFFFFFFFF, int(stamp_ns), producer)
+
+
+def parse_attachment(data: bytes | None) -> Attachment:
+    """The attachment's fields; :data:`NO_ATTACHMENT` when absent or malformed."""
+    if data and len(data) == _ATTACHMENT.size:
+        return Attachment(*_ATTACHMENT.unpack(data))
+    if data and len(data) == _ATTACHMENT_V0.size:
+        return Attachment(*_ATTACHMENT_V0.unpack(data), b"")
+    return NO_ATTACHMENT
+
+
+def producer_id(session: zenoh.Session) -> bytes:
+    """The session's Zenoh id as 16 bytes: new for every process, so a restart is a new producer."""
+    return bytes.fromhex(str(session.info.zid()).rjust(32, "0"))
+
+
+_PRIORITY = {name: getattr(zenoh.Priority, name.upper()) for name in topics.PRIORITIES}
+
+
+def publisher_qos(delivery: topics.Delivery) -> dict:
+    """``declare_publisher`` keyword arguments for a topic's delivery policy."""
+    return {
+        "reliability": zenoh.Reliability.RELIABLE if delivery.reliable else zenoh.Reliability.BEST_EFFORT,
+        "congestion_control": (zenoh.CongestionControl.BLOCK if delivery.congestion == "block"
+                               else zenoh.CongestionControl.DROP),
+        "priority": _PRIORITY[delivery.priority],
+        "express": delivery.express,
+    }
 
 
 class ZenohBus:
@@ -104,7 +164,9 @@ class ZenohBus:
         Subscribe to everything under the robot instead, and deliver payloads undecoded.
     queue_size : int
     counts : Counter
-        Shared counters (``in.*``, ``out.*``, ``drop.queue``, ``error.*``).
+        Shared counters (``in.*``, ``out.*``, ``error.*``), written by the main thread. What the
+        receive callbacks count (``drop.queue``, ``gap.*``, ``dup.*``, ``late.*``, ``restart.*``)
+        is kept apart: :meth:`receive_counts`.
     """
 
     def __init__(self, session: zenoh.Session, robot: str, inputs: tuple[Topic, ...], raw: bool,
@@ -116,18 +178,63 @@ class ZenohBus:
         self._counts = counts
         self._once = LogOnce(log)
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._producer = producer_id(session)
+        # Zenoh may call back from several threads; the status is read from the main one.
+        self._lock = threading.Lock()
+        self._tracker = SequenceTracker()
+        self._dropped = 0
+        self._left_at_stop = 0
+        self._prefix = topics.key(robot, "")
         self._by_key = {topics.key(robot, t.name): t for t in inputs}
         keys = [topics.everything(robot)] if raw else list(self._by_key)
         self._subscribers = [session.declare_subscriber(k, self._on_sample) for k in keys]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
         att = sample.attachment
-        item = (str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding),
-                att.to_bytes() if att is not None else None)
-        try:
-            self._queue.put_nowait(item)
-        except queue.Full:
-            self._counts["drop.queue"] += 1
+        att_bytes = att.to_bytes() if att is not None else None
+        item = (key, sample.payload.to_bytes(), str(sample.encoding), att_bytes)
+        seq, _, producer = parse_attachment(att_bytes)
+        with self._lock:
+            if att_bytes is not None:
+                self._tracker.observe(producer, key.removeprefix(self._prefix), seq)
+            try:
+                self._queue.put_nowait(item)
+            except queue.Full:
+                self._dropped += 1
+
+    def receive_counts(self) -> Counter:
+        """``drop.queue`` (samples the full queue refused), ``drop.stop`` (received but still
+        queued at :meth:`discard_pending`) and the tracker's nonzero ``gap.*``, ``dup.*``,
+        ``late.*``, ``restart.*`` counters: a copy."""
+        with self._lock:
+            counts = Counter({k: v for k, v in self._tracker.counts.items() if v})
+            counts.update({k: v for k, v in (("drop.queue", self._dropped), ("drop.stop", self._left_at_stop)) if v})
+            return counts
+
+    def stop_receiving(self) -> None:
+        """Undeclare the subscribers: nothing more is queued; :meth:`get` returns what already was."""
+        for sub in self._subscribers:
+            sub.undeclare()
+        self._subscribers = []
+
+    def discard_pending(self) -> None:
+        """Empty the queue, counting what was in it as ``drop.stop``.
+
+        A stage stopped while behind has inputs it will never handle; they are counted, not
+        silently thrown away with the process.
+        """
+        with self._lock:
+            while True:
+                try:
+                    self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                self._left_at_stop += 1
+
+    def pending(self) -> int:
+        """Received samples waiting in the queue."""
+        return self._queue.qsize()
 
     def get(self, timeout_s: float) -> Message | None:
         """The next decodable input, or None after ``timeout_s`` without one."""
@@ -135,7 +242,7 @@ class ZenohBus:
             key, payload, encoding, att = self._queue.get(timeout=timeout_s)
         except queue.Empty:
             return None
-        seq, stamp_ns = parse_attachment(att)
+        seq, stamp_ns, _ = parse_attachment(att)
         schema = parse_encoding(encoding)
         if self._raw:
             name = topics.relative(self._robot, key)
@@ -151,17 +258,19 @@ class ZenohBus:
         """Encode and put ``out.value`` on its topic's key with schema and attachment."""
         self.put(out.topic, out.topic.codec.encode(out.value), out.value.stamp_ns, out.value.seq)
 
-    def put(self, topic: Topic, payload: bytes, stamp_ns: int, seq: int) -> None:
+    def publisher(self, topic: Topic) -> zenoh.Publisher:
+        """``topic``'s publisher, declared on first use with the topic's delivery policy."""
         pub = self._publishers.get(topic.name)
         if pub is None:
-            pub = self._session.declare_publisher(
-                topics.key(self._robot, topic.name),
-                encoding=zenoh.Encoding(topic.codec.encoding),
-                congestion_control=(zenoh.CongestionControl.DROP if topic.droppable
-                                    else zenoh.CongestionControl.BLOCK),
-            )
+            pub = self._session.declare_publisher(topics.key(self._robot, topic.name),
+                                                  encoding=zenoh.Encoding(topic.codec.encoding),
+                                                  **publisher_qos(topic.delivery))
             self._publishers[topic.name] = pub
-        pub.put(payload, attachment=attachment(seq, stamp_ns))
+        return pub
+
+    def put(self, topic: Topic, payload: bytes, stamp_ns: int, seq: int) -> None:
+        """Put ``payload`` on ``topic``'s key; ``seq`` numbers the topic's messages 1, 2, 3, … (gaps are losses)."""
+        self.publisher(topic).put(payload, attachment=attachment(seq, stamp_ns, self._producer))
         self._counts[f"out.{topic.name}"] += 1
 
     def close(self) -> None:

@@ -43,6 +43,9 @@ LOG_FORMAT = "%(asctime)s %(levelname)s [{service}] %(name)s: %(message)s"
 # this long is stuck somewhere; its thread stacks go to stderr before the engine's SIGKILL
 # (10 s by default) leaves nothing but exit code 137 to go on.
 STOP_STACKS_AFTER_S = 5.0
+#: On a stop, inputs already received are still handled for this long; the rest are counted
+#: (``drop.stop``). Well inside ``lrfslam up``'s 15 s before SIGKILL.
+STOP_DRAIN_S = 2.0
 
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
@@ -169,11 +172,16 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         token = session.liveliness().declare_token(topics.alive(robot, spec.name))
         status_q = session.declare_queryable(topics.status(robot, spec.name))
         bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts)
+        slow_s = bus_cfg.debug_delay_s(spec.name)
+        if slow_s:
+            log.warning("debug: sleeping %.0f ms after each input (bus.debug_slow)", slow_s * 1e3)
+            counts["debug.slow_ms"] = round(slow_s * 1e3)
         log.info("%s up: robot=%s mode=%s connect=%s", spec.name, robot, bus_cfg.mode, ",".join(bus_cfg.connect))
 
         def status() -> t.ServiceStatus:
             level, message = step.health()
             merged = Counter(counts)
+            merged.update(bus.receive_counts())
             merged.update({f"step.{k}": v for k, v in step.counts.items()})
             return t.ServiceStatus(
                 spec.name, robot, level, message, time.time_ns(), time.monotonic() - started,
@@ -186,9 +194,19 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                 last_data[0] = max(last_data[0], int(out.value.stamp_ns))
 
         def publish_health() -> None:
+            counts["health"] += 1   # numbered from 1 like every stream
             st = status()
             bus.put(health_topic, health_topic.codec.encode(st), st.wall_stamp_ns, counts["health"])
-            counts["health"] += 1
+
+        def handle(msg) -> None:
+            last_data[0] = max(last_data[0], int(msg.stamp_ns))
+            try:
+                publish(step.on_message(msg))
+            except InputError as exc:
+                counts["error.input"] += 1
+                once.warning("error.input", type(exc).__name__, "skipping bad input on %s: %s", msg.name, exc)
+            if slow_s:
+                time.sleep(slow_s)
 
         next_health = 0.0
         next_tick = 0.0
@@ -196,16 +214,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             while not stop.is_set():
                 if is_source:
                     publish(step.poll(0.1))
-                else:
-                    msg = bus.get(0.1)
-                    if msg is not None:
-                        last_data[0] = max(last_data[0], int(msg.stamp_ns))
-                        try:
-                            publish(step.on_message(msg))
-                        except InputError as exc:
-                            counts["error.input"] += 1
-                            once.warning("error.input", type(exc).__name__, "skipping bad input on %s: %s",
-                                         msg.name, exc)
+                elif (msg := bus.get(0.1)) is not None:
+                    handle(msg)
                 now = time.monotonic()
                 if now >= next_tick:
                     next_tick = now + 0.1
@@ -218,6 +228,13 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                 if now >= next_health:
                     next_health = now + bus_cfg.health_period_s
                     publish_health()
+            # What arrived before the stop is handled (for a while), what remains is counted.
+            bus.stop_receiving()
+            drain_until = time.monotonic() + STOP_DRAIN_S
+            while bus.pending() and time.monotonic() < drain_until:
+                if (msg := bus.get(0.0)) is not None:
+                    handle(msg)
+            bus.discard_pending()
             publish(step.finish())
             publish_health()  # the final counts, for supervisors and the recording
         finally:

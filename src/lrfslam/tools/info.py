@@ -4,6 +4,13 @@ RECORDING is a file, a recording folder (its segments ``<name>_<n>.mcap``) or
 several files, read as one stream. Each file that was not finished (its writer
 was killed) is named with the ``lrfslam recover`` command that makes it an
 indexed file again.
+
+Two clocks, never mixed: the *duration* is the span of the recorder's receive
+times (MCAP publish time: wall time of the run); *data time* is the span of the
+data stamps (MCAP log time), which run faster than wall time under a simulator
+speedup. A topic's rate is its messages per second between its first and last
+one: data topics' on the data stamps, health topics' (stamped with each
+service's wall clock) on the receive clock.
 """
 
 from __future__ import annotations
@@ -77,15 +84,16 @@ def describe(source: RecordingSource) -> str:
     """Everything ``lrfslam info`` prints about the recording ``source`` (file, folder or files)."""
     files = recording_files(source)
     report = ReadReport()
-    stats: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 2**63, 0])
+    # per (topic, schema): count, first/last log time, first/last publish (receive) time
+    stats: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 2**63, 0, 2**63, 0])
     first_scan = None
     for m in read_recording(files, report=report):
         if first_scan is None and m.topic == topics.SCAN.name:
             first_scan = (m.data, m.schema)
         s = stats[(m.topic, m.schema)]
         s[0] += 1
-        s[1] = min(s[1], m.log_time_ns)
-        s[2] = max(s[2], m.log_time_ns)
+        s[1], s[2] = min(s[1], m.log_time_ns), max(s[2], m.log_time_ns)
+        s[3], s[4] = min(s[3], m.publish_time_ns), max(s[4], m.publish_time_ns)
     size = sum(p.stat().st_size for p in files)
     if isinstance(source, (str, os.PathLike)) and Path(source).is_file():
         lines = [f"file:      {source} ({size / 1e6:.2f} MB)"]
@@ -100,18 +108,28 @@ def describe(source: RecordingSource) -> str:
                  *segment_lines(report)]
     if not stats:
         return "\n".join([*lines, "no messages"])
-    start = min(s[1] for s in stats.values())
-    end = max(s[2] for s in stats.values())
-    duration = (end - start) / 1e9
-    lines += [f"duration:  {duration:.2f} s", f"messages:  {sum(s[0] for s in stats.values())}"]
+    duration = span(stats.values(), 3)
+    data = [s for (topic, _), s in stats.items() if not topics.is_health(topic)]
+    data_time = span(data, 1) if data else 0.0
+    ratio = f"; {data_time / duration:.2f} × the duration" if data and duration > 0 else ""
+    lines += [f"duration:  {duration:.2f} s (receive clock: first to last message received)",
+              f"data time: {data_time:.2f} s (data stamps: first to last{ratio})" if data
+              else "data time: no data topics",
+              f"messages:  {sum(s[0] for s in stats.values())}"]
     lines += laser_lines(first_scan, read_metadata(files))
     lines.append("")
     width = max(len(t) for t, _ in stats)
-    lines.append(f"{'topic'.ljust(width)}  {'count':>7}  {'rate_hz':>8}  schema")
-    for (topic, schema), (n, _, _) in sorted(stats.items()):
-        rate = n / duration if duration > 0 else 0.0
-        lines.append(f"{topic.ljust(width)}  {n:>7}  {rate:>8.2f}  {schema or '<none>'}")
+    lines.append(f"{'topic'.ljust(width)}  {'count':>7}  {'rate_hz':>8}  {'clock':<7}  schema")
+    for (topic, schema), s in sorted(stats.items()):
+        clock, seconds = ("receive", span([s], 3)) if topics.is_health(topic) else ("data", span([s], 1))
+        rate = (s[0] - 1) / seconds if seconds > 0 else 0.0
+        lines.append(f"{topic.ljust(width)}  {s[0]:>7}  {rate:>8.2f}  {clock:<7}  {schema or '<none>'}")
     return "\n".join(lines)
+
+
+def span(stats, first: int) -> float:
+    """Seconds from the earliest of ``stats``' times at index ``first`` to the latest at ``first + 1``."""
+    return (max(s[first + 1] for s in stats) - min(s[first] for s in stats)) / 1e9
 
 
 def main(argv: list[str] | None = None) -> int:

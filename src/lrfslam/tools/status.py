@@ -47,21 +47,29 @@ def query_status(session: zenoh.Session, robot: str, timeout_s: float) -> tuple[
     return alive, sorted(statuses, key=lambda s: (s.robot, s.service))
 
 
+def total(counters: dict[str, int], prefix: str) -> int:
+    """Sum of the counters whose names start with ``prefix``."""
+    return sum(v for k, v in counters.items() if k.startswith(prefix))
+
+
 def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus]) -> str:
-    rows = [("robot", "service", "alive", "health", "uptime_s", "in", "out", "dropped", "errors", "pid@host")]
+    """One row per service. ``uptime_s`` is on the service's monotonic clock; ``dropped`` counts
+    inputs it received but will not handle (``drop.*``), ``gaps``/``dups`` inputs that never reached it / came twice
+    (sequence numbers, docs/delivery.md), ``restarts`` new producers it saw on its inputs."""
+    rows = [("robot", "service", "alive", "health", "uptime_s", "in", "out", "dropped", "gaps", "dups",
+             "restarts", "errors", "pid@host")]
     seen = set()
     for s in statuses:
         seen.add((s.robot, s.service))
         c = s.counters
         rows.append((s.robot, s.service, "yes" if (s.robot, s.service) in alive else "no",
                      LEVELS.get(s.level, str(s.level)), f"{s.uptime_s:.0f}",
-                     str(sum(v for k, v in c.items() if k.startswith("in."))),
-                     str(sum(v for k, v in c.items() if k.startswith("out."))),
-                     str(c.get("drop.queue", 0)),
+                     str(total(c, "in.")), str(total(c, "out.")), str(total(c, "drop.")),
+                     str(total(c, "gap.")), str(total(c, "dup.")), str(total(c, "restart.")),
                      str(sum(v for k, v in c.items() if k.startswith(("error.", "step.error")))),
                      f"{s.pid}@{s.host}"))
     for robot, service in sorted(alive - seen):
-        rows.append((robot, service, "yes", "?", "", "", "", "", "", ""))
+        rows.append((robot, service, "yes", "?", *[""] * (len(rows[0]) - 4)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return "\n".join("  ".join(v.ljust(w) for v, w in zip(r, widths)) for r in rows)
 

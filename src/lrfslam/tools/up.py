@@ -88,17 +88,21 @@ class Child:
 
 @dataclass
 class Observer:
-    """What the supervisor hears on the bus: truth, SLAM states and each service's last health."""
+    """What the supervisor hears on the bus: truth, SLAM states and each service's last health.
+
+    ``health`` holds the last health of every run of a service (keyed by service and the
+    producer id of its process), so the summary adds up the runs of a restarted service.
+    """
 
     truth: dict[int, bytes] = field(default_factory=dict)
     states: deque = field(default_factory=lambda: deque(maxlen=100_000))
-    health: dict[str, bytes] = field(default_factory=dict)
+    health: dict[tuple[str, bytes], bytes] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def on_truth(self, sample: zenoh.Sample) -> None:
         data = sample.payload.to_bytes()
         att = sample.attachment
-        _, stamp = parse_attachment(att.to_bytes() if att is not None else None)
+        stamp = parse_attachment(att.to_bytes() if att is not None else None).stamp_ns
         with self.lock:
             self.truth[stamp] = data
 
@@ -107,8 +111,22 @@ class Observer:
             self.states.append(sample.payload.to_bytes())
 
     def on_health(self, sample: zenoh.Sample) -> None:
+        att = sample.attachment
+        run = parse_attachment(att.to_bytes() if att is not None else None).producer
         with self.lock:
-            self.health[topics.robot_and_service(str(sample.key_expr))[1]] = sample.payload.to_bytes()
+            self.health[(topics.robot_and_service(str(sample.key_expr))[1], run)] = sample.payload.to_bytes()
+
+    def counters(self, service: str) -> Counter:
+        """``service``'s counters summed over its runs (a restarted process counts from zero)."""
+        with self.lock:
+            runs = [data for (name, _), data in self.health.items() if name == service]
+        total: Counter = Counter()
+        for data in runs:
+            try:
+                total.update(codec.SERVICE_STATUS.decode(data).counters)
+            except DecodeError:
+                continue
+        return total
 
     def last_state_stamp(self) -> int:
         with self.lock:
@@ -334,21 +352,23 @@ def pose_errors(observer: Observer) -> dict[str, float] | None:
 
 
 def summary(observer: Observer, children: dict[str, Child], recording: Path, wall_s: float) -> str:
-    lines = ["", f"lrfslam up: ran {wall_s:.1f} s", "", "stage      in          out         dropped  errors  restarts  exit"]
-    with observer.lock:
-        health = dict(observer.health)
+    """The table of stages (counters summed over restarts), SLAM against truth, and the recording.
+
+    ``wall_s`` is the run's duration on the monotonic clock. ``dropped`` counts inputs a stage
+    received but never handled (its full queue refused them, or they were still queued when it
+    was stopped), ``gaps`` inputs that never reached it (sequence numbers skipped; docs/delivery.md).
+    """
+    lines = ["", f"lrfslam up: ran {wall_s:.1f} s (monotonic clock)", "",
+             "stage      in          out         dropped  gaps    errors  restarts  exit"]
     for name, child in children.items():
-        c = {}
-        if name in health:
-            try:
-                c = codec.SERVICE_STATUS.decode(health[name]).counters
-            except DecodeError:
-                pass
+        c = observer.counters(name)
         ins = sum(v for k, v in c.items() if k.startswith("in."))
         outs = sum(v for k, v in c.items() if k.startswith("out.") and not k.startswith("out.health"))
+        gaps = sum(v for k, v in c.items() if k.startswith("gap."))
+        dropped = sum(v for k, v in c.items() if k.startswith("drop."))
         errs = sum(v for k, v in c.items() if k.startswith("error.") or ".error" in k)
         code = child.proc.returncode if child.proc else None
-        lines.append(f"{name:10s} {ins:<11d} {outs:<11d} {c.get('drop.queue', 0):<8d} {errs:<7d} "
+        lines.append(f"{name:10s} {ins:<11d} {outs:<11d} {dropped:<8d} {gaps:<7d} {errs:<7d} "
                      f"{child.restarts:<9d} {code}")
     err = pose_errors(observer)
     lines.append("")
@@ -359,19 +379,25 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
                      f"({err['confirmed']:.0f} confirmed)")
         lines.append(f"      final pose error {err['final_xy_m'] * 100:.1f} cm, {err['final_heading_deg']:.2f} deg; "
                      f"trajectory RMSE {err['ate_rmse_m'] * 100:.1f} cm (first pose anchored)")
-    lines += recording_lines(recording)
+    lines += recording_lines(recording, observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0))
     return "\n".join(lines)
 
 
-def recording_lines(recording: Path) -> list[str]:
-    """The recording folder: messages per topic, then each segment (size, messages, whether it needs recovering)."""
+def recording_lines(recording: Path, published_scans: int) -> list[str]:
+    """Scans published against scans recorded; the folder: messages per topic, then each segment
+    (size, messages, whether it needs recovering)."""
     report = ReadReport()
+
+    def lost(recorded: int) -> str:
+        return (f"scans published by the sensor {published_scans} / scans in the recording {recorded} / "
+                f"lost {published_scans - recorded}")
     try:
         per_topic = Counter(m.topic for m in read_recording(recording, report=report))
     except RecordingError as exc:
-        return [f"recording: {recording} was not written ({exc})"]
+        return [lost(0), f"recording: {recording} was not written ({exc})"]
     size = sum(seg.path.stat().st_size for seg in report.segments)
-    return [f"recording: {recording}/ ({len(report.segments)} segment{'s' * (len(report.segments) > 1)}, "
+    return [lost(per_topic[topics.SCAN.name]),
+            f"recording: {recording}/ ({len(report.segments)} segment{'s' * (len(report.segments) > 1)}, "
             f"{size / 1e6:.1f} MB, {sum(per_topic.values())} messages: "
             + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not topics.is_health(k)) + ")",
             *segment_lines(report)]
