@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import re
 import struct
 import threading
 from collections import Counter
@@ -18,6 +19,7 @@ from dataclasses import dataclass
 
 import zenoh
 
+from lrfslam.errors import StartupError
 from lrfslam.msgs import topics
 from lrfslam.msgs.codec import parse_encoding
 from lrfslam.msgs.topics import Topic
@@ -42,6 +44,7 @@ class BusConfig:
     zenoh_config: str = ""                              # optional Zenoh JSON5 file applied first
     queue_size: int = 512                               # received samples waiting for the step
     health_period_s: float = 1.0                        # how often health/<service> is published
+    join: bool = False                                  # start beside a live service of the same robot and name
 
     def __post_init__(self) -> None:
         topics.check_robot(self.robot)
@@ -62,17 +65,40 @@ def zenoh_config(cfg: BusConfig) -> zenoh.Config:
     return conf
 
 
+def listen_error(exc: zenoh.ZError) -> str | None:
+    """One line (no Zenoh source locations) if ``exc`` says a listener could not bind, else None.
+
+    A port already in use is the common case (a second ``lrfslam up`` on the same
+    port): say so, and how to choose another.
+    """
+    text = str(exc)
+    endpoint = re.search(r"bound to (\S+?):? \[", text)
+    reason = re.search(r"([A-Za-z][A-Za-z ]*?) \(os error \d+\)", text)
+    if endpoint is None or reason is None:
+        return None
+    hint = (" (another router or lrfslam up has it: pass another --port or --listen, or join it with "
+            "lrfslam up --connect)" if "in use" in reason.group(1) else "")
+    return f"cannot listen on {endpoint.group(1)}: {reason.group(1)}{hint}"
+
+
 def open_session(conf: zenoh.Config, stop: threading.Event, endpoints: tuple[str, ...]) -> zenoh.Session | None:
     """Open a Zenoh session, retrying while the router is not up yet; None if ``stop`` is set first.
 
     A client's ``open`` fails at once when its router is unreachable; services may
     start before their router (compose, restarts), so they wait for it instead.
+
+    Raises
+    ------
+    StartupError
+        A listen endpoint cannot be bound (waiting would not help).
     """
     delay = 0.2
     while True:
         try:
             return zenoh.open(conf)
         except zenoh.ZError as exc:
+            if (message := listen_error(exc)) is not None:
+                raise StartupError(message) from None
             if delay == 0.2:
                 log.warning("cannot reach %s yet (%s); retrying", ", ".join(endpoints), str(exc).split(" at ")[0])
             if stop.wait(delay):
