@@ -45,6 +45,9 @@ class SensorConfig:
     odom_trans_sigma_per_m: float = 0.02
     odom_rot_sigma_per_rad: float = 0.02
     max_scans: int = 0                  # stop producing after this many (0 = endless)
+    # Wall-clock ns of the run's first frame; 0: now. A sensor restarted with its run's epoch
+    # continues where the simulated robot is by now (lrfslam up passes it), skipping what it missed.
+    epoch_ns: int = 0
     # -- LMS200
     device: str = ""                    # serial port, e.g. /dev/ttyUSB0 or an emulator's pty
     baud: int = 38400                   # 9600, 19200, 38400 or 500000
@@ -54,6 +57,8 @@ class SensorConfig:
             raise ConfigError(f"sensor.source must be one of {SOURCES}, got {self.source!r}")
         if not self.rate_hz > 0 or self.speedup < 0:
             raise ConfigError("sensor.rate_hz must be > 0 and sensor.speedup >= 0")
+        if self.epoch_ns < 0 or (self.epoch_ns and self.speedup == 0):
+            raise ConfigError("sensor.epoch_ns must be >= 0, and needs a paced run (speedup > 0)")
 
 
 class SimSource(StepBase):
@@ -70,9 +75,17 @@ class SimSource(StepBase):
         self.frames = iter(self.sim)
         self.corners_xy = self.sim.map_corners.xy_m
         # Whole milliseconds keep stamps readable; the rest of each stamp is simulated time.
-        self.t0_ns = time.time_ns() // 1_000_000 * 1_000_000
-        self.t0_mono = time.monotonic()
+        self.t0_ns = cfg.epoch_ns or time.time_ns() // 1_000_000 * 1_000_000
+        behind_s = max(0.0, (time.time_ns() - self.t0_ns) / 1e9) if cfg.epoch_ns else 0.0
+        self.t0_mono = time.monotonic() - behind_s
         self.produced = 0
+        # The frames missed while down are computed, not published, so the noise that follows
+        # (odometry drift above all) is the uninterrupted run's.
+        for _ in range(math.ceil(behind_s * cfg.rate_hz * cfg.speedup)):
+            next(self.frames)
+            self.produced += 1
+        if self.produced:
+            self.counts["skipped"] = self.produced
 
     def poll(self, timeout_s: float):
         if self.cfg.max_scans and self.produced >= self.cfg.max_scans:

@@ -52,7 +52,7 @@ def test_up_survives_a_killed_recorder_without_overwriting(tmp_path):
     assert up.returncode == 0, stdout
     (folder,) = (tmp_path / "recordings").glob("*_rk")
     first, second = folder / f"{folder.name}_0.mcap", folder / f"{folder.name}_1.mcap"
-    assert sorted(folder.iterdir()) == [first, second]
+    assert sorted(folder.glob("*.mcap")) == [first, second]
     row = re.search(r"^recorder\s+\d+\s+\d+\s+\d+\s+\d+\s+\d+\s+(\d+)", stdout, re.MULTILINE)  # restarts
     assert row and row.group(1) == "1", stdout
     rel_first, rel_second = first.relative_to(tmp_path), second.relative_to(tmp_path)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import re
 import struct
 import threading
 from collections import Counter
@@ -25,6 +26,7 @@ from typing import NamedTuple
 
 import zenoh
 
+from lrfslam.errors import StartupError
 from lrfslam.msgs import topics
 from lrfslam.msgs.codec import parse_encoding
 from lrfslam.msgs.topics import Topic
@@ -57,6 +59,7 @@ class BusConfig:
     #: sleep <ms> after each input message. Every process of ``lrfslam up`` reads the same
     #: LRFSLAM_BUS_DEBUG_SLOW, so the service is named. Shows in the service's counters.
     debug_slow: str = ""
+    join: bool = False                                  # start beside a live service of the same robot and name
 
     def __post_init__(self) -> None:
         from lrfslam.errors import ConfigError
@@ -90,17 +93,40 @@ def zenoh_config(cfg: BusConfig) -> zenoh.Config:
     return conf
 
 
+def listen_error(exc: zenoh.ZError) -> str | None:
+    """One line (no Zenoh source locations) if ``exc`` says a listener could not bind, else None.
+
+    A port already in use is the common case (a second ``lrfslam up`` on the same
+    port): say so, and how to choose another.
+    """
+    text = str(exc)
+    endpoint = re.search(r"bound to (\S+?):? \[", text)
+    reason = re.search(r"([A-Za-z][A-Za-z ]*?) \(os error \d+\)", text)
+    if endpoint is None or reason is None:
+        return None
+    hint = (" (another router or lrfslam up has it: pass another --port or --listen, or join it with "
+            "lrfslam up --connect)" if "in use" in reason.group(1) else "")
+    return f"cannot listen on {endpoint.group(1)}: {reason.group(1)}{hint}"
+
+
 def open_session(conf: zenoh.Config, stop: threading.Event, endpoints: tuple[str, ...]) -> zenoh.Session | None:
     """Open a Zenoh session, retrying while the router is not up yet; None if ``stop`` is set first.
 
     A client's ``open`` fails at once when its router is unreachable; services may
     start before their router (compose, restarts), so they wait for it instead.
+
+    Raises
+    ------
+    StartupError
+        A listen endpoint cannot be bound (waiting would not help).
     """
     delay = 0.2
     while True:
         try:
             return zenoh.open(conf)
         except zenoh.ZError as exc:
+            if (message := listen_error(exc)) is not None:
+                raise StartupError(message) from None
             if delay == 0.2:
                 log.warning("cannot reach %s yet (%s); retrying", ", ".join(endpoints), str(exc).split(" at ")[0])
             if stop.wait(delay):

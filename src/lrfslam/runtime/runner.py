@@ -1,7 +1,8 @@
 """The one service runner: arguments, config layering, logging, signals, Zenoh, replay.
 
 ``lrfslam <service> [options]`` ends up in :func:`main`. Live, it opens a Zenoh
-session, declares a liveliness token ``lrf/<robot>/alive/<service>``, answers
+session, refuses to start (one error line, exit 2) where the robot already has this
+service alive, unless ``--join``, declares a liveliness token ``lrf/<robot>/alive/<service>``, answers
 ``lrf/<robot>/svc/<service>/status``, publishes ``lrf/<robot>/health/<service>``
 and drives the service's step until SIGTERM/SIGINT. With ``--replay IN`` (an MCAP
 file, a recording folder, or several files) it drives the same step over the
@@ -25,8 +26,8 @@ from typing import Any
 
 import zenoh
 
-from lrfslam.errors import ConfigError, InputError, LrfSlamError
-from lrfslam.msgs import topics
+from lrfslam.errors import ConfigError, InputError, LrfSlamError, StartupError
+from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
@@ -46,6 +47,9 @@ STOP_STACKS_AFTER_S = 5.0
 #: On a stop, inputs already received are still handled for this long; the rest are counted
 #: (``drop.stop``). Well inside ``lrfslam up``'s 15 s before SIGKILL.
 STOP_DRAIN_S = 2.0
+#: How long a same-named service's token that nobody answers for may stay before this one refuses to start, s
+#: (a little over Zenoh's default lease, after which the token of a silently dead process goes).
+STALE_TOKEN_S = 12.0
 
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
@@ -60,6 +64,9 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-l", "--listen", action="append", metavar="ENDPOINT",
                         help="Zenoh endpoint to listen on (repeatable)")
     parser.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config applied first")
+    parser.add_argument("--join", action="store_true", default=None,
+                        help="start even though the same service of the same robot is alive on the network "
+                             "(without it: one error line, exit 2)")
     parser.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING, ERROR")
 
 
@@ -69,6 +76,7 @@ def bus_config(args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) 
         ("robot", args.robot), ("mode", args.mode), ("zenoh_config", args.zenoh_config),
         ("connect", ",".join(args.connect) if args.connect else None),
         ("listen", ",".join(args.listen) if args.listen else None),
+        ("join", "true" if getattr(args, "join", None) else None),
     ) if value]
     return config_mod.load(BusConfig, table=file.get("bus", {}), env=env,
                            env_prefix=f"{config_mod.ENV_PREFIX}_BUS", sets=sets)
@@ -160,22 +168,25 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
     once = LogOnce(log)
     zenoh.init_log_from_env_or("error")
     robot = bus_cfg.robot
-    step = spec.build(cfg, RunContext(robot))
-    is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
     last_data = [0]
     health_topic = topics.health(spec.name)
     session = open_session(zenoh_config(bus_cfg), stop, bus_cfg.connect)
     if session is None:
-        step.close()
         return 0
     with session:
-        token = session.liveliness().declare_token(topics.alive(robot, spec.name))
-        status_q = session.declare_queryable(topics.status(robot, spec.name))
+        if not bus_cfg.join and not wait_until_free(session, robot, spec.name, stop):
+            return 0
+        # Built once the bus is known to be ours: a recorder opens its segment here, a slam reads its checkpoint.
+        step = spec.build(cfg, RunContext(robot))
+        is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
         bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts)
         slow_s = bus_cfg.debug_delay_s(spec.name)
         if slow_s:
             log.warning("debug: sleeping %.0f ms after each input (bus.debug_slow)", slow_s * 1e3)
             counts["debug.slow_ms"] = round(slow_s * 1e3)
+        status_q = session.declare_queryable(topics.status(robot, spec.name))
+        # Last: a supervisor that sees the token may start the sensor, so the subscribers must exist by then.
+        token = session.liveliness().declare_token(topics.alive(robot, spec.name))
         log.info("%s up: robot=%s mode=%s connect=%s", spec.name, robot, bus_cfg.mode, ",".join(bus_cfg.connect))
 
         def status() -> t.ServiceStatus:
@@ -244,6 +255,55 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             token.undeclare()
     stopped_cleanly(spec.name)
     return 0
+
+
+def live_services(session: zenoh.Session, robot: str, service: str = topics.ANY) -> dict[str, str]:
+    """Services of ``robot`` (``service``, or all) whose liveliness token is on the network, each with where it runs.
+
+    Where: ``pid N on HOST`` from its status queryable, or ``""`` if it did not answer.
+    """
+    names = set()
+    for reply in session.liveliness().get(topics.alive(robot, service), timeout=2.0):
+        if reply.ok is not None:
+            names.add(topics.robot_and_service(str(reply.ok.key_expr))[1])
+    where = dict.fromkeys(names, "")
+    if names:
+        for reply in session.get(topics.status(robot, service), timeout=1.0, target=zenoh.QueryTarget.ALL,
+                                 consolidation=zenoh.ConsolidationMode.NONE):
+            if reply.ok is None:
+                continue
+            try:
+                st = codec.SERVICE_STATUS.decode(reply.ok.payload.to_bytes())
+            except LrfSlamError:
+                continue
+            if st.service in where:
+                where[st.service] = f"pid {st.pid} on {st.host}"
+    return where
+
+
+def wait_until_free(session: zenoh.Session, robot: str, service: str, stop: threading.Event) -> bool:
+    """Stop a second ``service`` of ``robot`` from silently joining the first one's streams.
+
+    True when no other is alive; False if ``stop`` was set first.
+
+    A token whose service does not answer its status query may be a process that died
+    without closing its session (a container killed with its network); such a token
+    goes when Zenoh's lease expires (10 s by default), so it is given ``STALE_TOKEN_S``.
+
+    Raises
+    ------
+    StartupError
+        Its liveliness token is on the network and its service answers, or the token stays.
+    """
+    deadline = time.monotonic() + STALE_TOKEN_S
+    while found := live_services(session, robot, service):
+        if found[service] or time.monotonic() > deadline:
+            where = f" ({found[service]})" if found[service] else " (its token stays, though it does not answer)"
+            raise StartupError(f"{service} of robot {robot!r} is already running{where}; start this one with "
+                               "another --robot, or with --join to run beside it")
+        if stop.wait(0.5):
+            return False
+    return True
 
 
 def stopped_cleanly(service: str) -> None:

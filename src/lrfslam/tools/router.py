@@ -13,6 +13,7 @@ import threading
 
 import zenoh
 
+from lrfslam.runtime.bus import listen_error
 from lrfslam.runtime.runner import install_signal_handlers, setup_logging
 
 log = logging.getLogger("lrfslam.router")
@@ -25,6 +26,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
                         help="other routers to connect to")
     parser.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config (TLS, ACL, ...) applied first")
+    parser.add_argument("--id", metavar="HEX", help="this router's Zenoh id (lrfslam up names its router so it "
+                        "can tell it is talking to it and not to another router on that port)")
     parser.add_argument("--log-level", default=None)
     args = parser.parse_args(argv)
     setup_logging("router", args.log_level)
@@ -33,11 +36,19 @@ def main(argv: list[str] | None = None) -> int:
     conf.insert_json5("listen/endpoints", json.dumps(args.listen or ["tcp/127.0.0.1:7447"]))
     conf.insert_json5("connect/endpoints", json.dumps(args.connect))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    if args.id:
+        conf.insert_json5("id", json.dumps(args.id))
     stop = threading.Event()
     install_signal_handlers(stop)
     zenoh.init_log_from_env_or("error")
-    with zenoh.open(conf):
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        log.error("%s", listen_error(exc) or f"cannot start the router: {str(exc).split(' at /')[0]}")
+        return 2
+    with session:
         log.info("router listening on %s", ", ".join(args.listen or ["tcp/127.0.0.1:7447"]))
         stop.wait()
     log.info("router stopped")
     return 0
+

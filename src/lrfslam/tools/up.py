@@ -1,13 +1,17 @@
 """``lrfslam up``: the whole pipeline as separate processes, supervised, with a summary.
 
-Checks every stage's settings, starts a Zenoh router, then recorder, mapper, slam,
-features and denoise, waits until each has declared its liveliness token, then starts
-the sensor. A stage that exits while starting (or has no token after 30 s) stops
-everything at once: ``up`` exits with code 2 and removes the recording if it holds
-nothing. A service that dies
-is restarted (up to ``--max-restarts`` times). On Ctrl-C, SIGTERM or after
-``--duration`` seconds the sensor stops first, the pipeline drains, the rest stop
-in order, and a summary compares the SLAM estimate with the simulator's ground truth.
+Checks every stage's settings, starts a Zenoh router (or, with ``--connect``, uses a
+running one), refuses to start when services of the robot are already alive there
+(unless ``--join``), then starts recorder, mapper, slam, features and denoise, waits
+until each has declared its liveliness token, then starts the sensor. A stage that
+exits while starting (or has no token after 30 s) stops everything at once: ``up``
+exits with code 2 and removes the recording if it holds nothing. A process that dies,
+the router included, is restarted (up to ``--max-restarts`` times); the services'
+Zenoh sessions reconnect to a restarted router by themselves, the slam resumes from
+its checkpoint (in the recording folder), the sensor from where the simulated robot
+is now, and the recorder adds a segment. On Ctrl-C, SIGTERM or after ``--duration``
+seconds the sensor stops first, the pipeline drains, the rest stop in order, and a
+summary compares the SLAM estimate with the simulator's ground truth.
 """
 
 from __future__ import annotations
@@ -15,13 +19,14 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import secrets
 import shutil
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,7 +46,7 @@ from lrfslam.msgs import codec, topics
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import parse_attachment
 from lrfslam.runtime.recording import ReadReport, read_recording
-from lrfslam.runtime.runner import install_signal_handlers, setup_logging
+from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
 from lrfslam.tools.info import segment_lines
 from lrfslam.tools.status import client_config
 
@@ -52,20 +57,38 @@ START_ORDER = ("recorder", "mapper", "slam", "features", "denoise", "sensor")
 START_TIMEOUT_S = 30.0
 #: Stages ``--skip`` may leave out (every other one is needed for SLAM to run at all).
 OPTIONAL = ("mapper",)
+#: How often the supervisor looks for dead children, s (a restart is that much late at most).
+POLL_S = 0.05
+#: Ground truth waiting for its SLAM state, at most (over two minutes at 75 Hz): a stalled or
+#: dead slam cannot make ``up`` grow without bound.
+MAX_PENDING_TRUTH = 10_000
+#: Messages heard but not yet looked at by the supervisor's loop, at most.
+MAX_INBOX = 100_000
+#: The slam checkpoint ``up`` gives the slam unless one is configured: in the run's recording folder.
+CHECKPOINT_NAME = "slam.checkpoint.npz"
 
 
 @dataclass
 class Child:
-    """One supervised process."""
+    """One supervised process.
+
+    ``down_since`` (monotonic s) is set when it was found dead and restarted, and
+    cleared when it is back (its liveliness token, or for the router every service's,
+    seen again); ``downtimes`` holds how long each restart took.
+    """
 
     name: str
     argv: list[str]
     proc: subprocess.Popen | None = None
     restarts: int = 0
     stopping: bool = False
+    down_since: float | None = None
+    downtimes: list[float] = field(default_factory=list)
+    waiting_for: set[str] = field(default_factory=set)   # router: services not reconnected yet
+    gave_up: bool = False
 
-    def start(self) -> None:
-        self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL)
+    def start(self, extra: list[str] | tuple[str, ...] = ()) -> None:
+        self.proc = subprocess.Popen(self.argv + list(extra), stdin=subprocess.DEVNULL)
 
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
@@ -86,35 +109,80 @@ class Child:
         return self.proc.returncode
 
 
-@dataclass
-class Observer:
-    """What the supervisor hears on the bus: truth, SLAM states and each service's last health.
+class SeqRanges:
+    """A set of sequence numbers as sorted, disjoint ``[first, last]`` ranges: memory grows with gaps, not length."""
 
-    ``health`` holds the last health of every run of a service (keyed by service and the
-    producer id of its process), so the summary adds up the runs of a restarted service.
+    def __init__(self) -> None:
+        self.ranges: list[list[int]] = []
+
+    def add(self, seq: int) -> None:
+        if self.ranges and self.ranges[-1][0] <= seq <= self.ranges[-1][1] + 1:
+            self.ranges[-1][1] = max(self.ranges[-1][1], seq)
+        elif not self.ranges or seq > self.ranges[-1][1]:
+            self.ranges.append([seq, seq])
+        else:   # out of order: rare, so a linear merge is fine
+            for r in self.ranges:
+                if r[0] - 1 <= seq <= r[1] + 1:
+                    r[0], r[1] = min(r[0], seq), max(r[1], seq)
+                    break
+            else:
+                self.ranges.append([seq, seq])
+                self.ranges.sort()
+            merged = [self.ranges[0]]
+            for r in self.ranges[1:]:
+                if r[0] <= merged[-1][1] + 1:
+                    merged[-1][1] = max(merged[-1][1], r[1])
+                else:
+                    merged.append(r)
+            self.ranges = merged
+
+    def __len__(self) -> int:
+        return sum(b - a + 1 for a, b in self.ranges)
+
+    def missing_from(self, present: set[int]) -> int:
+        """How many of these numbers are not in ``present``."""
+        return sum(1 for a, b in self.ranges for q in range(a, b + 1) if q not in present)
+
+
+class Observer:
+    """What the supervisor hears on the bus: truth, SLAM states, each service's last health, liveliness.
+
+    Zenoh's callbacks only queue what arrives; :meth:`process` (the supervisor's loop)
+    decodes it and matches each SLAM state to the ground truth of its stamp as it
+    comes, keeping running error sums, so memory stays bounded however long ``up`` runs:
+    truth waits for its state (at most ``MAX_PENDING_TRUTH`` of it), a state is kept
+    only until the next. ``health`` holds the last health of every run of a service (keyed by
+    service and the producer id of its process), so the summary adds up a restarted service's runs.
     """
 
-    truth: dict[int, bytes] = field(default_factory=dict)
-    states: deque = field(default_factory=lambda: deque(maxlen=100_000))
-    health: dict[tuple[str, bytes], bytes] = field(default_factory=dict)
-    lock: threading.Lock = field(default_factory=threading.Lock)
+    def __init__(self) -> None:
+        self._inbox: deque = deque(maxlen=MAX_INBOX)
+        self.truth: OrderedDict[int, np.ndarray] = OrderedDict()   # stamp ns -> true pose, awaiting its state
+        self.published = SeqRanges()          # sequence numbers of the truth heard (one per scan published)
+        self.first_truth: tuple[int, int] | None = None   # (seq, stamp ns)
+        self.last_truth_stamp = 0
+        self.last_state: bytes | None = None
+        self.last_state_stamp = 0
+        self.health: dict[tuple[str, bytes], bytes] = {}   # (service, producer id) -> last health
+        self.alive_events: deque = deque(maxlen=MAX_INBOX)   # (service, present, monotonic s)
+        self.lock = threading.Lock()
+        self._anchor: np.ndarray | None = None
+        self.matched = 0
+        self.sum_sq_m2 = 0.0
+        self.final: tuple[float, float] = (0.0, 0.0)   # xy m, heading rad of the last matched state
 
+    # -- Zenoh callbacks: queue only
     def on_truth(self, sample: zenoh.Sample) -> None:
-        data = sample.payload.to_bytes()
         att = sample.attachment
-        stamp = parse_attachment(att.to_bytes() if att is not None else None).stamp_ns
-        with self.lock:
-            self.truth[stamp] = data
+        self._inbox.append(("truth", sample.payload.to_bytes(), att.to_bytes() if att is not None else None))
 
     def on_state(self, sample: zenoh.Sample) -> None:
-        with self.lock:
-            self.states.append(sample.payload.to_bytes())
+        self._inbox.append(("state", sample.payload.to_bytes(), None))
 
     def on_health(self, sample: zenoh.Sample) -> None:
         att = sample.attachment
-        run = parse_attachment(att.to_bytes() if att is not None else None).producer
-        with self.lock:
-            self.health[(topics.robot_and_service(str(sample.key_expr))[1], run)] = sample.payload.to_bytes()
+        self._inbox.append(("health", sample.payload.to_bytes(),
+                            (str(sample.key_expr), att.to_bytes() if att is not None else None)))
 
     def counters(self, service: str) -> Counter:
         """``service``'s counters summed over its runs (a restarted process counts from zero)."""
@@ -128,9 +196,61 @@ class Observer:
                 continue
         return total
 
-    def last_state_stamp(self) -> int:
-        with self.lock:
-            return codec.SLAM_STATE.decode(self.states[-1]).stamp_ns if self.states else 0
+    def on_alive(self, sample: zenoh.Sample) -> None:
+        self.alive_events.append((topics.robot_and_service(str(sample.key_expr))[1],
+                                  sample.kind == zenoh.SampleKind.PUT, time.monotonic()))
+
+    # -- the supervisor's loop
+    def process(self) -> None:
+        """Decode and match everything queued since the last call."""
+        while self._inbox:
+            kind, data, extra = self._inbox.popleft()
+            try:
+                if kind == "truth":
+                    att = parse_attachment(extra)
+                    self.add_truth(att.seq, att.stamp_ns, codec.GROUND_TRUTH.decode(data).pose)
+                elif kind == "state":
+                    self.add_state(data)
+                else:
+                    key, att = extra
+                    with self.lock:
+                        self.health[(topics.robot_and_service(key)[1], parse_attachment(att).producer)] = data
+            except DecodeError:
+                continue
+
+    def add_truth(self, seq: int, stamp_ns: int, pose: np.ndarray) -> None:
+        if self.first_truth is None:
+            self.first_truth = (seq, stamp_ns)
+        self.published.add(seq)
+        self.last_truth_stamp = max(self.last_truth_stamp, stamp_ns)
+        self.truth[stamp_ns] = np.asarray(pose, dtype=float)
+        while len(self.truth) > MAX_PENDING_TRUTH:
+            self.truth.popitem(last=False)
+
+    def add_state(self, data: bytes) -> None:
+        state = codec.SLAM_STATE.decode(data)
+        self.last_state, self.last_state_stamp = data, state.stamp_ns
+        # States come in stamp order: truth older than this one will never be matched (its state was lost).
+        while self.truth and next(iter(self.truth)) < state.stamp_ns:
+            self.truth.popitem(last=False)
+        true = self.truth.pop(state.stamp_ns, None)
+        if true is None:
+            return
+        if self._anchor is None:
+            # SLAM's map frame is its first pose; express its estimates in the world frame.
+            self._anchor = compose(true, relative(state.pose, np.zeros(3)))
+        est = compose(self._anchor, state.pose)
+        d = float(np.hypot(*(est[:2] - true[:2])))
+        self.matched += 1
+        self.sum_sq_m2 += d * d
+        self.final = (d, abs(wrap_angle(est[2] - true[2])))
+
+    def epoch_ns(self, rate_hz: float) -> int | None:
+        """Wall-clock time of the simulated run's first frame (a restarted sensor continues from it), if known."""
+        if self.first_truth is None:
+            return None
+        seq, stamp = self.first_truth
+        return stamp - round((seq - 1) / rate_hz * 1e9)   # the sensor stamps frame i at t0 + i / rate
 
 
 def child_argv(name: str, args: argparse.Namespace, endpoint: str, extra: list[str]) -> list[str]:
@@ -138,6 +258,8 @@ def child_argv(name: str, args: argparse.Namespace, endpoint: str, extra: list[s
             "--connect", endpoint, "--log-level", args.log_level]
     if args.config:
         argv += ["--config", args.config]
+    if args.join:
+        argv += ["--join"]
     return argv + extra
 
 
@@ -173,8 +295,10 @@ def wait_alive(session: zenoh.Session, robot: str, children: list[Child], timeou
     return True
 
 
-def check_configs(sets: dict[str, list[str]], config: str | None) -> None:
+def check_configs(sets: dict[str, list[str]], config: str | None) -> dict:
     """Layer every stage's config as its process will, so a bad setting stops ``up`` before it starts anything.
+
+    Returns each stage's config.
 
     Raises
     ------
@@ -182,11 +306,13 @@ def check_configs(sets: dict[str, list[str]], config: str | None) -> None:
         Naming the stage.
     """
     file = config_mod.read_file(config, services.CONFIG_TABLES)
+    configs = {}
     for name, items in sets.items():
         try:
-            config_mod.service_config(services.spec(name), sets=items, file=file, env=os.environ)
+            configs[name] = config_mod.service_config(services.spec(name), sets=items, file=file, env=os.environ)
         except ConfigError as exc:
             raise ConfigError(f"{name}: {exc}") from exc
+    return configs
 
 
 def remove_if_empty(recording: Path) -> None:
@@ -211,6 +337,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--port", type=int, default=7447, help="router port on 127.0.0.1")
     parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                         help="extra router endpoint, e.g. tcp/0.0.0.0:7447 for remote monitoring")
+    parser.add_argument("--connect", metavar="ENDPOINT",
+                        help="use the router at ENDPOINT (e.g. another up's, tcp/127.0.0.1:7447) instead of "
+                             "starting one; robots with different --robot names share it without crosstalk")
+    parser.add_argument("--join", action="store_true",
+                        help="start even though services of this robot are alive on the router (each "
+                             "service too); without it up stops with one error line, exit 2")
     parser.add_argument("--config", help="TOML config passed to every service")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="SERVICE.NAME=VALUE",
                         help="override one service setting, e.g. --set features.mode=paper")
@@ -219,9 +351,11 @@ def main(argv: list[str] | None = None) -> int:
                              "--set slam.scan_matching=false, the paper's filter alone)")
     parser.add_argument("--recordings", default="recordings",
                         help="parent of the recording folder (<UTC time>_<robot>/, one MCAP segment per recorder start)")
-    parser.add_argument("--max-restarts", type=int, default=3)
+    parser.add_argument("--max-restarts", type=int, default=3, help="restarts of each process (the router too)")
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
     args = parser.parse_args(argv)
+    if args.connect and args.listen:
+        parser.error("--listen sets up's own router's endpoints; with --connect up starts no router")
     setup_logging("up", "INFO")
 
     order = tuple(n for n in START_ORDER if n not in args.skip)
@@ -237,59 +371,88 @@ def main(argv: list[str] | None = None) -> int:
     sets["recorder"] += [f"directory={recording.parent}", f"name={recording.name}"]
     sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
     topics.check_robot(args.robot)
-    check_configs(sets, args.config)
+    configs = check_configs(sets, args.config)
+    if not configs["slam"].checkpoint_path:
+        # A killed slam resumes from here (its first start finds none: the folder is new).
+        sets["slam"].append(f"checkpoint_path={recording / CHECKPOINT_NAME}")
     extra = {n: [a for item in items for a in ("--set", item)] for n, items in sets.items()}
 
-    endpoint = f"tcp/127.0.0.1:{args.port}"
+    endpoint = args.connect or f"tcp/127.0.0.1:{args.port}"
     stop = threading.Event()
     install_signal_handlers(stop)
-    router = Child("router", [sys.executable, "-m", "lrfslam.cli", "router", "--log-level", args.log_level]
-                   + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)])
-    router.start()
+    router = None if args.connect else Child(
+        "router", [sys.executable, "-m", "lrfslam.cli", "router", "--log-level", args.log_level]
+        + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)])
+    router_id = start_router(router) if router else None
     children = {n: Child(n, child_argv(n, args, endpoint, extra[n])) for n in order}
+    supervised = ([router] if router else []) + list(children.values())
     observer = Observer()
-    counts: Counter = Counter()
     started = time.monotonic()
     try:
-        session = _open_with_retry(endpoint, router, 10.0)
-    except RuntimeError as exc:
-        log.error("%s", exc)
-        router.stop(5)
-        return 2
+        session = open_own_session(endpoint, router, router_id, 10.0)
+    except StartupError:
+        if router:
+            router.stop(5)
+        raise
     with session:
         subs = [session.declare_subscriber(topics.key(args.robot, topics.TRUTH.name), observer.on_truth),
                 session.declare_subscriber(topics.key(args.robot, topics.SLAM_STATE.name), observer.on_state),
-                session.declare_subscriber(topics.health_key(args.robot, topics.ANY), observer.on_health)]
-        for name in order[:-1]:
-            children[name].start()
-        try:
-            up = wait_alive(session, args.robot, [children[n] for n in order[:-1]], START_TIMEOUT_S, stop)
-        except StartupError:
+                session.declare_subscriber(topics.health_key(args.robot, topics.ANY), observer.on_health),
+                session.liveliness().declare_subscriber(topics.alive(args.robot, topics.ANY), observer.on_alive)]
+
+        def abort() -> None:
             for child in children.values():
                 child.stop(5)
             for sub in subs:
                 sub.undeclare()
-            router.stop(5)
+            if router:
+                router.stop(5)
+
+        try:
+            if not args.join and (found := live_services(session, args.robot)):
+                raise StartupError(
+                    f"robot {args.robot!r} already has services running on {endpoint}: "
+                    + ", ".join(f"{n} ({w})" if w else n for n, w in sorted(found.items()))
+                    + "; start with another --robot, or with --join to run beside them")
+            for name in order[:-1]:
+                children[name].start()
+            up = wait_alive(session, args.robot, [children[n] for n in order[:-1]], START_TIMEOUT_S, stop)
+        except StartupError:
+            abort()
             remove_if_empty(recording)
             raise
         if up:
             children["sensor"].start()
         log.info("pipeline up: robot %s, router %s, recording %s", args.robot, endpoint, recording)
         deadline = started + args.duration if args.duration > 0 else None
+        rate_hz = configs["sensor"].rate_hz
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            for child in children.values():
-                if not child.alive() and not child.stopping:
-                    code = child.proc.returncode if child.proc else None
-                    if child.restarts >= args.max_restarts:
-                        log.error("%s exited (%s) %d times; giving up on it", child.name, code, child.restarts + 1)
-                        child.stopping = True
-                        continue
-                    child.restarts += 1
-                    counts[f"restart.{child.name}"] += 1
-                    log.warning("%s exited with %s; restarting (%d/%d)", child.name, code, child.restarts,
-                                args.max_restarts)
+            observer.process()
+            note_returns(observer, router, children)
+            for child in supervised:
+                if child.alive() or child.stopping:
+                    continue
+                code = child.proc.returncode if child.proc else None
+                if child.restarts >= args.max_restarts:
+                    log.error("%s exited (%s) %d times; giving up on it", child.name, code, child.restarts + 1)
+                    child.stopping = child.gave_up = True
+                    if child is router:
+                        log.error("without its router the pipeline cannot run: stopping")
+                        stop.set()
+                    continue
+                child.restarts += 1
+                child.down_since = time.monotonic()
+                log.warning("%s exited with %s; restarting (%d/%d)", child.name, code, child.restarts,
+                            args.max_restarts)
+                if child is router:
+                    router.waiting_for = {c.name for c in children.values() if c.alive()}
+                    start_router(router)
+                elif child.name == "sensor" and (epoch := observer.epoch_ns(rate_hz)) is not None:
+                    # The simulated robot kept moving while its sensor was down, as a real one would.
+                    child.start(["--set", f"epoch_ns={epoch}"])
+                else:
                     child.start()
-            stop.wait(0.2)
+            stop.wait(POLL_S)
         log.info("stopping: sensor first, then draining the pipeline")
         children["sensor"].stop(10)
         _drain(observer, 5.0)
@@ -297,61 +460,102 @@ def main(argv: list[str] | None = None) -> int:
             if name in children:
                 children[name].stop(15)
         time.sleep(0.3)  # let the last health messages arrive
+        observer.process()
         for sub in subs:
             sub.undeclare()
-    router.stop(5)
-    print(summary(observer, children, recording, time.monotonic() - started))
-    return 0
+    if router:
+        router.stop(5)
+    print(summary(observer, children, recording, time.monotonic() - started, router))
+    return 1 if any(c.gave_up for c in supervised) else 0
 
 
-def _open_with_retry(endpoint: str, router: Child, timeout_s: float) -> zenoh.Session:
+def start_router(router: Child) -> str:
+    """Start (or restart) ``router`` under a new Zenoh id; the id."""
+    # Random, so up can tell its own router from one that already held the port.
+    router_id = "1" + secrets.token_hex(7)
+    router.start(["--id", router_id])
+    return router_id
+
+
+def open_own_session(endpoint: str, router: Child | None, router_id: str | None, timeout_s: float) -> zenoh.Session:
+    """up's client session: to its own router (checked by Zenoh id), or with ``--connect`` to the given one.
+
+    Raises
+    ------
+    StartupError
+        The router exited (it cannot listen: its own error line is above), another
+        router answers on the port, or nothing answers within ``timeout_s``.
+    """
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            return zenoh.open(client_config([endpoint]))
+            session = zenoh.open(client_config([endpoint]))
+            break
         except zenoh.ZError as exc:
-            if time.monotonic() > deadline or not router.alive():
-                raise RuntimeError(f"cannot reach the router at {endpoint}: {exc}") from exc
+            if router is not None and not router.alive():
+                raise StartupError(f"the router exited with code {router.proc.returncode} while starting "
+                                   "(its error is above)") from None
+            if time.monotonic() > deadline:
+                raise StartupError(f"cannot reach the router at {endpoint}: {str(exc).split(' at /')[0]}") from None
             time.sleep(0.2)
+    if router_id is not None and router_id not in {str(z) for z in session.info.routers_zid()}:
+        session.close()
+        try:
+            router.proc.wait(5)   # a router that cannot listen exits with its own error line
+        except subprocess.TimeoutExpired:
+            pass
+        raise StartupError(f"another router already listens on {endpoint} (another lrfslam up?); pass another "
+                           "--port, or --connect to it with another --robot")
+    return session
+
+
+def note_returns(observer: Observer, router: Child | None, children: dict[str, Child]) -> None:
+    """Log each restarted process once it is back: its liveliness token again, for the router every service's."""
+    while observer.alive_events:
+        name, present, at = observer.alive_events.popleft()
+        if not present:
+            continue
+        child = children.get(name)
+        if child is not None and child.down_since is not None and at >= child.down_since:
+            child.downtimes.append(at - child.down_since)
+            log.info("%s back after %.2f s (restart %d)", name, child.downtimes[-1], child.restarts)
+            child.down_since = None
+        if router is not None and router.down_since is not None and at >= router.down_since:
+            router.waiting_for.discard(name)
+            if not router.waiting_for:
+                router.downtimes.append(at - router.down_since)
+                log.info("router back after %.2f s (restart %d): every service reconnected",
+                         router.downtimes[-1], router.restarts)
+                router.down_since = None
 
 
 def _drain(observer: Observer, timeout_s: float) -> None:
     """Wait until the SLAM state has caught up with the last ground truth (or ``timeout_s``)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        with observer.lock:
-            last_truth = max(observer.truth) if observer.truth else 0
-        if observer.last_state_stamp() >= last_truth:
+        observer.process()
+        if observer.last_state_stamp >= observer.last_truth_stamp:
             return
         time.sleep(0.1)
 
 
 def pose_errors(observer: Observer) -> dict[str, float] | None:
     """Final-pose and trajectory errors of SLAM against truth, both anchored at SLAM's first pose."""
-    with observer.lock:
-        states = [codec.SLAM_STATE.decode(b) for b in observer.states]
-        truth = {k: codec.GROUND_TRUTH.decode(v) for k, v in observer.truth.items()}
-    pairs = [(s, truth[s.stamp_ns]) for s in states if s.stamp_ns in truth]
-    if not pairs:
+    if not observer.matched:
         return None
-    # SLAM's map frame is its first pose; express its estimates in the world frame.
-    first_est, first_true = pairs[0]
-    anchor = compose(first_true.pose, relative(first_est.pose, np.zeros(3)))
-    est = np.array([compose(anchor, s.pose) for s, _ in pairs])
-    tru = np.array([g.pose for _, g in pairs])
-    d = np.linalg.norm(est[:, :2] - tru[:, :2], axis=1)
-    last = pairs[-1][0]
+    last = codec.SLAM_STATE.decode(observer.last_state)
     return {
-        "scans": float(len(pairs)),
-        "final_xy_m": float(d[-1]),
-        "final_heading_deg": float(np.degrees(abs(wrap_angle(est[-1, 2] - tru[-1, 2])))),
-        "ate_rmse_m": float(np.sqrt(np.mean(d ** 2))),
+        "scans": float(observer.matched),
+        "final_xy_m": observer.final[0],
+        "final_heading_deg": float(np.degrees(observer.final[1])),
+        "ate_rmse_m": float(np.sqrt(observer.sum_sq_m2 / observer.matched)),
         "landmarks": float(last.landmark_ids.size),
         "confirmed": float(last.landmark_confirmed.sum()),
     }
 
 
-def summary(observer: Observer, children: dict[str, Child], recording: Path, wall_s: float) -> str:
+def summary(observer: Observer, children: dict[str, Child], recording: Path, wall_s: float,
+            router: Child | None = None) -> str:
     """The table of stages (counters summed over restarts), SLAM against truth, and the recording.
 
     ``wall_s`` is the run's duration on the monotonic clock. ``dropped`` counts inputs a stage
@@ -380,7 +584,33 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
         lines.append(f"      final pose error {err['final_xy_m'] * 100:.1f} cm, {err['final_heading_deg']:.2f} deg; "
                      f"trajectory RMSE {err['ate_rmse_m'] * 100:.1f} cm (first pose anchored)")
     lines += recording_lines(recording, observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0))
+    lines += unrecorded_lines(observer, recording, children.get("recorder"))
+    lines += restart_lines(([router] if router else []) + list(children.values()))
     return "\n".join(lines)
+
+
+def unrecorded_lines(observer: Observer, recording: Path, recorder: Child | None) -> list[str]:
+    """Scans the sensor published (as up heard them) that the recording lacks, if any."""
+    published = len(observer.published)
+    if not published or recorder is None:
+        return []
+    try:
+        recorded = {m.sequence for m in read_recording(recording, [topics.SCAN.name])}
+    except RecordingError:
+        return []
+    missing = observer.published.missing_from(recorded)
+    if not missing:
+        return []
+    why = (f" (the recorder restarted {recorder.restarts} time{'s' * (recorder.restarts > 1)}: each kill loses "
+           "its last unflushed second, and the restart what came meanwhile)" if recorder.restarts else "")
+    return [f"recording: {missing} of the {published} scans published are not in it{why}"]
+
+
+def restart_lines(children: list[Child]) -> list[str]:
+    """How long each restarted process took to be back."""
+    parts = [f"{c.name} {c.restarts} (back after " + ", ".join(f"{d:.2f}" for d in c.downtimes) + " s)"
+             if c.downtimes else f"{c.name} {c.restarts} (not back)" for c in children if c.restarts]
+    return ["restarts: " + "; ".join(parts)] if parts else []
 
 
 def recording_lines(recording: Path, published_scans: int) -> list[str]:
