@@ -330,7 +330,7 @@ def remove_if_empty(recording: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lrfslam up", description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=0.0, help="seconds to run (default: until Ctrl-C)")
+    parser.add_argument("--duration", type=float, default=0.0, help="seconds to run once the pipeline is up (default: until Ctrl-C)")
     parser.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall second")
     parser.add_argument("--seed", type=int, default=1, help="simulator seed")
     parser.add_argument("--robot", default="robot1")
@@ -424,7 +424,8 @@ def main(argv: list[str] | None = None) -> int:
         if up:
             children["sensor"].start()
         log.info("pipeline up: robot %s, router %s, recording %s", args.robot, endpoint, recording)
-        deadline = started + args.duration if args.duration > 0 else None
+        # The run's length counts from here: starting the processes can take seconds on a busy machine.
+        deadline = time.monotonic() + args.duration if args.duration > 0 else None
         rate_hz = configs["sensor"].rate_hz
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             observer.process()
