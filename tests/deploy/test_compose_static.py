@@ -7,7 +7,6 @@ understands, a config key a service would refuse at start-up, a healthcheck whos
 
 from __future__ import annotations
 
-import argparse
 import re
 import shutil
 import socket
@@ -22,7 +21,7 @@ import yaml
 from lrfslam import cli, services
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
-from lrfslam.runtime.runner import add_common_arguments, bus_config, flag_sets
+from lrfslam.runtime.runner import bus_config, flag_sets, service_parser
 from lrfslam.tools import status
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -63,17 +62,6 @@ def mounts(svc: dict) -> dict[str, Path]:
         host, container, *_ = interpolate(vol).split(":")
         out[container] = (COMPOSE.parent / host).resolve()
     return out
-
-
-def service_parser(spec) -> argparse.ArgumentParser:
-    """The argument parser `lrfslam <service>` builds (runner.main)."""
-    parser = argparse.ArgumentParser(prog=f"lrfslam {spec.name}")
-    add_common_arguments(parser)
-    parser.add_argument("--replay")
-    parser.add_argument("--out")
-    for flag, name, _ in spec.flags:
-        parser.add_argument(flag, dest=name)
-    return parser
 
 
 def test_services_are_the_router_and_the_five_stages(svcs):
@@ -164,8 +152,10 @@ def test_one_image_with_init_and_restart_on_failure(svcs):
         assert (COMPOSE.parent / svc["build"]["context"] / svc["build"]["dockerfile"]).is_file()
 
 
-def test_healthchecks_ask_the_router_about_their_own_service(svcs):
-    """Each healthcheck is `lrfslam status --check` for its own service, and its flags parse."""
+def test_healthchecks_read_their_own_service_and_the_router_its_port(svcs, tmp_path):
+    """A service's healthcheck reads the health file its own command writes (no router asked,
+    no name lookup); the router's dials its loopback port. The flags parse and fail as a
+    failing healthcheck would."""
     closed = socket.socket()
     closed.bind(("127.0.0.1", 0))
     port = closed.getsockname()[1]
@@ -174,16 +164,17 @@ def test_healthchecks_ask_the_router_about_their_own_service(svcs):
         test = svc["healthcheck"]["test"]
         assert test[:3] == ["CMD", "lrfslam", "status"], name
         argv = test[3:]
-        assert "--check" in argv
-        endpoint = argv[argv.index("-e") + 1]
-        wanted = [argv[i + 1] for i, a in enumerate(argv) if a in ("--service", "-s")]
         if name == ROUTER:
-            assert endpoint == "tcp/127.0.0.1:7447" and wanted == []
-        else:
-            assert endpoint == "tcp/zenohd:7447" and wanted == [name]
-        # Same flags against a closed port: argparse accepts them (no SystemExit) and the
-        # router is reported unreachable (2), as a failing healthcheck would see it.
-        assert status.main([a if a != endpoint else f"tcp/127.0.0.1:{port}" for a in argv]) == 2
+            assert argv == ["--check", "-e", "tcp/127.0.0.1:7447"]
+            # Against a closed port: argparse accepts the flags and the router is unreachable (2).
+            assert status.main(["--check", "-e", f"tcp/127.0.0.1:{port}"]) == 2
+            continue
+        assert argv[0] == "--check-file", name
+        command = svc["command"]
+        assert command[0] == name
+        assert command[command.index("--health-file") + 1] == argv[1], f"{name} checks a file it does not write"
+        # No service has written the file yet: unhealthy (1), with the reason.
+        assert status.main(["--check-file", str(tmp_path / "health.json")]) == 1
 
 
 def test_recorder_writes_into_the_bind_mounted_recordings(svcs):

@@ -60,6 +60,9 @@ class BusConfig:
     #: LRFSLAM_BUS_DEBUG_SLOW, so the service is named. Shows in the service's counters.
     debug_slow: str = ""
     join: bool = False                                  # start beside a live service of the same robot and name
+    #: Also write each health status to this local file, for a container healthcheck
+    #: (``lrfslam status --check-file``, lrfslam/runtime/health_file.py); "" for none.
+    health_file: str = ""
 
     def __post_init__(self) -> None:
         from lrfslam.errors import ConfigError

@@ -30,6 +30,7 @@ from lrfslam.errors import ConfigError, InputError, LrfSlamError, StartupError
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
+from lrfslam.runtime import health_file
 from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
 from lrfslam.runtime.chain import Stage, replay_recording
 from lrfslam.runtime.decoding import LogOnce
@@ -77,6 +78,7 @@ def bus_config(args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) 
         ("connect", ",".join(args.connect) if args.connect else None),
         ("listen", ",".join(args.listen) if args.listen else None),
         ("join", "true" if getattr(args, "join", None) else None),
+        ("health_file", getattr(args, "health_file", None)),
     ) if value]
     return config_mod.load(BusConfig, table=file.get("bus", {}), env=env,
                            env_prefix=f"{config_mod.ENV_PREFIX}_BUS", sets=sets)
@@ -93,16 +95,25 @@ def setup_logging(service: str, level: str | None) -> None:
                         format=LOG_FORMAT.format(service=service))
 
 
-def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[str] | None = None) -> int:
-    """``lrfslam <service>``; ``tables``: the config-file tables there may be (others are errors)."""
+def service_parser(spec: ServiceSpec) -> argparse.ArgumentParser:
+    """The arguments of ``lrfslam <service>``."""
     parser = argparse.ArgumentParser(prog=f"lrfslam {spec.name}", description=spec.summary)
     add_common_arguments(parser)
     parser.add_argument("--replay", nargs="+", metavar="IN",
                         help="run on a recording instead of the bus: an MCAP file, a recording folder, or "
                              "several files (one stream)")
     parser.add_argument("--out", metavar="OUT.mcap", help="with --replay: write the outputs here")
+    parser.add_argument("--health-file", metavar="FILE",
+                        help="also write the service's health to FILE every health period, for a container "
+                             "healthcheck: lrfslam status --check-file FILE")
     for flag, name, help_text in spec.flags:
         parser.add_argument(flag, dest=name, help=f"{help_text} (same as --set {name}=...)")
+    return parser
+
+
+def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[str] | None = None) -> int:
+    """``lrfslam <service>``; ``tables``: the config-file tables there may be (others are errors)."""
+    parser = service_parser(spec)
     args = parser.parse_args(argv)
     setup_logging(spec.name, args.log_level)
     try:
@@ -208,6 +219,15 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             counts["health"] += 1   # numbered from 1 like every stream
             st = status()
             bus.put(health_topic, health_topic.codec.encode(st), st.wall_stamp_ns, counts["health"])
+            if bus_cfg.health_file:
+                connected = any(True for _ in session.info.routers_zid()) or any(True for _ in session.info.peers_zid())
+                try:
+                    health_file.write(bus_cfg.health_file, health_file.HealthRecord(
+                        spec.name, robot, st.level, st.message, st.wall_stamp_ns, bus_cfg.health_period_s,
+                        connected, st.pid))
+                except OSError as exc:
+                    counts["error.health_file"] += 1
+                    once.warning("error.health_file", str(exc.errno), "cannot write the health file: %s", exc)
 
         def handle(msg) -> None:
             last_data[0] = max(last_data[0], int(msg.stamp_ns))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 
 import zenoh
 
@@ -12,6 +13,7 @@ from lrfslam import services
 from lrfslam.errors import DecodeError
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime import health_file
 
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
 
@@ -106,7 +108,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--check", action="store_true",
                         help="exit 0 if the router answers and every --service is alive and not in ERROR, "
                              "else 1 (for container healthchecks; without --service: the router only)")
+    parser.add_argument("--check-file", metavar="FILE",
+                        help="exit 0 if the service that writes FILE (its --health-file) is connected, its "
+                             "main loop turning and it is not in ERROR, else 1; asks no router (for container "
+                             "healthchecks)")
     args = parser.parse_args(argv)
+    if args.check_file:
+        problems = health_file.problems(args.check_file, time.time_ns())
+        print("; ".join(problems) if problems else f"ok: {args.check_file}")
+        return 1 if problems else 0
     zenoh.init_log_from_env_or("error")
     endpoints = args.connect or ["tcp/127.0.0.1:7447"]
     try:

@@ -1,0 +1,35 @@
+"""A live service's --health-file, read by `lrfslam status --check-file` as a container healthcheck would."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+
+from lrfslam.tools import status
+
+
+def check_until(path, want: int, says: str, timeout_s: float, capsys) -> None:
+    """Run the check until it exits ``want`` saying ``says``; fail with its last line after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        code = status.main(["--check-file", str(path)])
+        out = capsys.readouterr().out
+        if (code, says in out) == (want, True):
+            return
+        assert time.monotonic() < deadline, f"exit {code}: {out}"
+        time.sleep(0.2)
+
+
+def test_healthy_while_connected_then_not_once_the_router_is_gone(cluster, tmp_path, capsys):
+    path = tmp_path / "health.json"
+    cluster.procs["denoise"] = subprocess.Popen(
+        cluster.cmd("denoise", "--robot", cluster.robot, "--mode", "client", "--connect", cluster.endpoint,
+                    "--log-level", "WARNING", "--health-file", str(path)), cwd=tmp_path)
+    check_until(path, 0, "ok: ", 30, capsys)
+    # The router goes; the service keeps running and retrying, and says it is cut off.
+    cluster.stop("router")
+    check_until(path, 1, "no router or peer connected", 30, capsys)
+    # The process goes: within ten health periods its file is too old.
+    cluster.procs["denoise"].kill()
+    cluster.procs["denoise"].wait()
+    check_until(path, 1, "main loop stuck or process gone", 15, capsys)
