@@ -48,7 +48,7 @@ class MapperStep(StepBase):
     def __init__(self, cfg: MapperConfig, ctx: RunContext) -> None:
         super().__init__()
         self.cfg = cfg
-        self.mapper = LoopClosingMapper(cfg.loop_closure)
+        self.mapper = LoopClosingMapper(cfg.loop_closure, keep_scans=False)
         # A slam state waits for its scan as features do in the slam stage (no odometry here).
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=cfg.max_waiting_states, scans_optional=False))
@@ -71,7 +71,7 @@ class MapperStep(StepBase):
     def finish(self):
         outs = [out for a in self.align.ready(final=True) for out in self._place(a.features, a.scan_xy_m)]
         if self.mapper.keyframe_count:
-            self.mapper.trajectory()   # solves for every closure still pending
+            self.mapper.solve()   # every closure still pending
             outs.append(self._keyframes(self._last_stamp))
         return outs
 

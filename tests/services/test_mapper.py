@@ -8,6 +8,7 @@ import pytest
 from lrfslam.services import build_step
 
 from lrfslam.algo.geometry import compose, relative
+from lrfslam.algo.loop_closure import LoopClosingMapper
 from lrfslam.errors import ConfigError
 from lrfslam.evaluation.map_trajectory import final_poses
 from lrfslam.msgs import topics
@@ -51,6 +52,8 @@ def drifting_loop(n: int, with_motion: bool = True):
 def mapped():
     frames = drifting_loop(620)   # two laps of the 62 m loop
     step = build_step("mapper")
+    # The service's mapper keeps no per-scan history; this one does, for trajectory().
+    step.mapper = LoopClosingMapper(step.mapper.params)
     outs = []
     for scan, state, _ in frames:
         outs += step.on_message(msg(Output(topics.SCAN, scan)))
@@ -83,6 +86,15 @@ def test_the_last_keyframes_reproduce_the_mappers_final_trajectory(mapped):
     own_stamps, own = step.mapper.trajectory()
     np.testing.assert_array_equal(own_stamps, stamps)
     np.testing.assert_allclose(from_recording, own, atol=1e-9)
+    # The service's own mapper, which keeps no per-scan history, publishes the same messages.
+    service = build_step("mapper")
+    again = [o for scan, state, _ in frames for o in (service.on_message(msg(Output(topics.SCAN, scan)))
+                                                      + service.on_message(msg(Output(topics.SLAM_STATE, state))))]
+    again += service.finish()
+    assert [(o.topic, o.topic.codec.encode(o.value)) for o in again] == \
+        [(o.topic, o.topic.codec.encode(o.value)) for o in outs]
+    with pytest.raises(ConfigError):
+        service.mapper.trajectory()
     # And it is better than the drifting input, against the truth.
     truth = np.array([f.true_pose for _, _, f in frames])
     drift = np.hypot(*(np.array([s.pose for _, s, _ in frames])[:, :2] - truth[:, :2]).T)

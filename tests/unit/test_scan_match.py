@@ -146,7 +146,8 @@ def test_the_tracker_beats_its_noisy_odometry_and_is_deterministic():
     assert sum(m for _, _, m in first) >= 290
     # Along a corridor the scans leave the motion to odometry, so its scale error still shows.
     assert max(err_sm) < 0.2 * max(err_odo) and max(err_sm) < 0.2, (max(err_sm), max(err_odo))
-    assert 5 <= len(tracker.keyframes) < 100
+    # Without a map search only the recent keyframes are kept (memory of a long run); more were made.
+    assert len(tracker.keyframes) == P.recent_keyframes and tracker._dropped >= 5
 
 
 def test_the_tracker_falls_back_to_odometry_and_skip_moves_its_pose():

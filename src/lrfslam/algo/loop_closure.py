@@ -280,6 +280,8 @@ class _Keyframe:
     points_xy_m: np.ndarray  # (N, 2) its scan, robot frame, thinned
     travel_m: float  # local trajectory length from the first keyframe (m)
     local_edge: bool  # the odometry edge into it is the local motion (no jump)
+    scan_index: int  # the scan that made it, in the order fed
+    stamp_ns: int  # that scan's stamp
 
 
 class LoopClosingMapper:
@@ -288,13 +290,20 @@ class LoopClosingMapper:
     Parameters
     ----------
     params : LoopClosureParams
+    keep_scans : bool
+        Keep every scan's place (its keyframe and local pose relative to it, ~60 B a
+        scan) for :meth:`trajectory`. A long-running service does not: its published
+        local poses and keyframes give the same trajectory
+        (``lrfslam.evaluation.map_trajectory.final_poses``).
     """
 
-    def __init__(self, params: LoopClosureParams | None = None) -> None:
+    def __init__(self, params: LoopClosureParams | None = None, keep_scans: bool = True) -> None:
         self.params = params or LoopClosureParams()
         self.graph = PoseGraph(self.params.graph)
         self._keyframes: list[_Keyframe] = []
-        self._scan_kf: list[int] = []  # per scan fed: its keyframe
+        self._keep_scans = keep_scans
+        self._scans_fed = 0
+        self._scan_kf: list[int] = []  # per scan fed (keep_scans): its keyframe
         self._scan_rel: list[np.ndarray] = []  # per scan: local pose relative to that keyframe's
         self._stamps: list[int] = []
         self._loop_edges: list[int] = []
@@ -323,7 +332,7 @@ class LoopClosingMapper:
         Parameters
         ----------
         stamp_ns : int
-            The scan's stamp (ns); kept for :meth:`trajectory`.
+            The scan's stamp (ns): the keyframes' and :meth:`trajectory`'s.
         local_pose : array_like, shape (3,)
             The scan's pose on the local trajectory, ``(x_m, y_m, theta_rad)``.
         points_xy_m : array_like, shape (N, 2)
@@ -338,8 +347,9 @@ class LoopClosingMapper:
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             raise InputError("local_pose must be (3,) and finite")
         p = self.params
+        stamp_ns = int(stamp_ns)
         if not self._keyframes:
-            self._add_keyframe(pose, points_xy_m, None)
+            self._add_keyframe(pose, points_xy_m, None, stamp_ns)
         else:
             if self._reference is not None and reference_step is not None:
                 self._reference = compose(self._reference, np.asarray(reference_step, dtype=float))
@@ -349,21 +359,35 @@ class LoopClosingMapper:
             moved = relative(last.local_pose, pose)
             jumped = np.hypot(*(pose[:2] - self._last_local_pose[:2])) > p.max_scan_step_m
             if jumped or np.hypot(moved[0], moved[1]) >= p.keyframe_trans_m or abs(moved[2]) >= p.keyframe_rot_rad:
-                self._add_keyframe(pose, points_xy_m, moved)
+                self._add_keyframe(pose, points_xy_m, moved, stamp_ns)
                 self._reference = np.zeros(3)
                 self._close_loops()
         self._last_local_pose = pose
         k = len(self._keyframes) - 1
         rel = relative(self._keyframes[k].local_pose, pose)
-        self._scan_kf.append(k)
-        self._scan_rel.append(rel)
-        self._stamps.append(int(stamp_ns))
+        self._scans_fed += 1
+        if self._keep_scans:
+            self._scan_kf.append(k)
+            self._scan_rel.append(rel)
+            self._stamps.append(stamp_ns)
         return compose(self.graph.poses[k], rel)
 
-    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """Stamps (ns, (T,)) and poses ((T, 3)) of every scan fed, from the graph with every closure solved for."""
+    def solve(self) -> None:
+        """Optimise the graph for every closure not solved for yet (the keyframe poses are then final)."""
         if self._pending:
             self._optimise()
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stamps (ns, (T,)) and poses ((T, 3)) of every scan fed, from the graph with every closure solved for.
+
+        Raises
+        ------
+        ConfigError
+            The mapper was made with ``keep_scans=False``.
+        """
+        if not self._keep_scans:
+            raise ConfigError("this mapper keeps no per-scan history (keep_scans=False)")
+        self.solve()
         poses = place_scans(np.array(self._scan_kf, dtype=np.int64), np.array(self._scan_rel, dtype=float),
                             self.graph.poses, self.keyframe_local_poses(), self.keyframe_scans(),
                             self.keyframe_local_edges(), self.params.interpolate)
@@ -388,14 +412,11 @@ class LoopClosingMapper:
 
     def keyframe_scans(self) -> np.ndarray:
         """Index (in the order fed) of the scan that made each keyframe, (K,)."""
-        kf = np.array(self._scan_kf, dtype=np.int64)
-        return np.searchsorted(kf, np.arange(len(self._keyframes)))
+        return np.array([k.scan_index for k in self._keyframes], dtype=np.int64)
 
     def keyframe_stamped_local_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """Stamps (ns, (K,)) of the scans that made the keyframes, and their local poses (K, 3)."""
-        stamps = np.array(self._stamps, dtype=np.int64)[self.keyframe_scans()] if self._keyframes \
-            else np.zeros(0, np.int64)
-        return stamps, self.keyframe_local_poses()
+        return np.array([k.stamp_ns for k in self._keyframes], dtype=np.int64), self.keyframe_local_poses()
 
     def closures(self) -> list[tuple[int, int, np.ndarray]]:
         """The closures in the graph: (old keyframe, new keyframe, pose of the new in the old's frame (3,))."""
@@ -404,7 +425,7 @@ class LoopClosingMapper:
 
     # -- keyframes and odometry edges -----------------------------------------------------------
 
-    def _add_keyframe(self, local_pose: np.ndarray, points_xy_m, moved: np.ndarray | None) -> None:
+    def _add_keyframe(self, local_pose: np.ndarray, points_xy_m, moved: np.ndarray | None, stamp_ns: int) -> None:
         p = self.params
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
@@ -412,7 +433,7 @@ class LoopClosingMapper:
         pts = _thin(pts, p.keyframe_cell_m)
         if moved is None:
             self.graph.add_node(local_pose)
-            self._keyframes.append(_Keyframe(local_pose.copy(), pts, 0.0, True))
+            self._keyframes.append(_Keyframe(local_pose.copy(), pts, 0.0, True, self._scans_fed, stamp_ns))
             return
         prev = len(self._keyframes) - 1
         dist = float(np.hypot(moved[0], moved[1]))
@@ -424,7 +445,7 @@ class LoopClosingMapper:
         node = self.graph.add_node(compose(self.graph.poses[prev], step))
         self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
         self._keyframes.append(_Keyframe(local_pose.copy(), pts, self._keyframes[-1].travel_m + dist,
-                                         step is moved))
+                                         step is moved, self._scans_fed, stamp_ns))
 
     def _step_or_jump(self, moved: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """``moved`` (3,), or ``reference`` (3,) where the two differ by more than ``ekf_jump_*``."""

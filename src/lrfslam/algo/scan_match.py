@@ -178,7 +178,9 @@ class ScanMatchParams:
     map_cell_m : float
         The keyframes' points are merged to one point per square of this side (m).
     max_keyframes : int
-        Keyframes kept; the oldest is forgotten beyond (memory bound of a long run).
+        Keyframes kept for the map search (``map_radius_m`` > 0); the oldest is forgotten
+        beyond (memory bound of a long run). Without a map search only the recent
+        ``recent_keyframes`` are kept.
     drift_trans_sigma_per_m, drift_rot_sigma_per_m : float
         :class:`ScanTracker` adds a random walk of this much position (m) and
         heading (rad) error per metre travelled to every matched increment's
@@ -667,7 +669,11 @@ class ScanTracker:
         c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
         self.keyframes.append(_Keyframe(self.pose.copy(), pts @ np.array([[c, s], [-s, c]]) + self.pose[:2],
                                         self.chain_cov.copy()))
-        if len(self.keyframes) > self.params.max_keyframes:
+        p = self.params
+        # Only a map search (map_radius_m) looks past the recent keyframes; without one, keeping
+        # the rest would only grow the process by a keyframe's points per 0.3 m travelled.
+        keep = p.max_keyframes if p.map_radius_m > 0 and p.map_max_keyframes > 0 else p.recent_keyframes
+        while len(self.keyframes) > keep:
             del self.keyframes[0]
             self._dropped += 1
 

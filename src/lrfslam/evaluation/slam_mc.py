@@ -50,6 +50,7 @@ from scipy.stats import chi2
 
 from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
 from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
+from lrfslam.evaluation.map_trajectory import final_poses
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.chain import Chain, Stage
@@ -283,16 +284,32 @@ class _Pipeline:
         stages = [cfg.stage("denoise"), cfg.stage("features"), Stage(slam.spec, replace(slam.config, ekf=params))]
         self.chain = Chain(stages + ([cfg.stage("mapper")] if cfg.mapper else []), robot="slam_mc", wire=False)
         self.map_online: list[np.ndarray] = []
+        self.map_local: list[tuple[int, np.ndarray]] = []   # (stamp ns, local pose (3,)) per map/pose
+        self.map_keyframes: t.MapKeyframes | None = None    # the last one
         self.slam = self.chain.step("slam").slam
         self.slam.start_at(pose0)
         self.lidar = sim.config.lidar
         self.scan_time_s = 1.0 / sim.config.rate_hz
 
+    def _take_map(self, outs: list[Message]) -> None:
+        for m in outs:
+            if m.topic is topics.MAP_POSE:
+                self.map_online.append(m.value.pose)
+                self.map_local.append((m.value.stamp_ns, m.value.local_pose))
+            elif m.topic is topics.MAP_KEYFRAMES:
+                self.map_keyframes = m.value
+
     def map_trajectories(self) -> tuple[np.ndarray, np.ndarray]:
-        """The mapper's online poses (T, 3) and its final trajectory (T, 3); empty without a mapper."""
-        if not any(st.spec.name == "mapper" for st in self.chain.stages):
+        """The mapper's online poses (T, 3) and its final trajectory (T, 3); empty without a mapper.
+
+        Ends the run: the stages' final outputs are taken first. The final trajectory is
+        rebuilt from the published messages, as ``lrfslam eval`` does from a recording.
+        """
+        self._take_map([it.msg for it in self.chain.finish_items()])
+        if self.map_keyframes is None:
             return np.zeros((0, 3)), np.zeros((0, 3))
-        _, final = self.chain.step("mapper").mapper.trajectory()
+        stamps, local = zip(*self.map_local, strict=True)
+        final = final_poses(np.array(stamps, dtype=np.int64), np.array(local), self.map_keyframes)
         return np.array(self.map_online).reshape(-1, 3), final
 
     def step(self, frame: SimFrame):
@@ -304,7 +321,7 @@ class _Pipeline:
         outs = self.chain.push(Message.of(Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose))))
         outs += self.chain.push(Message.of(Output(topics.SCAN, scan)))
         (state,) = (m.value for m in outs if m.topic is topics.SLAM_STATE)
-        self.map_online += [m.value.pose for m in outs if m.topic is topics.MAP_POSE]
+        self._take_map(outs)
         last = self.slam.last_update
         return state.pose, state.pose_cov, last.xy_m, last.cov_m2, last.report
 
