@@ -55,22 +55,6 @@ def start_up(cwd: Path, port: int, robot: str, *extra: str, seed: int = SEED, sc
         cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def children_of(pid: int) -> dict[str, int]:
-    """``{command: pid}`` of the lrfslam processes ``pid`` started (up's router and services)."""
-    found = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"lrfslam.cli" in argv:
-            found[argv[argv.index(b"lrfslam.cli") + 1].decode()] = int(entry.name)
-    return found
-
-
 @dataclass
 class Run:
     stdout: str
@@ -118,7 +102,8 @@ def baseline(tmp_path_factory) -> Run:
     return run
 
 
-def killed_run(cwd: Path, stage: str) -> Run:
+def killed_run(cwd: Path, stage: str, children_of) -> Run:
+    """``children_of``: benchmarks/soak.py's, ``{command: pid}`` of what ``up`` started."""
     port = free_port()
     up = start_up(cwd, port, "rk")
     try:
@@ -169,8 +154,8 @@ STAGES = ("router", "sensor", "denoise", "features", "slam", "mapper", "recorder
 
 
 @pytest.mark.parametrize("stage", STAGES)
-def test_a_killed_stage_is_restarted_and_the_run_holds(stage, baseline, tmp_path):
-    run = killed_run(tmp_path, stage)
+def test_a_killed_stage_is_restarted_and_the_run_holds(stage, baseline, tmp_path, soak_module):
+    run = killed_run(tmp_path, stage, soak_module.children_of)
     back_s = run.back_after_s(stage)
     assert run.restarts(stage) == 1, run.stdout
     assert len(run.scan_seqs) == len(set(run.scan_seqs)), "a scan recorded twice"
