@@ -5,7 +5,11 @@ out: recordings/<name>/<name>_<n>.mcap, name <UTC YYYYmmdd-HHMMSS>_<robot> by de
      chunks, flushed every second, finished on SIGTERM
 
 Payloads are stored as received, never re-encoded, with each channel's schema
-(name with version, protobuf FileDescriptorSet) embedded. Each start of the
+(name with version, protobuf FileDescriptorSet) embedded. Beside them (``foxglove = true``,
+the default) go Foxglove's views of them, ``/foxglove/...`` channels of Foxglove's
+well-known schemas at the same log times (lrfslam/viz/foxglove.py), so the recording
+opens in Foxglove or Lichtblick as a map. A payload the views cannot decode is counted
+(``foxglove.undecodable``) and recorded all the same: the views never stop the raw recording. Each start of the
 recorder opens the next free segment number of its folder (never an existing
 file), so a recorder restarted after a crash continues the recording; a segment
 is also closed and the next one opened by size or age (rosbag2's split).
@@ -23,12 +27,13 @@ import logging
 import time
 from dataclasses import dataclass
 
-from lrfslam.errors import ConfigError, RecordingError
+from lrfslam.errors import ConfigError, InputError, RecordingError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.recording import SegmentedWriter
 from lrfslam.runtime.step import Message, RunContext, ServiceSpec, StepBase
+from lrfslam.viz.foxglove import FoxgloveViews, schema_sets
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +48,7 @@ class RecorderConfig:
     max_segment_s: float = 0.0      # start the next segment at this age (s); 0: no limit
     retry_period_s: float = 10.0    # after a write error (full disk), try a new segment this often
     include_health: bool = True     # also record health/<service>
+    foxglove: bool = True           # also write Foxglove's views (/foxglove/... channels; docs/monitoring.md)
 
     def __post_init__(self) -> None:
         if min(self.flush_period_s, self.max_segment_mb, self.max_segment_s, self.retry_period_s) < 0:
@@ -54,10 +60,12 @@ class RecorderStep(StepBase):
         super().__init__()
         self.cfg = cfg
         name = cfg.name or time.strftime("%Y%m%d-%H%M%S", time.gmtime()) + f"_{ctx.robot}"
+        self.views = FoxgloveViews() if cfg.foxglove else None
         self.writer = SegmentedWriter(f"{cfg.directory}/{name}", name,
                                       metadata={"lrfslam": {"robot": ctx.robot, "recording": name}},
                                       chunk_size_bytes=cfg.chunk_size_kb * 1024,
-                                      max_bytes=int(cfg.max_segment_mb * 1e6), max_duration_s=cfg.max_segment_s)
+                                      max_bytes=int(cfg.max_segment_mb * 1e6), max_duration_s=cfg.max_segment_s,
+                                      extra_schemas=schema_sets() if self.views else None)
         self.folder = self.writer.folder
         self._next_flush = time.monotonic() + cfg.flush_period_s
         self._once = LogOnce(log)
@@ -80,15 +88,40 @@ class RecorderStep(StepBase):
             self.counts["drop.unwritable"] += 1
             return ()
         stamp = msg.stamp_ns or time.time_ns()
+        received = time.time_ns()
         try:
-            self.writer.write(msg.name, msg.schema, msg.value, stamp, time.time_ns(), msg.seq)
+            self.writer.write(msg.name, msg.schema, msg.value, stamp, received, msg.seq)
         except RecordingError as exc:
             self._failed("write", exc)
             self.counts["drop.unwritable"] += 1
             return ()
         self.counts["messages"] += 1
         self.counts[f"topic.{msg.name}"] += 1
+        if self.views is not None:
+            self._write_views(msg, stamp, received)
         return ()
+
+    def _write_views(self, msg: Message, stamp: int, received: int) -> None:
+        try:
+            views = self.views.from_payload(msg.name, msg.schema, msg.value, stamp)
+        except InputError as exc:
+            self.counts["foxglove.undecodable"] += 1
+            self._once.warning("foxglove", f"{msg.name}:{msg.schema}", "no Foxglove view of a message on %s: %s "
+                               "(it is recorded as received)", msg.name, exc)
+            return
+        except Exception:  # a bug in a view must not cost the raw recording
+            self.counts["foxglove.failed"] += 1
+            if self.counts["foxglove.failed"] == 1:
+                log.exception("a Foxglove view of a message on %s failed (it is recorded as received; "
+                              "further failures are only counted)", msg.name)
+            return
+        for view in views:
+            try:
+                self.writer.write(view.topic, view.schema, view.encode(), view.log_time_ns, received)
+            except RecordingError as exc:
+                self._failed("write", exc)
+                return
+            self.counts["foxglove.messages"] += 1
 
     def tick(self) -> None:
         now = time.monotonic()
@@ -117,7 +150,10 @@ class RecorderStep(StepBase):
         if self._blocked_until is not None:
             return t.HEALTH_ERROR, f"cannot write to {self.folder}"
         current = self.writer.current
-        return t.HEALTH_OK, f"recording {current.path if current else self.folder}"
+        where = f"recording {current.path if current else self.folder}"
+        if self.counts["foxglove.failed"]:
+            return t.HEALTH_WARN, f"{where}; {self.counts['foxglove.failed']} Foxglove views failed"
+        return t.HEALTH_OK, where
 
     def close(self) -> None:
         current = self.writer.current

@@ -9,6 +9,8 @@
     lrfslam pipeline --replay IN.mcap --out OUT.mcap [--stages denoise,features,slam]
     lrfslam eval features|slam|relations ...
     lrfslam import carmen LOG -o FILE.mcap
+    lrfslam export RECORDING [-o DIR | --foxglove OUT.mcap]   map.json/map.png, or a copy for Foxglove
+    lrfslam monitor --connect tcp/HOST:7447 [--port 8765]     live Foxglove WebSocket server
     lrfslam emulate-lms200             an LMS200 on a pseudo-terminal
 
 Exit codes: 0 done; 1 the command ran and reports a problem (``status``: a service
@@ -39,7 +41,9 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "eval": ("lrfslam.tools.evaluate", "main", "accuracy evaluations (features, slam, relations)"),
     "import": ("lrfslam.tools.importers", "main", "convert a log (CARMEN) into a recording"),
     "emulate-lms200": ("lrfslam.drivers.lms200.emulator", "main", "emulate an LMS200 on a pseudo-terminal"),
-    "export": ("lrfslam.tools.export", "main", "export the map and trajectory of a recording (JSON, PNG)"),
+    "export": ("lrfslam.tools.export", "main",
+               "export the map and trajectory of a recording (JSON, PNG), or a copy for Foxglove"),
+    "monitor": ("lrfslam.tools.monitor", "main", "serve a robot's live streams to Foxglove (WebSocket)"),
 }
 
 #: Commands that run to an end and write files (and any service with ``--replay``): SIGTERM

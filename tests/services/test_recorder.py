@@ -29,7 +29,7 @@ def test_records_payloads_as_received(tmp_path):
     for i in range(20):
         step.on_message(raw(i))
     step.close()
-    got = list(read_recording(tmp_path / "r"))
+    got = list(read_recording(tmp_path / "r", ["scan"]))   # beside them: Foxglove's views (test_recorder_foxglove.py)
     assert [codec.LASER_SCAN.decode(m.data).seq for m in got] == list(range(20))
     assert {m.schema for m in got} == {topics.SCAN.schema}
     assert [p.name for p in (tmp_path / "r").iterdir()] == ["r_0.mcap"]
@@ -48,8 +48,8 @@ def test_each_start_adds_a_segment_and_never_overwrites(tmp_path):
         second.on_message(raw(i))
     second.close()
     assert (tmp_path / "r" / "r_0.mcap").read_bytes() == before
-    assert [m.sequence for m in read_recording(tmp_path / "r")] == list(range(15))
-    assert [m.sequence for m in read_recording(tmp_path / "r" / "r_1.mcap")] == list(range(10, 15))
+    assert [m.sequence for m in read_recording(tmp_path / "r", ["scan"])] == list(range(15))
+    assert [m.sequence for m in read_recording(tmp_path / "r" / "r_1.mcap", ["scan"])] == list(range(10, 15))
 
 
 FULL_DISK = """
@@ -89,7 +89,7 @@ def test_a_full_disk_is_one_error_a_valid_segment_and_not_fatal(tmp_path):
     assert out["health"][0] == t.HEALTH_OK and out["health"][-1] == t.HEALTH_ERROR
     (segment,) = map(Path, out["segments"])
     with open(segment, "rb") as f:   # valid for the mcap library's default reader
-        seqs = [m.sequence for _, _, m in make_reader(f).iter_messages()]
+        seqs = [m.sequence for _, _, m in make_reader(f).iter_messages(topics=["scan"])]
     # Everything up to the last complete chunk, in order; at most the chunk that failed is missing.
     assert seqs == list(range(len(seqs))) and c["messages"] - len(seqs) < 20
 
@@ -98,5 +98,5 @@ def test_after_a_write_error_it_retries_in_a_new_segment(tmp_path):
     out, stderr = run_full(tmp_path, limit=50_000, retry=0.0)
     # Each segment fills to the (per-file) limit, then the next one is opened; one error line for all.
     assert len(out["segments"]) >= 3 and stderr.count("recording stopped") == 1
-    seqs = [m.sequence for m in read_recording(tmp_path / "r")]
+    seqs = [m.sequence for m in read_recording(tmp_path / "r", ["scan"])]
     assert seqs == sorted(set(seqs)) and len(seqs) > 200

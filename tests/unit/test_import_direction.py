@@ -26,9 +26,10 @@ MAY_IMPORT: dict[str, set[str]] = {
     "sim": BASE | {"algo"},
     "drivers": BASE | {"sim", "algo"},
     "runtime": BASE | {"msgs", "extras"},
-    "services": BASE | {"runtime", "msgs", "algo", "sim", "drivers", "io", "extras"},
+    "viz": BASE | {"msgs", "algo"},
+    "services": BASE | {"runtime", "viz", "msgs", "algo", "sim", "drivers", "io", "extras"},
     "evaluation": BASE | {"services", "runtime", "msgs", "algo", "sim", "io", "extras"},
-    "tools": BASE | {"evaluation", "services", "runtime", "msgs", "algo", "sim", "drivers", "io", "extras"},
+    "tools": BASE | {"evaluation", "services", "runtime", "viz", "msgs", "algo", "sim", "drivers", "io", "extras"},
     "cli": BASE | {"services", "runtime", "tools"},
 }
 

@@ -56,3 +56,27 @@ def test_checker_catches_a_violation(tmp_path):
     bad = ast.parse("import zenoh\nfrom time import monotonic\nprint(1)\n")
     names = imported_modules(bad)
     assert [n for n in names if n.split(".")[0] not in ALLOWED_ROOTS] == ["zenoh", "time"]
+
+
+#: The views for viewers (lrfslam/viz) are pure too: lrfslam messages in, foxglove-sdk's message
+#: objects out (``foxglove.messages`` only: never its server, channels or files).
+VIEWS = sorted(SRC.glob("viz/*.py"))
+
+
+@pytest.mark.parametrize("path", VIEWS, ids=lambda p: str(p.relative_to(SRC)))
+def test_views_import_no_transport_and_call_no_console(path):
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    for name in imported_modules(tree):
+        if name.split(".")[0] == "foxglove":
+            assert name == "foxglove.messages", f"{path.name} imports {name}"
+            continue
+        assert name.split(".")[0] in ALLOWED_ROOTS, f"{path.name} imports {name}"
+        if name.startswith("lrfslam"):
+            assert name.startswith((*ALLOWED_LRFSLAM_PREFIXES, "lrfslam.msgs", "lrfslam.viz")), \
+                f"{path.name} imports {name}"
+    calls = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
+    assert not calls & FORBIDDEN_CALLS, f"{path.name} calls {calls & FORBIDDEN_CALLS}"
+
+
+def test_the_views_are_checked():
+    assert SRC / "viz" / "foxglove.py" in VIEWS

@@ -100,6 +100,24 @@ def by_name(name: str) -> Topic:
     raise KeyError(name)
 
 
+#: MCAP topics (and WebSocket channels) of Foxglove's views of the topics above: Foxglove's
+#: well-known schemas made from the lrfslam messages (lrfslam/viz/foxglove.py, docs/monitoring.md).
+#: They never travel on Zenoh; the lrfslam channels stay the source of truth.
+FOXGLOVE_PREFIX = "/foxglove/"
+#: The view of the services' health: stamped, like it, by the wall clock.
+FOXGLOVE_LOG = FOXGLOVE_PREFIX + "log"
+
+
+def is_foxglove(name: str) -> bool:
+    """Whether MCAP topic ``name`` is one of Foxglove's views (derived, not a key of the robot)."""
+    return name.startswith(FOXGLOVE_PREFIX)
+
+
+def on_wall_clock(name: str) -> bool:
+    """Whether MCAP topic ``name`` is stamped by the wall clock (health and its view), not by the data."""
+    return is_health(name) or name == FOXGLOVE_LOG
+
+
 def check_robot(robot: str) -> str:
     """Return ``robot`` if it is a single key chunk, else raise ConfigError."""
     if not _ROBOT_RE.match(robot or ""):

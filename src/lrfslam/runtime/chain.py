@@ -30,6 +30,7 @@ from typing import Any, Self
 from tqdm import tqdm
 
 from lrfslam.errors import InputError
+from lrfslam.msgs import topics
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
 from lrfslam.runtime.decoding import LogOnce, decode_message
@@ -242,7 +243,9 @@ def replay_recording(stages: Iterable[Stage], robot: str, in_path: RecordingSour
     """Run ``stages`` over the recording ``in_path`` (file, folder or files), in log-time order; write ``out_path``.
 
     Input messages on a topic one of the stages produces are dropped (that
-    stage's outputs replace them, and they are not fed to later stages). With
+    stage's outputs replace them, and they are not fed to later stages), and so
+    are Foxglove's views (``/foxglove/...``, made from the inputs: ``lrfslam export
+    --foxglove`` makes new ones). With
     ``copy_inputs`` the other input messages are written too, as recorded.
     Deterministic: nothing reads the clock and the output carries no wall-clock
     metadata, so two runs give the same bytes. ``out_path`` appears only when the
@@ -296,7 +299,7 @@ def _replay(stages: Iterable[Stage], robot: str, in_path: RecordingSource, out_p
         records = read_recording(in_path, None if everything else list(consumed), report)
         for rec in tqdm(records, desc=name, unit=" msgs", disable=not progress, file=sys.stderr):
             read["read"] += 1
-            if rec.topic in produced:
+            if rec.topic in produced or topics.is_foxglove(rec.topic):
                 read["dropped"] += 1
                 continue
             topic = consumed.get(rec.topic)

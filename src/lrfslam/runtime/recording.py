@@ -28,7 +28,7 @@ import struct
 import tempfile
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Self
@@ -171,13 +171,17 @@ class RecordingWriter:
         Chunk size; a chunk is also closed by :meth:`flush`.
     overwrite : bool
         False: refuse (``FileExistsError``) if ``path`` exists — the recorder's way.
+    extra_schemas : mapping of str to bytes
+        Protobuf FileDescriptorSets of schemas that are not lrfslam's, by full name (Foxglove's,
+        lrfslam/viz/foxglove.py), embedded like lrfslam's when a channel names one.
 
     A write error (``OSError``, e.g. a full disk) ends the file at its last
     complete record (valid, unindexed), closes it and raises :class:`RecordingError`.
     """
 
     def __init__(self, path: str | Path, metadata: dict[str, dict[str, str]] | None = None,
-                 chunk_size_bytes: int = 256 * 1024, overwrite: bool = True) -> None:
+                 chunk_size_bytes: int = 256 * 1024, overwrite: bool = True,
+                 extra_schemas: Mapping[str, bytes] | None = None) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = _OutFile(self.path, overwrite)
@@ -187,6 +191,7 @@ class RecordingWriter:
         self.messages_flushed = 0
         self._writer = Writer(self._file, chunk_size=chunk_size_bytes, compression=CompressionType.ZSTD)
         self._protos = _known_protos()
+        self._extra_schemas = dict(extra_schemas or {})
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str], int] = {}
         with self._on_error("start"):
@@ -217,12 +222,15 @@ class RecordingWriter:
     def _schema_id(self, schema: str) -> int:
         if schema not in self._schemas:
             proto = self._protos.get(schema)
-            if proto is None:
+            if proto is not None:
+                fds = build_file_descriptor_set(proto).SerializeToString()
+            elif schema in self._extra_schemas:
+                fds = self._extra_schemas[schema]
+            else:
                 # Unknown (newer) schema: keep the bytes, schema-less, rather than lose data.
                 self._schemas[schema] = 0
-            else:
-                fds = build_file_descriptor_set(proto).SerializeToString()
-                self._schemas[schema] = self._writer.register_schema(schema, "protobuf", fds)
+                return 0
+            self._schemas[schema] = self._writer.register_schema(schema, "protobuf", fds)
         return self._schemas[schema]
 
     def write(self, topic: str, schema: str, data: bytes, log_time_ns: int,
@@ -309,11 +317,14 @@ class SegmentedWriter:
         Start a new segment once this one is this old by ``clock``; 0: no limit.
     clock : callable
         Seconds (monotonic) for ``max_duration_s``.
+    extra_schemas : mapping of str to bytes
+        See :class:`RecordingWriter`.
     """
 
     def __init__(self, folder: str | Path, name: str, metadata: dict[str, dict[str, str]] | None = None,
                  chunk_size_bytes: int = 256 * 1024, max_bytes: int = 0, max_duration_s: float = 0.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, extra_schemas: Mapping[str, bytes] | None = None
+                 ) -> None:
         self.folder = Path(folder)
         self.name = name
         self._metadata = metadata or {}
@@ -321,6 +332,7 @@ class SegmentedWriter:
         self._max_bytes = max_bytes
         self._max_duration_s = max_duration_s
         self._clock = clock
+        self._extra_schemas = dict(extra_schemas or {})
         #: Segments this writer opened, in order.
         self.segments: list[Path] = []
         self.messages_written = 0
@@ -359,7 +371,7 @@ class SegmentedWriter:
             meta = {k: dict(v) for k, v in self._metadata.items()}
             meta.setdefault("lrfslam", {})["segment"] = str(index)
             try:
-                writer = RecordingWriter(path, meta, self._chunk, overwrite=False)
+                writer = RecordingWriter(path, meta, self._chunk, overwrite=False, extra_schemas=self._extra_schemas)
             except FileExistsError:
                 index += 1  # another writer took it between the listing and the open
                 continue

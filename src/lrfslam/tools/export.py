@@ -139,7 +139,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="recording (or --replay output) with slam/state: a file, a folder or several files")
     parser.add_argument("-o", "--out-dir", type=Path, default=Path("."), help="folder for map.json and map.png")
     parser.add_argument("--no-png", action="store_true", help="write map.json only (no plotting extra needed)")
+    parser.add_argument("--foxglove", type=Path, metavar="OUT.mcap",
+                        help="instead: copy the recording to OUT.mcap with Foxglove's views added, to open it in "
+                             "Foxglove as a map (docs/monitoring.md)")
     args = parser.parse_args(argv)
+    if args.foxglove:
+        from lrfslam.tools import foxglove_export
+        return foxglove_export.main(args.recording, args.foxglove)
     data = collect(args.recording)
     if data["undecodable"]:
         print(f"lrfslam export: skipped {data['undecodable']} undecodable messages", file=sys.stderr)

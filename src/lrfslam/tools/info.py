@@ -10,7 +10,7 @@ times (MCAP publish time: wall time of the run); *data time* is the span of the
 data stamps (MCAP log time), which run faster than wall time under a simulator
 speedup. A topic's rate is its messages per second between its first and last
 one: data topics' on the data stamps, health topics' (stamped with each
-service's wall clock) on the receive clock.
+service's wall clock) and their Foxglove log on the receive clock.
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ def describe(source: RecordingSource) -> str:
     if not stats:
         return "\n".join([*lines, "no messages"])
     duration = span(stats.values(), 3)
-    data = [s for (topic, _), s in stats.items() if not topics.is_health(topic)]
+    data = [s for (topic, _), s in stats.items() if not topics.on_wall_clock(topic)]
     data_time = span(data, 1) if data else 0.0
     ratio = f"; {data_time / duration:.2f} × the duration" if data and duration > 0 else ""
     lines += [f"duration:  {duration:.2f} s (receive clock: first to last message received)",
@@ -121,7 +121,7 @@ def describe(source: RecordingSource) -> str:
     width = max(len(t) for t, _ in stats)
     lines.append(f"{'topic'.ljust(width)}  {'count':>7}  {'rate_hz':>8}  {'clock':<7}  schema")
     for (topic, schema), s in sorted(stats.items()):
-        clock, seconds = ("receive", span([s], 3)) if topics.is_health(topic) else ("data", span([s], 1))
+        clock, seconds = ("receive", span([s], 3)) if topics.on_wall_clock(topic) else ("data", span([s], 1))
         rate = (s[0] - 1) / seconds if seconds > 0 else 0.0
         lines.append(f"{topic.ljust(width)}  {s[0]:>7}  {rate:>8.2f}  {clock:<7}  {schema or '<none>'}")
     return "\n".join(lines)

@@ -316,11 +316,11 @@ def check_configs(sets: dict[str, list[str]], config: str | None) -> dict:
 
 
 def remove_if_empty(recording: Path) -> None:
-    """Delete the run's recording folder if it holds no data (only health), as after a failed start."""
+    """Delete the run's recording folder if it holds no data (only health and its views), as after a failed start."""
     if not recording.is_dir():
         return
     try:
-        empty = all(topics.is_health(m.topic) for m in read_recording(recording))
+        empty = all(topics.is_health(m.topic) or topics.is_foxglove(m.topic) for m in read_recording(recording))
     except LrfSlamError:
         empty = True
     if empty:
@@ -630,5 +630,6 @@ def recording_lines(recording: Path, published_scans: int) -> list[str]:
     return [lost(per_topic[topics.SCAN.name]),
             f"recording: {recording}/ ({len(report.segments)} segment{'s' * (len(report.segments) > 1)}, "
             f"{size / 1e6:.1f} MB, {sum(per_topic.values())} messages: "
-            + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items()) if not topics.is_health(k)) + ")",
+            + ", ".join(f"{k} {v}" for k, v in sorted(per_topic.items())
+                        if not topics.is_health(k) and not topics.is_foxglove(k)) + ")",
             *segment_lines(report)]

@@ -1,0 +1,183 @@
+"""``lrfslam monitor``: a robot's live streams served to Foxglove over WebSocket.
+
+    lrfslam monitor --connect tcp/ROBOT:7447 [--robot R] [--port 8765] [--host 127.0.0.1]
+
+Joins the robot's Zenoh network as a client, subscribes to every key of the robot
+(``lrf/<robot>/**``), turns each message into Foxglove's views (lrfslam/viz/foxglove.py:
+the channels a recording holds) and serves them with foxglove-sdk's WebSocket server;
+Foxglove or Lichtblick open ``ws://HOST:PORT`` (docs/monitoring.md). The server sends
+the data stamps as its time, so the app's clock follows the robot's data. Read-only: the
+monitor publishes nothing on Zenoh, and its clients can only subscribe. The server has
+no authentication: keep ``--host`` on loopback unless the network is trusted.
+
+The monitor is one feed (the Zenoh subscription) handing every message to its sinks;
+the Foxglove server is one sink, and another view of the same stream (a dashboard of
+the services' health) would be another sink beside it.
+
+Exit codes: 0 stopped by SIGTERM or Ctrl-C; 2 the server or the Zenoh session could
+not start (one line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import threading
+import time
+from collections import Counter
+from collections.abc import Sequence
+from typing import Protocol
+
+import foxglove
+import zenoh
+from foxglove.websocket import Capability
+
+from lrfslam.errors import InputError, LrfSlamError, StartupError
+from lrfslam.msgs import topics
+from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
+from lrfslam.runtime.decoding import LogOnce
+from lrfslam.runtime.runner import (
+    install_signal_handlers,
+    setup_logging,
+    stopped_cleanly,
+)
+from lrfslam.runtime.step import Message
+from lrfslam.viz.foxglove import CHANNELS, FoxgloveViews, ViewConfig, schema_of
+
+log = logging.getLogger("lrfslam.monitor")
+
+DEFAULT_PORT = 8765
+
+#: Live, nothing is stored and a viewer wants the newest state: trajectories twice a second (up to
+#: ~44 kB/s each for a long one) and landmarks five times a second, where a recording takes 1 s and 0.5 s.
+LIVE_VIEWS = ViewConfig(path_period_s=0.5, path_poses_per_s=1000.0, landmark_period_s=0.2)
+
+
+class Sink(Protocol):
+    """A consumer of the monitored stream: gets every message as received, undecoded."""
+
+    def on_message(self, msg: Message) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class FoxgloveServer:
+    """Sink: Foxglove's views of every message, on a foxglove-sdk WebSocket server.
+
+    Every view channel is advertised from the start, so a client sees the whole list at
+    once; a message reaches only the clients subscribed to its channel.
+
+    Raises
+    ------
+    StartupError
+        The server cannot listen on ``host``:``port``.
+    """
+
+    def __init__(self, host: str, port: int, name: str, cfg: ViewConfig = LIVE_VIEWS) -> None:
+        self.context = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(name=name, host=host, port=port, capabilities=[Capability.Time],
+                                                context=self.context)
+        except RuntimeError as exc:
+            reason = str(exc).removeprefix("FoxgloveError: ")
+            hint = " (another monitor has it: pass another --port)" if "in use" in reason else ""
+            raise StartupError(f"cannot serve Foxglove on {host}:{port}: {reason}{hint}") from None
+        self.channels = {topic: foxglove.Channel(topic, schema=schema_of(cls), message_encoding="protobuf",
+                                                 context=self.context)
+                         for topic, cls in CHANNELS.items()}
+        self.views = FoxgloveViews(cfg)
+        self.counts: Counter = Counter()
+        self._once = LogOnce(log)
+        self._time_ns = 0
+
+    @property
+    def port(self) -> int:
+        return self.server.port
+
+    def on_message(self, msg: Message) -> None:
+        stamp = msg.stamp_ns or time.time_ns()
+        try:
+            views = self.views.from_payload(msg.name, msg.schema, msg.value, stamp)
+        except InputError as exc:
+            self.counts["undecodable"] += 1
+            self._once.warning("undecodable", f"{msg.name}:{msg.schema}", "no view of a message on %s: %s",
+                               msg.name, exc)
+            return
+        for view in views:
+            self.channels[view.topic].log(view.encode(), log_time=view.log_time_ns)
+            self.counts["views"] += 1
+        # The app's clock: the newest data stamp (a health status is stamped by the wall clock).
+        if views and not topics.is_health(msg.name) and stamp > self._time_ns:
+            self._time_ns = stamp
+            self.server.broadcast_time(stamp)
+
+    def close(self) -> None:
+        self.server.stop()
+
+
+class Monitor:
+    """The feed: the robot's keys over Zenoh, every message handed to each of ``sinks``."""
+
+    def __init__(self, bus_cfg: BusConfig, sinks: Sequence[Sink]) -> None:
+        self.bus_cfg = bus_cfg
+        self.sinks = list(sinks)
+        self.counts: Counter = Counter()
+
+    def run(self, stop: threading.Event) -> int:
+        """Until ``stop`` is set; waits for the router while it is unreachable."""
+        zenoh.init_log_from_env_or("error")
+        session = open_session(zenoh_config(self.bus_cfg), stop, self.bus_cfg.connect)
+        if session is None:
+            return 0
+        with session:
+            bus = ZenohBus(session, self.bus_cfg.robot, (), True, self.bus_cfg.queue_size, self.counts)
+            log.info("monitoring robot %s via %s", self.bus_cfg.robot, ",".join(self.bus_cfg.connect))
+            try:
+                while not stop.is_set():
+                    if (msg := bus.get(0.1)) is not None:
+                        for sink in self.sinks:
+                            sink.on_message(msg)
+            finally:
+                self.counts.update(bus.receive_counts())
+                bus.close()
+        return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="lrfslam monitor", description=__doc__.splitlines()[0])
+    p.add_argument("-e", "--connect", action="append", metavar="ENDPOINT",
+                   help="the robot's Zenoh router, e.g. tcp/robot:7447 (repeatable; default tcp/127.0.0.1:7447)")
+    p.add_argument("--robot", default=BusConfig.robot, help="robot namespace (keys lrf/<robot>/...)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address the WebSocket server listens on (0.0.0.0: every interface; no authentication)")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help="WebSocket port (0: any free one)")
+    p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config applied first (TLS, ...)")
+    p.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING, ERROR")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    setup_logging("monitor", args.log_level)
+    stop = threading.Event()
+    install_signal_handlers(stop)
+    try:
+        bus_cfg = BusConfig(robot=args.robot, mode="client", connect=tuple(args.connect or BusConfig.connect),
+                            zenoh_config=args.zenoh_config or "")
+        server = FoxgloveServer(args.host, args.port, f"lrfslam {args.robot}")
+    except (LrfSlamError, OSError) as exc:
+        log.error("%s", exc)
+        return 2
+    log.info("serving Foxglove on ws://%s:%d (pid %d)", args.host, server.port, os.getpid())
+    try:
+        Monitor(bus_cfg, [server]).run(stop)
+    except LrfSlamError as exc:
+        log.error("%s", exc)
+        return 2
+    finally:
+        server.close()
+    if server.counts["undecodable"]:
+        log.warning("%d messages had no view (undecodable)", server.counts["undecodable"])
+    stopped_cleanly("monitor")
+    return 0
