@@ -39,7 +39,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "eval": ("lrfslam.tools.evaluate", "main", "accuracy evaluations (features, slam, relations)"),
     "import": ("lrfslam.tools.importers", "main", "convert a log (CARMEN) into a recording"),
     "emulate-lms200": ("lrfslam.drivers.lms200.emulator", "main", "emulate an LMS200 on a pseudo-terminal"),
-    "export": ("lrfslam.tools.export", "main", "export the map and trajectory of a recording (JSON, PNG)"),
+    "export": ("lrfslam.tools.export", "main",
+               "the map of a recording: occupancy grid (ROS map_server PGM + YAML), JSON, PNG"),
 }
 
 #: Commands that run to an end and write files (and any service with ``--replay``): SIGTERM
