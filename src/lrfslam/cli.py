@@ -42,7 +42,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "import": ("lrfslam.tools.importers", "main", "convert a log (CARMEN) into a recording"),
     "emulate-lms200": ("lrfslam.drivers.lms200.emulator", "main", "emulate an LMS200 on a pseudo-terminal"),
     "export": ("lrfslam.tools.export", "main",
-               "export the map and trajectory of a recording (JSON, PNG), or a copy for Foxglove"),
+               "the map of a recording: occupancy grid (map_server PGM + YAML), JSON, PNG; or a Foxglove copy"),
     "monitor": ("lrfslam.tools.monitor", "main", "serve a robot's live streams to Foxglove (WebSocket)"),
 }
 
