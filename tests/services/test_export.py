@@ -27,6 +27,7 @@ from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import RecordingWriter, read_recording
 from lrfslam.sim import SimConfig, Simulator
 from lrfslam.sim.odometry import OdometryNoise
+from lrfslam.sim.world import distance_to_segments, inside_polygons
 from lrfslam.tools import export
 from lrfslam.tools.importers import import_carmen
 from lrfslam.tools.pipeline import DEFAULT_STAGES, build_stages, run_pipeline
@@ -76,22 +77,6 @@ def cell_centres(meta: dict, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Map-frame centres (K, 2) of cells, from the YAML's origin and resolution (yaw 0)."""
     assert meta["origin"][2] == 0.0
     return np.array(meta["origin"][:2]) + meta["resolution"] * (np.column_stack((cols, rows)) + 0.5)
-
-
-def segment_distance(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    a, b = segments[:, :2], segments[:, 2:]
-    d = b - a
-    s = np.clip(np.einsum("pmi,mi->pm", points[:, None] - a, d) / np.einsum("mi,mi->m", d, d), 0.0, 1.0)
-    return np.min(np.linalg.norm(points[:, None] - (a + s[..., None] * d), axis=2), axis=1)
-
-
-def inside_walls(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """Even-odd rule over the world's closed wall polygons: True in the corridors."""
-    x, y = points[:, 0:1], points[:, 1:2]
-    x0, y0, x1, y1 = (segments[:, k] for k in range(4))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x_cross = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-    return np.count_nonzero(((y0 > y) != (y1 > y)) & (x_cross > x), axis=1) % 2 == 1
 
 
 def write(writer: RecordingWriter, topic, value) -> None:
@@ -203,10 +188,10 @@ def test_occupied_cells_lie_on_the_true_walls_and_free_cells_in_the_corridors(si
     assert len(occupied) > 800 and len(free) > 10_000
     # Measured: occupied cells 98.0 % within one cell of a wall, all within two; free cells 0.5 %
     # within half a cell of a wall (a cell the wall crosses), 99.9 % in the corridors.
-    to_wall = segment_distance(occupied, walls) / res
+    to_wall = distance_to_segments(occupied, walls) / res
     assert np.mean(to_wall <= 2) >= 0.95 and np.mean(to_wall <= 1) >= 0.9
-    assert np.mean(segment_distance(free, walls) < 0.5 * res) <= 0.02
-    assert np.mean(inside_walls(free, walls)) >= 0.995
+    assert np.mean(distance_to_segments(free, walls) < 0.5 * res) <= 0.02
+    assert np.mean(inside_polygons(free, walls)) >= 0.995
     # The corner landmarks, as placed on the map, sit on the true corners (measured: 2.2 cm at most;
     # 3.1 cm where the EKF has them).
     corners = np.array([lm["map_xy_m"] for lm in doc["landmarks"] if lm["kind"] == "forward"]) @ rot.T + shift

@@ -21,28 +21,11 @@ from lrfslam.algo.occupancy_grid import (
 )
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.sim import SimConfig, Simulator
+from lrfslam.sim.world import distance_to_segments, inside_polygons
 
 RES = 0.05
 coords = st.floats(-20.0, 20.0, allow_nan=False)
 headings = st.floats(-np.pi, np.pi, allow_nan=False)
-
-
-def segment_distance(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """Distance (m) from each point (P, 2) to the nearest segment (M, 4)."""
-    a, b = segments[:, :2], segments[:, 2:]
-    d = b - a
-    s = np.clip(np.einsum("pmi,mi->pm", points[:, None] - a, d) / np.einsum("mi,mi->m", d, d), 0.0, 1.0)
-    return np.min(np.linalg.norm(points[:, None] - (a + s[..., None] * d), axis=2), axis=1)
-
-
-def inside_walls(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """Whether each point is enclosed by an odd number of the closed wall polygons (even-odd rule)."""
-    x, y = points[:, 0:1], points[:, 1:2]
-    x0, y0, x1, y1 = (segments[:, k] for k in range(4))
-    straddles = (y0 > y) != (y1 > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x_cross = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-    return np.count_nonzero(straddles & (x_cross > x), axis=1) % 2 == 1
 
 
 @settings(max_examples=60, deadline=None)
@@ -68,7 +51,7 @@ def test_a_single_beam_marks_its_end_occupied_and_the_cells_before_it_free(x, y,
     # ... and the beam touched nothing else: one hit, and misses only along it.
     assert np.count_nonzero(lo > 0) == 1
     centres = grid.cell_centres_m(*np.nonzero(lo < 0))
-    dist = segment_distance(centres, np.array([[x, y, end[0, 0], end[0, 1]]]))
+    dist = distance_to_segments(centres, np.array([[x, y, end[0, 0], end[0, 1]]]))
     assert np.all(dist <= RES * np.sqrt(2) / 2 + 1e-9)
 
 
@@ -154,8 +137,8 @@ def test_scans_from_the_true_poses_draw_the_true_walls():
     free = grid.cell_centres_m(*np.nonzero(tri == FREE))
     assert len(occupied) > 800 and len(free) > 10_000 and np.count_nonzero(tri == UNKNOWN) > 0
     # Measured: 99.2 % within one cell, all within two (range noise 1 cm, mixed pixels).
-    to_wall = segment_distance(occupied, walls) / RES
+    to_wall = distance_to_segments(occupied, walls) / RES
     assert np.mean(to_wall <= 1.0) >= 0.98 and np.mean(to_wall <= 2.0) >= 0.999
     # A free cell whose centre is within half a cell of a wall holds that wall (measured 0.25 %).
-    assert np.mean(segment_distance(free, walls) < 0.5 * RES) <= 0.01
-    assert inside_walls(free, walls).mean() >= 0.999
+    assert np.mean(distance_to_segments(free, walls) < 0.5 * RES) <= 0.01
+    assert inside_polygons(free, walls).mean() >= 0.999

@@ -113,6 +113,42 @@ class World:
         return _analyse_vertices(self.segments_m[self.material == "wall"], self.name)
 
 
+def distance_to_segments(points_xy_m, segments_m) -> np.ndarray:
+    """Distance (m) from each point to the nearest segment.
+
+    Parameters
+    ----------
+    points_xy_m : array_like, shape (P, 2)
+    segments_m : array_like, shape (M, 4)
+        ``(x0, y0, x1, y1)`` rows, metres, none of zero length.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+    """
+    points = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
+    segments = np.asarray(segments_m, dtype=float).reshape(-1, 4)
+    a, d = segments[:, :2], segments[:, 2:] - segments[:, :2]
+    s = np.clip(np.einsum("pmi,mi->pm", points[:, None] - a, d) / np.einsum("mi,mi->m", d, d), 0.0, 1.0)
+    return np.min(np.linalg.norm(points[:, None] - (a + s[..., None] * d), axis=2), axis=1)
+
+
+def inside_polygons(points_xy_m, segments_m) -> np.ndarray:
+    """Whether each point is enclosed by an odd number of closed polygons (even-odd rule), (P,) bool.
+
+    With a world's rooms and the solid blocks inside them as ``segments_m`` (M, 4):
+    True in free space.
+    """
+    points = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
+    segments = np.asarray(segments_m, dtype=float).reshape(-1, 4)
+    x, y = points[:, 0:1], points[:, 1:2]
+    x0, y0, x1, y1 = (segments[:, k] for k in range(4))
+    straddles = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_cross = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return np.count_nonzero(straddles & (x_cross > x), axis=1) % 2 == 1
+
+
 def closed_polygon(vertices_m, free_inside: bool) -> np.ndarray:
     """Segments of a closed polygon, oriented so free space is on their left.
 
