@@ -230,6 +230,25 @@ def test_a_long_path_is_sent_less_often():
     assert path.add(5, np.zeros(3)) is not None  # a stamp from before: a restarted source, sent at once
 
 
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(1, 3000), max_poses=st.integers(2, 64), keyframes=st.integers(0, 500))
+def test_a_path_stays_bounded_however_long_the_run(n, max_poses, keyframes):
+    cfg = fx.ViewConfig(path_period_s=0.0, path_poses_per_s=1e9, path_step_m=0.1, path_max_poses=max_poses)
+    path = fx.Trajectory("map", cfg)
+    path.replace(0, np.column_stack((np.arange(keyframes), np.ones(keyframes), np.zeros(keyframes))), 0)
+    for i in range(1, n + 1):
+        msg = path.add(i * 1_000_000, np.array([0.2 * i, 0.0, 0.0]))
+        poses = np.array([xyt(p) for p in decode(fx.View(fx.TRAJECTORY_MAP, msg, i)).poses])
+        driven = poses[poses[:, 1] == 0.0, 0]   # the keyframes lie on y = 1
+        # Bounded (the newest pose may come on top), in order, and ending at the newest pose.
+        assert len(poses) <= max_poses + 1 and poses[-1, 0] == pytest.approx(0.2 * i)
+        assert np.all(np.diff(driven) > 0)
+    # Thinned evenly: no gap of the kept part (all but the newest pose) is more than twice another.
+    if driven.size > 3:
+        gaps = np.diff(driven[:-1])
+        assert gaps.max() <= 2 * gaps.min() + 1e-9
+
+
 def test_keyframes_replace_the_mapper_path():
     views = fx.FoxgloveViews()
     for i in range(1, 6):

@@ -68,6 +68,22 @@ MAX_INBOX = 100_000
 CHECKPOINT_NAME = "slam.checkpoint.npz"
 
 
+#: glibc serves an allocation this large (bytes) from mmap, returned to the system when freed.
+#: By default the threshold rises to the largest block freed so far, after which the
+#: temporaries of a growing pose graph come from the heap and its high-water mark stays:
+#: the mapper grew 245-343 B per scan in a 45,000-scan soak, 145 with the threshold fixed
+#: (docs/operations.md, Soak). deploy/Dockerfile sets the same.
+MMAP_THRESHOLD_BYTES = 131072
+
+
+def child_environment() -> dict[str, str]:
+    """The environment of every process ``up`` starts: its own, with glibc's mmap threshold fixed
+    unless the caller set one."""
+    env = dict(os.environ)
+    env.setdefault("MALLOC_MMAP_THRESHOLD_", str(MMAP_THRESHOLD_BYTES))
+    return env
+
+
 @dataclass
 class Child:
     """One supervised process.
@@ -88,7 +104,7 @@ class Child:
     gave_up: bool = False
 
     def start(self, extra: list[str] | tuple[str, ...] = ()) -> None:
-        self.proc = subprocess.Popen(self.argv + list(extra), stdin=subprocess.DEVNULL)
+        self.proc = subprocess.Popen(self.argv + list(extra), stdin=subprocess.DEVNULL, env=child_environment())
 
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None

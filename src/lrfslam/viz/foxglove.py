@@ -105,11 +105,14 @@ class ViewConfig:
     path_poses_per_s: float = 100.0  # ... and one of n poses at most every n / this s (~44 B a pose: 4.4 kB/s)
     path_step_m: float = 0.1         # a pose joins a trajectory once the robot moved this far ...
     path_turn_rad: float = 0.1       # ... or turned this much since the last pose kept
+    #: Past this many poses a path keeps every other one: memory and message size stay bounded
+    #: however long the run (an hour of driving at 0.5 m/s is 18,000 poses at path_step_m).
+    path_max_poses: int = 4000
     landmark_period_s: float = 0.5   # landmarks at most this often; 0: with every slam/state
 
     def __post_init__(self) -> None:
         if min(self.path_period_s, self.path_step_m, self.path_turn_rad, self.landmark_period_s) < 0 \
-                or not self.path_poses_per_s > 0:
+                or not self.path_poses_per_s > 0 or self.path_max_poses < 2:
             raise ConfigError(f"view periods and steps must be ≥ 0 and path_poses_per_s > 0: {self}")
 
 
@@ -293,6 +296,10 @@ class Trajectory:
         self.kept: list[tuple[int, np.ndarray]] = []      # (stamp ns, pose) thinned
         self.latest: tuple[int, np.ndarray] | None = None  # the newest pose, also when thinned away
         self.sent_ns: int | None = None
+        # One of every ``stride`` poses that moved far enough is kept; it doubles whenever the
+        # path is halved, so the thinning stays even along the whole path.
+        self._stride = 1
+        self._candidates = 0
 
     def add(self, stamp_ns: int, p: np.ndarray) -> fm.PosesInFrame | None:
         """Append pose ``p`` (3,) at ``stamp_ns``; the path if it is due."""
@@ -300,7 +307,13 @@ class Trajectory:
         last = self.kept[-1][1] if self.kept else None
         if last is None or (math.hypot(p[0] - last[0], p[1] - last[1]) >= self.cfg.path_step_m
                             or abs(math.remainder(p[2] - last[2], 2 * math.pi)) >= self.cfg.path_turn_rad):
+            self._candidates += 1
+        if last is None or self._candidates >= self._stride:
+            self._candidates = 0
             self.kept.append((stamp_ns, p))
+            if len(self.fixed) + len(self.kept) > self.cfg.path_max_poses:
+                self.kept = self.kept[-1::-2][::-1]   # every other one, the newest kept
+                self._stride *= 2
         self.latest = (stamp_ns, p)
         n = len(self.fixed) + len(self.kept)
         wait_ns = 1e9 * max(self.cfg.path_period_s, n / self.cfg.path_poses_per_s)
@@ -311,7 +324,9 @@ class Trajectory:
 
     def replace(self, stamp_ns: int, poses: np.ndarray, until_ns: int) -> fm.PosesInFrame:
         """Make ``poses`` (K, 3) the path up to ``until_ns`` (the poses added since stay after them); send it."""
-        self.fixed = [np.array(p, float) for p in poses]
+        poses = np.asarray(poses, float).reshape(-1, 3)
+        step = -(-len(poses) // (self.cfg.path_max_poses // 2)) if len(poses) else 1
+        self.fixed = [np.array(p) for p in poses[::-1][::step][::-1]]   # the newest kept
         self.kept = [(s, p) for s, p in self.kept if s > until_ns]
         if self.latest is not None and self.latest[0] <= until_ns:
             self.latest = None
