@@ -18,6 +18,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import time
 import urllib.request
 from pathlib import Path
@@ -33,6 +34,10 @@ pytestmark = [pytest.mark.slow, pytest.mark.integration]
 
 STAGES = ("recorder", "mapper", "slam", "features", "denoise")
 SENSOR = ("speedup=4", "seed=3", "source=sim")
+
+
+def cluster_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "lrfslam.cli", *args]
 
 
 def unavailable(reason: str) -> None:
@@ -173,3 +178,21 @@ def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_
     red = (crop[..., 0] > 0.7) & (crop[..., 1] < 0.3) & (crop[..., 2] < 0.3)
     assert drawn.sum() > 500, f"{drawn.sum()} drawn pixels"
     assert red.sum() > 10, f"{red.sum()} landmark-red pixels"
+
+
+def test_up_with_monitor_serves_the_dashboard_and_quiet_prints_no_live_line(tmp_path):
+    http, port = free_port(), free_port()
+    up = subprocess.Popen(cluster_cmd("up", "--duration", "10", "--speedup", "4", "--port", str(port), "--robot",
+                                      "r8", "--monitor", "--monitor-port", "0", "--http-port", str(http), "--quiet"),
+                          cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        snap = wait_state(f"http://127.0.0.1:{http}/state.json", lambda s: s["scans"] > 0 and s["landmarks"], 60,
+                          "the dashboard of up's pipeline")
+        out, err = up.communicate(timeout=120)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    assert up.returncode == 0, err[-3000:]
+    assert {r["service"] for r in snap["services"]} == set(services.NAMES)
+    assert "lrfslam up: ran" in out and " scans " not in out.split("lrfslam up: ran")[0], out
+    assert "restarts: monitor" not in out
