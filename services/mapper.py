@@ -133,5 +133,6 @@ SPEC = ServiceSpec(
     config_type=MapperConfig,
     inputs=(topics.SCAN, topics.SLAM_STATE),
     outputs=(topics.MAP_POSE, topics.MAP_KEYFRAMES),
+    latest=(topics.MAP_POSE, topics.MAP_KEYFRAMES),
     build=lambda cfg, ctx: MapperStep(cfg, ctx),
 )

@@ -121,5 +121,6 @@ SPEC = ServiceSpec(
     config_type=SlamConfig,
     inputs=(topics.ODOM, topics.SCAN, topics.FEATURES),
     outputs=(topics.SLAM_STATE,),
+    latest=(topics.SLAM_STATE,),
     build=lambda cfg, ctx: SlamStep(cfg, ctx),
 )

@@ -48,6 +48,15 @@ def test_up_summarises_every_stage_and_the_pose_error(up_run):
     assert f"{recording.name}_0.mcap" in stdout     # the summary lists the segments
 
 
+def test_up_prints_a_live_status_line_while_it_runs(up_run):
+    stdout, _, _ = up_run
+    live = re.findall(r"^\[\s*([\d.]+) s\] scans (\d+) \(([\d.]+)/s\)  landmarks (\d+) \(\d+ confirmed\)"
+                      r"  pose error ([\d.]+) cm", stdout, re.MULTILINE)
+    assert len(live) >= 2, stdout                    # every 5 s of a 12 s run
+    assert int(live[-1][1]) > int(live[0][1]) > 0 and float(live[-1][2]) > 0 and int(live[-1][3]) > 0
+    assert stdout.index(live[-1][0] + " s]") < stdout.index("lrfslam up: ran")   # before the summary
+
+
 def test_up_loses_nothing_at_40_hz_and_says_so(up_run):
     stdout, recording, _ = up_run
     # stage, in, out, dropped (full input queue), gaps (sequence numbers never received)

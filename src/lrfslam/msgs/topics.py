@@ -157,6 +157,16 @@ def status(robot: str, service: str) -> str:
     return f"{ROOT}/{robot}/svc/{service}/status"
 
 
+def latest(robot: str, name: str) -> str:
+    """Queryable of the newest message on relative key ``name`` (e.g. ``slam/state``), answered by its
+    producer so a viewer that joins late draws the current state at once (``name="**"``: every one).
+
+    Not under ``lrf/<robot>/<name>``: a subscriber to the robot's data (the recorder's ``**``) must never
+    see these replies as a second copy of the stream.
+    """
+    return f"{ROOT}/{robot}/latest/{name}"
+
+
 def health_key(robot: str, service: str) -> str:
     """Absolute key of ``service``'s periodic status (``service=ANY``: every service's)."""
     return key(robot, health(service).name)

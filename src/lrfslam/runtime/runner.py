@@ -3,7 +3,8 @@
 ``lrfslam <service> [options]`` ends up in :func:`main`. Live, it opens a Zenoh
 session, refuses to start (one error line, exit 2) where the robot already has this
 service alive, unless ``--join``, declares a liveliness token ``lrf/<robot>/alive/<service>``, answers
-``lrf/<robot>/svc/<service>/status``, publishes ``lrf/<robot>/health/<service>``
+``lrf/<robot>/svc/<service>/status`` (and ``lrf/<robot>/latest/<topic>`` for the outputs its spec
+names in ``latest``), publishes ``lrf/<robot>/health/<service>``
 and drives the service's step until SIGTERM/SIGINT. With ``--replay IN`` (an MCAP
 file, a recording folder, or several files) it drives the same step over the
 recording, as fast as the CPU allows, and writes the outputs to ``--out OUT.mcap``.
@@ -31,7 +32,14 @@ from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime import health_file
-from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
+from lrfslam.runtime.bus import (
+    BusConfig,
+    ZenohBus,
+    attachment,
+    open_session,
+    producer_id,
+    zenoh_config,
+)
 from lrfslam.runtime.chain import Stage, replay_recording
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.recording import RecordingSource, describe_source
@@ -196,6 +204,10 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             log.warning("debug: sleeping %.0f ms after each input (bus.debug_slow)", slow_s * 1e3)
             counts["debug.slow_ms"] = round(slow_s * 1e3)
         status_q = session.declare_queryable(topics.status(robot, spec.name))
+        # The newest of the outputs a late viewer needs, kept encoded.
+        newest: dict[str, tuple[bytes, int, int]] = {}   # topic name -> (payload, seq, stamp ns)
+        producer = producer_id(session)
+        latest_qs = {tp.name: session.declare_queryable(topics.latest(robot, tp.name)) for tp in spec.latest}
         # Last: a supervisor that sees the token may start the sensor, so the subscribers must exist by then.
         token = session.liveliness().declare_token(topics.alive(robot, spec.name))
         log.info("%s up: robot=%s mode=%s connect=%s", spec.name, robot, bus_cfg.mode, ",".join(bus_cfg.connect))
@@ -212,8 +224,23 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
 
         def publish(outs) -> None:
             for out in outs:
-                bus.publish(out)
+                if out.topic.name in latest_qs:
+                    payload = out.topic.codec.encode(out.value)
+                    bus.put(out.topic, payload, out.value.stamp_ns, out.value.seq)
+                    newest[out.topic.name] = (payload, out.value.seq, out.value.stamp_ns)
+                else:
+                    bus.publish(out)
                 last_data[0] = max(last_data[0], int(out.value.stamp_ns))
+
+        def answer_latest() -> None:
+            for name, queryable in latest_qs.items():
+                while (query := queryable.try_recv()) is not None:
+                    with query:
+                        if name in newest:
+                            payload, seq, stamp = newest[name]
+                            query.reply(topics.latest(robot, name), payload,
+                                        attachment=attachment(seq, stamp, producer),
+                                        encoding=zenoh.Encoding(topics.by_name(name).codec.encoding))
 
         def publish_health() -> None:
             counts["health"] += 1   # numbered from 1 like every stream
@@ -256,6 +283,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                             st = status()
                             query.reply(query.key_expr, health_topic.codec.encode(st),
                                         encoding=zenoh.Encoding(health_topic.codec.encoding))
+                    answer_latest()
                 if now >= next_health:
                     next_health = now + bus_cfg.health_period_s
                     publish_health()
@@ -272,6 +300,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             step.close()
             bus.close()
             status_q.undeclare()
+            for queryable in latest_qs.values():
+                queryable.undeclare()
             token.undeclare()
     stopped_cleanly(spec.name)
     return 0

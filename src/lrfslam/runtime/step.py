@@ -93,6 +93,9 @@ class ServiceSpec:
     preset: Callable[[str], Any] | None = None
     #: Service-specific flags: (flag, config field, help), e.g. ("--device", "device", "serial port").
     flags: tuple[tuple[str, str, str], ...] = ()
+    #: Outputs whose newest message the live service keeps and answers for on ``topics.latest``
+    #: (the state a late viewer needs at once, e.g. the slam's landmarks).
+    latest: tuple[Topic, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,7 @@
 """``lrfslam monitor``: a robot's live streams served to Foxglove over WebSocket.
 
     lrfslam monitor --connect tcp/ROBOT:7447 [--robot R] [--port 8765] [--host 127.0.0.1]
+                    [--dashboard [--http-port 8080]]
 
 Joins the robot's Zenoh network as a client, subscribes to every key of the robot
 (``lrf/<robot>/**``), turns each message into Foxglove's views (lrfslam/viz/foxglove.py:
@@ -11,8 +12,11 @@ monitor publishes nothing on Zenoh, and its clients can only subscribe. The serv
 no authentication: keep ``--host`` on loopback unless the network is trusted.
 
 The monitor is one feed (the Zenoh subscription) handing every message to its sinks;
-the Foxglove server is one sink, and another view of the same stream (a dashboard of
-the services' health) would be another sink beside it.
+the Foxglove server is one sink, and with ``--dashboard`` a web page of the map and the
+services' health (src/lrfslam/tools/dashboard.py, ``http://HOST:HTTP_PORT/``) is another.
+A monitor that joins late starts from the current state: it asks which services are alive,
+their status queryables, and the newest SLAM state and loop-closed map (``topics.latest``),
+then follows the liveliness tokens as they come and go.
 
 Exit codes: 0 stopped by SIGTERM or Ctrl-C; 2 the server or the Zenoh session could
 not start (one line).
@@ -25,7 +29,7 @@ import logging
 import os
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from typing import Protocol
 
@@ -33,9 +37,16 @@ import foxglove
 import zenoh
 from foxglove.websocket import Capability
 
-from lrfslam.errors import InputError, LrfSlamError, StartupError
-from lrfslam.msgs import topics
-from lrfslam.runtime.bus import BusConfig, ZenohBus, open_session, zenoh_config
+from lrfslam.errors import DecodeError, InputError, LrfSlamError, StartupError
+from lrfslam.msgs import codec, topics
+from lrfslam.msgs.codec import parse_encoding
+from lrfslam.runtime.bus import (
+    BusConfig,
+    ZenohBus,
+    open_session,
+    parse_attachment,
+    zenoh_config,
+)
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.runner import (
     install_signal_handlers,
@@ -43,6 +54,7 @@ from lrfslam.runtime.runner import (
     stopped_cleanly,
 )
 from lrfslam.runtime.step import Message
+from lrfslam.tools.dashboard import DEFAULT_HTTP_PORT, DashboardServer
 from lrfslam.viz.foxglove import CHANNELS, FoxgloveViews, ViewConfig, schema_of
 
 log = logging.getLogger("lrfslam.monitor")
@@ -55,9 +67,12 @@ LIVE_VIEWS = ViewConfig(path_period_s=0.5, path_poses_per_s=1000.0, landmark_per
 
 
 class Sink(Protocol):
-    """A consumer of the monitored stream: gets every message as received, undecoded."""
+    """A consumer of the monitored stream: gets every message as received, undecoded, and every
+    change of a service's liveliness."""
 
     def on_message(self, msg: Message) -> None: ...
+
+    def on_alive(self, service: str, alive: bool) -> None: ...
 
     def close(self) -> None: ...
 
@@ -112,6 +127,9 @@ class FoxgloveServer:
             self._time_ns = stamp
             self.server.broadcast_time(stamp)
 
+    def on_alive(self, service: str, alive: bool) -> None:
+        """The services' health reaches Foxglove as logs; liveliness has no view there."""
+
     def close(self) -> None:
         self.server.stop()
 
@@ -131,17 +149,58 @@ class Monitor:
         if session is None:
             return 0
         with session:
-            bus = ZenohBus(session, self.bus_cfg.robot, (), True, self.bus_cfg.queue_size, self.counts)
-            log.info("monitoring robot %s via %s", self.bus_cfg.robot, ",".join(self.bus_cfg.connect))
+            robot = self.bus_cfg.robot
+            bus = ZenohBus(session, robot, (), True, self.bus_cfg.queue_size, self.counts)
+            changes: deque[tuple[str, bool]] = deque(maxlen=10_000)   # filled by Zenoh's callback thread
+            tokens = session.liveliness().declare_subscriber(
+                topics.alive(robot, topics.ANY), lambda sample: changes.append(
+                    (topics.robot_and_service(str(sample.key_expr))[1], sample.kind == zenoh.SampleKind.PUT)),
+                history=True)
+            log.info("monitoring robot %s via %s", robot, ",".join(self.bus_cfg.connect))
             try:
+                self.catch_up(session)
                 while not stop.is_set():
-                    if (msg := bus.get(0.1)) is not None:
+                    while changes:
+                        service, alive = changes.popleft()
                         for sink in self.sinks:
-                            sink.on_message(msg)
+                            sink.on_alive(service, alive)
+                    if (msg := bus.get(0.1)) is not None:
+                        self.hand_on(msg)
             finally:
+                tokens.undeclare()
                 self.counts.update(bus.receive_counts())
                 bus.close()
         return 0
+
+    def hand_on(self, msg: Message) -> None:
+        for sink in self.sinks:
+            sink.on_message(msg)
+
+    def catch_up(self, session: zenoh.Session, timeout_s: float = 2.0) -> None:
+        """The state before the first message: every service's status, then the newest of the outputs
+        the services keep for late joiners (``topics.latest``), as if just received."""
+        robot = self.bus_cfg.robot
+        for key in (topics.status(robot, topics.ANY), topics.latest(robot, "**")):
+            for reply in session.get(key, timeout=timeout_s, target=zenoh.QueryTarget.ALL,
+                                     consolidation=zenoh.ConsolidationMode.NONE):
+                if reply.ok is None:
+                    continue
+                sample = reply.ok
+                att = sample.attachment
+                seq, stamp_ns, _ = parse_attachment(att.to_bytes() if att is not None else None)
+                payload, schema = sample.payload.to_bytes(), parse_encoding(str(sample.encoding))
+                try:
+                    if key.endswith("/status"):
+                        name = topics.health(topics.robot_and_service(str(sample.key_expr))[1]).name
+                        stamp_ns = codec.SERVICE_STATUS.decode(payload, schema).wall_stamp_ns
+                    else:
+                        name = str(sample.key_expr).removeprefix(topics.latest(robot, ""))
+                        topics.by_name(name)
+                except (KeyError, DecodeError):
+                    self.counts["catch_up.undecodable"] += 1
+                    continue
+                self.counts["catch_up"] += 1
+                self.hand_on(Message(None, payload, stamp_ns, schema, name, seq))
 
 
 def parser() -> argparse.ArgumentParser:
@@ -152,6 +211,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1",
                    help="address the WebSocket server listens on (0.0.0.0: every interface; no authentication)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help="WebSocket port (0: any free one)")
+    p.add_argument("--dashboard", action="store_true",
+                   help="also serve a web dashboard (map and services) on http://HOST:HTTP_PORT/")
+    p.add_argument("--http-port", type=int, default=DEFAULT_HTTP_PORT,
+                   help=f"the dashboard's HTTP and WebSocket port (default {DEFAULT_HTTP_PORT}; 0: any free one)")
     p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config applied first (TLS, ...)")
     p.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING, ERROR")
     return p
@@ -169,14 +232,25 @@ def main(argv: list[str] | None = None) -> int:
     except (LrfSlamError, OSError) as exc:
         log.error("%s", exc)
         return 2
+    sinks: list[Sink] = [server]
     log.info("serving Foxglove on ws://%s:%d (pid %d)", args.host, server.port, os.getpid())
+    if args.dashboard:
+        try:
+            dashboard = DashboardServer(args.host, args.http_port, f"lrfslam {args.robot}")
+        except LrfSlamError as exc:
+            server.close()
+            log.error("%s", exc)
+            return 2
+        sinks.append(dashboard)
+        log.info("serving the dashboard on http://%s:%d/", args.host, dashboard.port)
     try:
-        Monitor(bus_cfg, [server]).run(stop)
+        Monitor(bus_cfg, sinks).run(stop)
     except LrfSlamError as exc:
         log.error("%s", exc)
         return 2
     finally:
-        server.close()
+        for sink in sinks:
+            sink.close()
     if server.counts["undecodable"]:
         log.warning("%d messages had no view (undecodable)", server.counts["undecodable"])
     stopped_cleanly("monitor")

@@ -1,10 +1,18 @@
-"""``lrfslam status``: which services are alive, and what their status queryables say."""
+"""``lrfslam status``: which services are alive, and what their status queryables say.
+
+``--watch`` repeats the table every ``--interval`` seconds (on a terminal, in place, as
+``watch`` does), with each service's input and output rates since the last refresh, its health
+message, and the SLAM's pose and landmarks from its latest-state queryable, until Ctrl-C.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import signal
 import sys
+import threading
 import time
 
 import zenoh
@@ -14,6 +22,7 @@ from lrfslam.errors import DecodeError
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import health_file
+from lrfslam.viz.dashboard import rates as status_rates
 
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
 
@@ -54,22 +63,35 @@ def total(counters: dict[str, int], prefix: str) -> int:
     return sum(v for k, v in counters.items() if k.startswith(prefix))
 
 
-def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus]) -> str:
+def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
+                 rates: dict[tuple[str, str], tuple[float, float]] | None = None) -> str:
     """One row per service. ``uptime_s`` is on the service's monotonic clock; ``dropped`` counts
     inputs it received but will not handle (``drop.*``), ``gaps``/``dups`` inputs that never reached it / came twice
-    (sequence numbers, docs/delivery.md), ``restarts`` new producers it saw on its inputs."""
-    rows = [("robot", "service", "alive", "health", "uptime_s", "in", "out", "dropped", "gaps", "dups",
-             "restarts", "errors", "pid@host")]
+    (sequence numbers, docs/delivery.md), ``restarts`` new producers it saw on its inputs.
+
+    With ``rates`` ((robot, service) -> inputs/s, outputs/s; ``--watch``), also those rates and
+    each service's health message (its last error, where it has one)."""
+    head = ["robot", "service", "alive", "health", "uptime_s", "in", "out", "dropped", "gaps", "dups",
+            "restarts", "errors", "pid@host"]
+    if rates is not None:
+        head[7:7] = ["in/s", "out/s"]
+        head.append("message")
+    rows = [tuple(head)]
     seen = set()
     for s in statuses:
         seen.add((s.robot, s.service))
         c = s.counters
-        rows.append((s.robot, s.service, "yes" if (s.robot, s.service) in alive else "no",
-                     LEVELS.get(s.level, str(s.level)), f"{s.uptime_s:.0f}",
-                     str(total(c, "in.")), str(total(c, "out.")), str(total(c, "drop.")),
-                     str(total(c, "gap.")), str(total(c, "dup.")), str(total(c, "restart.")),
-                     str(sum(v for k, v in c.items() if k.startswith(("error.", "step.error")))),
-                     f"{s.pid}@{s.host}"))
+        row = [s.robot, s.service, "yes" if (s.robot, s.service) in alive else "no",
+               LEVELS.get(s.level, str(s.level)), f"{s.uptime_s:.0f}",
+               str(total(c, "in.")), str(total(c, "out.")), str(total(c, "drop.")),
+               str(total(c, "gap.")), str(total(c, "dup.")), str(total(c, "restart.")),
+               str(sum(v for k, v in c.items() if k.startswith(("error.", "step.error")))),
+               f"{s.pid}@{s.host}"]
+        if rates is not None:
+            r = rates.get((s.robot, s.service))
+            row[7:7] = ["–", "–"] if r is None else [f"{r[0]:.1f}", f"{r[1]:.1f}"]
+            row.append(s.message)
+        rows.append(tuple(row))
     for robot, service in sorted(alive - seen):
         rows.append((robot, service, "yes", "?", *[""] * (len(rows[0]) - 4)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
@@ -94,6 +116,50 @@ def check(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus], wanted: 
     return problems
 
 
+def query_latest_states(session: zenoh.Session, robot: str, timeout_s: float) -> dict[str, t.SlamState]:
+    """Each robot's newest SLAM state, from its slam's latest-state queryable (none while it has none)."""
+    states = {}
+    for reply in session.get(topics.latest(robot, topics.SLAM_STATE.name), timeout=timeout_s,
+                             target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE):
+        if reply.ok is None:
+            continue
+        try:
+            state = codec.SLAM_STATE.decode(reply.ok.payload.to_bytes(), codec.parse_encoding(str(reply.ok.encoding)))
+        except DecodeError:
+            continue
+        states[str(reply.ok.key_expr).split("/")[1]] = state
+    return states
+
+
+def slam_lines(states: dict[str, t.SlamState]) -> list[str]:
+    """A line per robot: the SLAM's pose and landmarks."""
+    return [f"slam {robot}: pose x {s.pose[0]:.2f} m, y {s.pose[1]:.2f} m, heading {math.degrees(s.pose[2]):.1f} deg; "
+            f"{s.landmark_ids.size} landmarks ({int(s.landmark_confirmed.sum())} confirmed); state {s.seq}"
+            for robot, s in sorted(states.items())]
+
+
+def watch(session: zenoh.Session, args: argparse.Namespace, stop: threading.Event) -> int:
+    """The table every ``args.interval`` s until ``stop``; 0."""
+    before: dict[tuple[str, str], t.ServiceStatus] = {}
+    clear = sys.stdout.isatty()
+    while not stop.is_set():
+        alive, statuses = query_status(session, args.robot, args.timeout)
+        if args.service:
+            alive = {(r, s) for r, s in alive if s in args.service}
+            statuses = [s for s in statuses if s.service in args.service]
+        rates = {}
+        for s in statuses:
+            if (r := status_rates(before.get((s.robot, s.service)), s)) is not None:
+                rates[(s.robot, s.service)] = r
+            before[(s.robot, s.service)] = s
+        lines = [f"lrfslam status, every {args.interval:g} s (Ctrl-C stops): {time.strftime('%H:%M:%S')}", ""]
+        lines.append(format_table(alive, statuses, rates) if alive or statuses else "no lrfslam service answered")
+        lines += ["", *slam_lines(query_latest_states(session, args.robot, args.timeout))]
+        print(("\x1b[H\x1b[2J" if clear else "\n") + "\n".join(lines), flush=True)
+        stop.wait(args.interval)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lrfslam status", description=__doc__)
     parser.add_argument("-e", "--connect", action="append", metavar="ENDPOINT",
@@ -101,6 +167,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robot", default="*", help="robot namespace (default: all)")
     parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for replies")
     parser.add_argument("--json", action="store_true", help="print the raw status records as JSON")
+    parser.add_argument("-w", "--watch", action="store_true",
+                        help="refresh the table (with rates, health messages, the SLAM's pose and landmarks) "
+                             "until Ctrl-C")
+    parser.add_argument("--interval", type=float, default=2.0, help="with --watch: seconds between refreshes")
     parser.add_argument("--zenoh-config", metavar="FILE",
                         help="Zenoh JSON5 config applied first, e.g. TLS certificates (deploy/zenoh/)")
     parser.add_argument("-s", "--service", action="append", default=[], choices=services.NAMES,
@@ -113,6 +183,10 @@ def main(argv: list[str] | None = None) -> int:
                              "main loop turning and it is not in ERROR, else 1; asks no router (for container "
                              "healthchecks)")
     args = parser.parse_args(argv)
+    if args.watch and (args.check or args.check_file or args.json):
+        parser.error("--watch shows the table; it does not go with --check, --check-file or --json")
+    if not args.interval > 0:
+        parser.error(f"--interval must be > 0 s, got {args.interval}")
     if args.check_file:
         problems = health_file.problems(args.check_file, time.time_ns())
         print("; ".join(problems) if problems else f"ok: {args.check_file}")
@@ -125,6 +199,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lrfslam status: cannot reach {','.join(endpoints)}: {exc}", file=sys.stderr)
         return 2
     with session:
+        if args.watch:
+            stop = threading.Event()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, lambda *_: stop.set())
+            return watch(session, args, stop)
         if args.check and not args.service:
             # A client session opens only once its endpoint answered, so this is the router check.
             print(f"ok: router at {','.join(endpoints)}")

@@ -9,9 +9,12 @@ exits with code 2 and removes the recording if it holds nothing. A process that 
 the router included, is restarted (up to ``--max-restarts`` times); the services'
 Zenoh sessions reconnect to a restarted router by themselves, the slam resumes from
 its checkpoint (in the recording folder), the sensor from where the simulated robot
-is now, and the recorder adds a segment. On Ctrl-C, SIGTERM or after ``--duration``
-seconds the sensor stops first, the pipeline drains, the rest stop in order, and a
-summary compares the SLAM estimate with the simulator's ground truth.
+is now, and the recorder adds a segment. While it runs, a status line every
+``--status-period`` seconds (scans, their rate, landmarks, the pose error against the truth;
+``--quiet``: none); ``--monitor`` also runs ``lrfslam monitor --dashboard`` as one more
+supervised process. On Ctrl-C, SIGTERM or after ``--duration`` seconds the sensor stops
+first, the pipeline drains, the rest stop in order, and a summary compares the SLAM estimate
+with the simulator's ground truth.
 """
 
 from __future__ import annotations
@@ -369,7 +372,17 @@ def main(argv: list[str] | None = None) -> int:
                         help="parent of the recording folder (<UTC time>_<robot>/, one MCAP segment per recorder start)")
     parser.add_argument("--max-restarts", type=int, default=3, help="restarts of each process (the router too)")
     parser.add_argument("--log-level", default="WARNING", help="log level of the services")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no live status line while running")
+    parser.add_argument("--status-period", type=float, default=5.0, metavar="S",
+                        help="seconds between live status lines (default 5)")
+    parser.add_argument("--monitor", action="store_true",
+                        help="also run lrfslam monitor --dashboard (Foxglove on --monitor-port, the web "
+                             "dashboard on --http-port, both on 127.0.0.1), supervised like the services")
+    parser.add_argument("--monitor-port", type=int, default=8765, help="with --monitor: Foxglove WebSocket port")
+    parser.add_argument("--http-port", type=int, default=8080, help="with --monitor: the dashboard's port")
     args = parser.parse_args(argv)
+    if not args.status_period > 0:
+        parser.error(f"--status-period must be > 0 s, got {args.status_period}")
     if args.connect and args.listen:
         parser.error("--listen sets up's own router's endpoints; with --connect up starts no router")
     setup_logging("up", "INFO")
@@ -401,7 +414,10 @@ def main(argv: list[str] | None = None) -> int:
         + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)])
     router_id = start_router(router) if router else None
     children = {n: Child(n, child_argv(n, args, endpoint, extra[n])) for n in order}
-    supervised = ([router] if router else []) + list(children.values())
+    monitor = Child("monitor", [sys.executable, "-m", "lrfslam.cli", "monitor", "--connect", endpoint, "--robot",
+                                args.robot, "--dashboard", "--port", str(args.monitor_port), "--http-port",
+                                str(args.http_port), "--log-level", args.log_level]) if args.monitor else None
+    supervised = ([router] if router else []) + list(children.values()) + ([monitor] if monitor else [])
     observer = Observer()
     started = time.monotonic()
     try:
@@ -439,7 +455,14 @@ def main(argv: list[str] | None = None) -> int:
             raise
         if up:
             children["sensor"].start()
+            if monitor:
+                monitor.start()
         log.info("pipeline up: robot %s, router %s, recording %s", args.robot, endpoint, recording)
+        if monitor:
+            log.info("monitor: Foxglove ws://127.0.0.1:%d, dashboard http://127.0.0.1:%d/", args.monitor_port,
+                     args.http_port)
+        live = LiveLine(time.monotonic())
+        next_line = time.monotonic() + args.status_period
         # The run's length counts from here: starting the processes can take seconds on a busy machine.
         deadline = time.monotonic() + args.duration if args.duration > 0 else None
         rate_hz = configs["sensor"].rate_hz
@@ -469,6 +492,9 @@ def main(argv: list[str] | None = None) -> int:
                     child.start(["--set", f"epoch_ns={epoch}"])
                 else:
                     child.start()
+            if not args.quiet and time.monotonic() >= next_line:
+                next_line += args.status_period
+                print(live.line(observer, time.monotonic()), flush=True)
             stop.wait(POLL_S)
         log.info("stopping: sensor first, then draining the pipeline")
         children["sensor"].stop(10)
@@ -476,14 +502,42 @@ def main(argv: list[str] | None = None) -> int:
         for name in ("denoise", "features", "slam", "mapper", "recorder"):
             if name in children:
                 children[name].stop(15)
+        if monitor:
+            monitor.stop(10)
         time.sleep(0.3)  # let the last health messages arrive
         observer.process()
         for sub in subs:
             sub.undeclare()
     if router:
         router.stop(5)
-    print(summary(observer, children, recording, time.monotonic() - started, router))
+    print(summary(observer, children, recording, time.monotonic() - started, router, monitor))
     return 1 if any(c.gave_up for c in supervised) else 0
+
+
+class LiveLine:
+    """up's status line while it runs: scans published, their rate since the last line, landmarks,
+    and the pose error against the truth where a simulator gives one."""
+
+    def __init__(self, now_s: float) -> None:
+        self.started_s = self.last_s = now_s
+        self.last_scans = 0
+
+    def line(self, observer: Observer, now_s: float) -> str:
+        """The line at monotonic time ``now_s``."""
+        observer.process()
+        scans = observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0)
+        rate = (scans - self.last_scans) / (now_s - self.last_s) if now_s > self.last_s else 0.0
+        self.last_s, self.last_scans = now_s, scans
+        parts = [f"[{now_s - self.started_s:6.1f} s] scans {scans} ({rate:.1f}/s)"]
+        if observer.last_state is not None:
+            try:
+                state = codec.SLAM_STATE.decode(observer.last_state)
+                parts.append(f"landmarks {state.landmark_ids.size} ({int(state.landmark_confirmed.sum())} confirmed)")
+            except DecodeError:
+                pass
+        if observer.matched:
+            parts.append(f"pose error {observer.final[0] * 100:.1f} cm, {np.degrees(observer.final[1]):.2f} deg")
+        return "  ".join(parts)
 
 
 def start_router(router: Child) -> str:
@@ -572,7 +626,7 @@ def pose_errors(observer: Observer) -> dict[str, float] | None:
 
 
 def summary(observer: Observer, children: dict[str, Child], recording: Path, wall_s: float,
-            router: Child | None = None) -> str:
+            router: Child | None = None, monitor: Child | None = None) -> str:
     """The table of stages (counters summed over restarts), SLAM against truth, and the recording.
 
     ``wall_s`` is the run's duration on the monotonic clock. ``dropped`` counts inputs a stage
@@ -602,7 +656,7 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
                      f"trajectory RMSE {err['ate_rmse_m'] * 100:.1f} cm (first pose anchored)")
     lines += recording_lines(recording, observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0))
     lines += unrecorded_lines(observer, recording, children.get("recorder"))
-    lines += restart_lines(([router] if router else []) + list(children.values()))
+    lines += restart_lines(([router] if router else []) + list(children.values()) + ([monitor] if monitor else []))
     return "\n".join(lines)
 
 

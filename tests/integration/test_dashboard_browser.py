@@ -1,0 +1,198 @@
+"""``lrfslam monitor --dashboard`` in a real browser: headless Chromium on the page of a live pipeline.
+
+Router, the six services and the monitor run as processes on loopback Zenoh. The monitor is
+started after the sensor has been stopped, so what it shows at once can only come from the
+services' ``latest`` queryables and status replies (the late-joiner path); then the sensor starts
+again and Chromium (driven over its DevTools protocol) loads the page: its DOM must show the six
+services and a non-zero scan count, and the canvas in its screenshot must hold drawn pixels,
+landmark red among them. Needs the Debian package ``chromium`` (deploy/setup-podman.sh installs
+it); skipped without it, except under CI, where it fails.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+import websockets
+from conftest import free_port
+
+from lrfslam import services
+
+pytestmark = [pytest.mark.slow, pytest.mark.integration]
+
+STAGES = ("recorder", "mapper", "slam", "features", "denoise")
+SENSOR = ("speedup=4", "seed=3", "source=sim")
+
+
+def cluster_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "lrfslam.cli", *args]
+
+
+def unavailable(reason: str) -> None:
+    """Skip on a developer's machine; under CI (``CI`` set, as .ci/run does) a missing browser fails."""
+    if os.environ.get("CI"):
+        pytest.fail(f"{reason}; CI must run this test")
+    pytest.skip(reason)
+
+
+def get_json(url: str, timeout_s: float = 20.0):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            with urllib.request.urlopen(url, timeout=5) as r:
+                return json.loads(r.read())
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+
+
+def wait_state(url: str, predicate, timeout_s: float, what: str) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        snap = get_json(url)
+        if predicate(snap):
+            return snap
+        time.sleep(0.2)
+    pytest.fail(f"timed out waiting for {what}: {snap}")
+
+
+class DevTools:
+    """One page of a running Chromium, over its DevTools protocol."""
+
+    def __init__(self, ws) -> None:
+        self.ws, self.next_id = ws, 0
+
+    async def call(self, method: str, **params):
+        self.next_id += 1
+        await self.ws.send(json.dumps({"id": self.next_id, "method": method, "params": params}))
+        while True:
+            reply = json.loads(await self.ws.recv())
+            if reply.get("id") == self.next_id:
+                if "error" in reply:
+                    raise RuntimeError(reply["error"])
+                return reply["result"]
+
+    async def evaluate(self, expression: str):
+        result = await self.call("Runtime.evaluate", expression=expression, returnByValue=True)
+        return result["result"].get("value")
+
+
+PAGE_FACTS = """JSON.stringify({
+  rows: [...document.querySelectorAll('#services tbody tr')].map(r => [...r.cells].map(c => c.textContent)),
+  scans: Number(document.getElementById('scans').textContent),
+  landmarks: Number(document.getElementById('landmarks').textContent),
+  conn: document.getElementById('conn').textContent,
+  canvas: document.getElementById('map').getBoundingClientRect().toJSON()})"""
+
+
+async def look_at_page(debug_port: int, timeout_s: float) -> tuple[dict, bytes, str]:
+    """Wait until the page shows six services and scans; (facts, screenshot PNG, the page's HTML)."""
+    targets = get_json(f"http://127.0.0.1:{debug_port}/json/list")
+    page = next(tg for tg in targets if tg["type"] == "page")
+    async with websockets.connect(page["webSocketDebuggerUrl"], max_size=None) as ws:
+        tools = DevTools(ws)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            facts = json.loads(await tools.evaluate(PAGE_FACTS))
+            if len(facts["rows"]) == len(services.NAMES) and facts["scans"] > 0 and facts["landmarks"] > 0:
+                break
+            if time.monotonic() > deadline:
+                pytest.fail(f"the page never showed six services and scans: {facts}")
+            await asyncio.sleep(0.3)
+        await asyncio.sleep(0.5)   # a few more redraws
+        shot = await tools.call("Page.captureScreenshot", format="png")
+        html = await tools.evaluate("document.documentElement.outerHTML")
+        return facts, base64.b64decode(shot["data"]), html
+
+
+def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_path):
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        unavailable("chromium is not installed (Debian: apt-get install chromium; deploy/setup-podman.sh does)")
+    from matplotlib import image
+
+    for name in STAGES:
+        cluster.start(name, *(("name=run",) if name == "recorder" else ()))
+    session = cluster.session()
+    with session:
+        cluster.wait_for(session, lambda alive, st: {s for _, s in alive} >= set(STAGES), 30, "liveliness")
+        cluster.start("sensor", *SENSOR)
+        cluster.wait_for(session, lambda a, st: st.get("slam") and st["slam"].counters.get(
+            "out.slam/state", 0) >= 40, 60, "40 SLAM states")
+        assert cluster.stop("sensor") == 0
+
+        # Joining late, with no data flowing: the map comes from the latest-state queryables.
+        http = free_port()
+        cluster.procs["monitor"] = subprocess.Popen(cluster.cmd(
+            "monitor", "--connect", cluster.endpoint, "--robot", cluster.robot, "--port", "0", "--dashboard",
+            "--http-port", str(http), "--log-level", "WARNING"), cwd=cluster.tmp)
+        url = f"http://127.0.0.1:{http}/state.json"
+        snap = wait_state(url, lambda s: s["states"] >= 1, 30, "the slam's latest state")
+        assert snap["scans"] == 0 and snap["landmarks"] and snap["pose"] and snap["map_trajectory"]
+        assert {r["service"] for r in snap["services"]} >= set(STAGES)
+
+        cluster.start("sensor", *SENSOR)
+        wait_state(url, lambda s: s["scans"] >= 20, 60, "scans")
+        profile = tmp_path / "chromium"
+        browser = subprocess.Popen(
+            [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+             "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1280,900",
+             "--no-first-run", f"http://127.0.0.1:{http}/"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            port_file = profile / "DevToolsActivePort"
+            deadline = time.monotonic() + 30
+            while not port_file.exists() or not port_file.read_text().strip():
+                assert browser.poll() is None and time.monotonic() < deadline, "chromium did not start"
+                time.sleep(0.2)
+            facts, png, html = asyncio.run(look_at_page(int(port_file.read_text().split()[0]), 60))
+        finally:
+            browser.terminate()
+            browser.wait(15)
+    for name in ("sensor", *reversed(STAGES), "monitor"):
+        assert cluster.stop(name) == 0, f"{name} did not exit cleanly on SIGTERM"
+
+    Path(tmp_path / "dashboard.png").write_bytes(png)
+    # The DOM: a row per service, each alive, with its health; the header's scan count.
+    assert sorted(row[0] for row in facts["rows"]) == sorted(services.NAMES)
+    assert all(row[1] == "yes" and row[2] in ("OK", "WARN") for row in facts["rows"]), facts["rows"]
+    assert facts["conn"] == "live" and facts["scans"] > 0
+    assert 'id="services"' in html and "<canvas" in html
+    # The screenshot: the canvas holds drawn pixels, landmark red among them.
+    rgb = image.imread(io.BytesIO(png))[..., :3]
+    box = facts["canvas"]
+    crop = rgb[int(box["top"]) + 2:int(box["bottom"]) - 2, int(box["left"]) + 2:int(box["right"]) - 2]
+    drawn = np.any(crop < 0.95, axis=-1)
+    red = (crop[..., 0] > 0.7) & (crop[..., 1] < 0.3) & (crop[..., 2] < 0.3)
+    assert drawn.sum() > 500, f"{drawn.sum()} drawn pixels"
+    assert red.sum() > 10, f"{red.sum()} landmark-red pixels"
+
+
+def test_up_with_monitor_serves_the_dashboard_and_quiet_prints_no_live_line(tmp_path):
+    http, port = free_port(), free_port()
+    up = subprocess.Popen(cluster_cmd("up", "--duration", "10", "--speedup", "4", "--port", str(port), "--robot",
+                                      "r8", "--monitor", "--monitor-port", "0", "--http-port", str(http), "--quiet"),
+                          cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        snap = wait_state(f"http://127.0.0.1:{http}/state.json", lambda s: s["scans"] > 0 and s["landmarks"], 60,
+                          "the dashboard of up's pipeline")
+        out, err = up.communicate(timeout=120)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    assert up.returncode == 0, err[-3000:]
+    assert {r["service"] for r in snap["services"]} == set(services.NAMES)
+    assert "lrfslam up: ran" in out and " scans " not in out.split("lrfslam up: ran")[0], out
+    assert "restarts: monitor" not in out
