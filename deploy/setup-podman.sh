@@ -10,6 +10,7 @@
 #  * a local base image: where no image registry is reachable, `FROM python:3.11-slim-bookworm`
 #    cannot be pulled, so a minimal bookworm with Python 3.11 is built with debootstrap and given
 #    that name. Users with a registry never need it: they pull the real image.
+#  * iproute2: `ip netns`, for the hosts-as-namespaces test (tests/deploy/test_netns_hosts.py).
 #  * podman-compose from PyPI: Debian's 1.0.3 predates `depends_on: condition: service_healthy`.
 set -euo pipefail
 
@@ -26,7 +27,7 @@ fi
 
 # ---- packages -------------------------------------------------------------------------------
 missing=()
-for pkg in podman runc debootstrap python3-venv; do
+for pkg in podman runc debootstrap python3-venv iproute2; do
     dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
 done
 if ((${#missing[@]})); then

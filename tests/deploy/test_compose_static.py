@@ -251,3 +251,25 @@ def test_compose_spec_schema():
     run = subprocess.run([exe, "--builtin-schema", "vendor.compose-spec", str(COMPOSE)],
                          capture_output=True, text=True, timeout=120, check=False)
     assert run.returncode == 0, run.stdout + run.stderr
+
+
+def test_lms200_override_is_the_base_sensor_plus_the_device():
+    """deploy/compose.lms200.yaml: compose replaces a list command whole, so it must stay the base's."""
+    override = yaml.safe_load((DEPLOY / "compose.lms200.yaml").read_text())["services"]
+    base = yaml.safe_load(COMPOSE.read_text())["services"]
+    command = override["sensor"]["command"]
+    assert command[:len(base["sensor"]["command"])] == base["sensor"]["command"]
+    spec = services.spec("sensor")
+    args = service_parser(spec).parse_args(command[1:])
+    cfg = config_mod.service_config(spec, sets=flag_sets(spec, args), file=config_mod.read_file(CONFIG), env={})
+    assert cfg.source == "lms200"
+    (mapping,) = override["sensor"]["devices"]
+    assert interpolate(mapping) == f"/dev/ttyUSB0:{cfg.device}"
+    slam = config_mod.service_config(services.spec("slam"), sets=[], file=config_mod.read_file(CONFIG),
+                                     env=override["slam"]["environment"])
+    assert slam.wait_for_odometry is False
+    exe = shutil.which("check-jsonschema") or shutil.which("check-jsonschema", path=str(Path(sys.executable).parent))
+    if exe is not None:
+        run = subprocess.run([exe, "--builtin-schema", "vendor.compose-spec", str(DEPLOY / "compose.lms200.yaml")],
+                             capture_output=True, text=True, timeout=120, check=False)
+        assert run.returncode == 0, run.stdout + run.stderr
