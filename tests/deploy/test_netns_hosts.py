@@ -24,12 +24,14 @@ matching its own sensor's truth. Needs root (``ip netns``); skips without it, fa
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
 import subprocess
 import sys
 import time
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -316,3 +318,43 @@ def test_pipeline_across_hosts_with_a_moved_slam_and_a_second_robot(hosts):
     for robot, (rmse, final, near, confirmed) in figures.items():
         print(f"{robot}: RMSE {rmse * 100:.1f} cm, final {final * 100:.1f} cm, "
               f"{confirmed} confirmed landmarks, {near:.0%} within 0.3 m of a true corner")
+
+
+def test_a_monitor_on_another_host_serves_the_live_pipeline(hosts):
+    """The robot (router on rt, pipeline on c) watched from host b: ``lrfslam monitor`` there
+    connects to the robot's router across the bridge, and its dashboard, read from a third
+    host (this process), shows the pipeline live: every service alive, scans and SLAM states
+    rising, the pose and landmarks on the map."""
+    h = hosts
+    h.run("rt", "router", "router", "--listen", f"tcp/0.0.0.0:{PORT}")
+    for name in ("recorder", "slam", "features", "denoise"):
+        h.service("c", "r1", name)
+    http_port = 8080
+    h.run("b", "monitor", "monitor", "--connect", h.router, "--robot", "r1", "--dashboard",
+          "--host", "0.0.0.0", "--http-port", str(http_port), "--port", "8765")
+    url = f"http://{h.subnet}.2:{http_port}/state.json"
+
+    def snapshot() -> dict | None:
+        try:
+            with urllib.request.urlopen(url, timeout=5) as reply:
+                return json.loads(reply.read())
+        except OSError:
+            return None
+
+    def wait_for(predicate, what: str) -> dict:
+        deadline = time.monotonic() + TIMEOUT_S
+        while time.monotonic() < deadline:
+            snap = snapshot()
+            if snap is not None and predicate(snap):
+                return snap
+            time.sleep(0.5)
+        pytest.fail(f"timed out waiting for {what}: {snapshot()}\n{h.tail()}")
+
+    stages = {"recorder", "slam", "features", "denoise"}
+    wait_for(lambda s: stages <= {r["service"] for r in s["services"] if r["alive"]}, "the stages on the dashboard")
+    h.service("b", "r1", "sensor", f"speedup={SPEEDUP}", f"max_scans={SCANS}")
+    first = wait_for(lambda s: s["scans"] >= 30 and s["pose"] is not None, "live scans")
+    later = wait_for(lambda s: s["states"] >= first["states"] + 60 and len(s["landmarks"]) > 0, "more states")
+    rows = {r["service"]: r for r in later["services"]}
+    assert set(rows) == stages | {"sensor"} and all(r["alive"] for r in rows.values()), rows
+    assert later["scans"] > first["scans"] and len(later["trajectory"]) >= 2
