@@ -87,35 +87,48 @@ class DevTools:
 
     async def evaluate(self, expression: str):
         result = await self.call("Runtime.evaluate", expression=expression, returnByValue=True)
+        if "exceptionDetails" in result:
+            raise RuntimeError(f"the page threw: {result['exceptionDetails'].get('exception', {}).get('description')}")
         return result["result"].get("value")
 
 
 PAGE_FACTS = """JSON.stringify({
   rows: [...document.querySelectorAll('#services tbody tr')].map(r => [...r.cells].map(c => c.textContent)),
   scans: Number(document.getElementById('scans').textContent),
+  states: Number(document.getElementById('states').textContent),
+  trajectory: window.snapshot ? window.snapshot.trajectory.length : 0,
   landmarks: Number(document.getElementById('landmarks').textContent),
   conn: document.getElementById('conn').textContent,
   canvas: document.getElementById('map').getBoundingClientRect().toJSON()})"""
 
 
-async def look_at_page(debug_port: int, timeout_s: float) -> tuple[dict, bytes, str]:
-    """Wait until the page shows six services and scans; (facts, screenshot PNG, the page's HTML)."""
+async def look_at_page(debug_port: int, timeout_s: float) -> tuple[dict, dict, bytes, str]:
+    """Wait until the page shows six services and scans, then until the map has grown;
+    (first facts, later facts, screenshot PNG, the page's HTML)."""
     targets = get_json(f"http://127.0.0.1:{debug_port}/json/list")
     page = next(tg for tg in targets if tg["type"] == "page")
     async with websockets.connect(page["webSocketDebuggerUrl"], max_size=None) as ws:
         tools = DevTools(ws)
         deadline = time.monotonic() + timeout_s
         while True:
-            facts = json.loads(await tools.evaluate(PAGE_FACTS))
+            try:
+                facts = json.loads(await tools.evaluate(PAGE_FACTS))
+            except RuntimeError:   # the page is still loading
+                facts = {"rows": [], "scans": 0, "landmarks": 0}
             if len(facts["rows"]) == len(services.NAMES) and facts["scans"] > 0 and facts["landmarks"] > 0:
                 break
             if time.monotonic() > deadline:
                 pytest.fail(f"the page never showed six services and scans: {facts}")
             await asyncio.sleep(0.3)
-        await asyncio.sleep(0.5)   # a few more redraws
+        first = facts
+        while facts["states"] < first["states"] + 20 or facts["trajectory"] <= first["trajectory"]:
+            if time.monotonic() > deadline:
+                pytest.fail(f"the map on the page did not grow: {first} -> {facts}")
+            await asyncio.sleep(0.3)
+            facts = json.loads(await tools.evaluate(PAGE_FACTS))
         shot = await tools.call("Page.captureScreenshot", format="png")
         html = await tools.evaluate("document.documentElement.outerHTML")
-        return facts, base64.b64decode(shot["data"]), html
+        return first, facts, base64.b64decode(shot["data"]), html
 
 
 def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_path):
@@ -157,7 +170,7 @@ def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_
             while not port_file.exists() or not port_file.read_text().strip():
                 assert browser.poll() is None and time.monotonic() < deadline, "chromium did not start"
                 time.sleep(0.2)
-            facts, png, html = asyncio.run(look_at_page(int(port_file.read_text().split()[0]), 60))
+            first, facts, png, html = asyncio.run(look_at_page(int(port_file.read_text().split()[0]), 60))
         finally:
             browser.terminate()
             browser.wait(15)
@@ -168,7 +181,9 @@ def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_
     # The DOM: a row per service, each alive, with its health; the header's scan count.
     assert sorted(row[0] for row in facts["rows"]) == sorted(services.NAMES)
     assert all(row[1] == "yes" and row[2] in ("OK", "WARN") for row in facts["rows"]), facts["rows"]
-    assert facts["conn"] == "live" and facts["scans"] > 0
+    assert facts["conn"] == "live" and facts["scans"] > first["scans"] > 0
+    # Live data keeps coming and the map grows: more states, a longer trajectory (look_at_page).
+    assert facts["states"] >= first["states"] + 20 and facts["trajectory"] > first["trajectory"]
     assert 'id="services"' in html and "<canvas" in html
     # The screenshot: the canvas holds drawn pixels, landmark red among them.
     rgb = image.imread(io.BytesIO(png))[..., :3]
