@@ -7,6 +7,7 @@ and a recording that the mcap library decodes with the schemas embedded in it.
 
 from __future__ import annotations
 
+import re
 import signal
 from collections import Counter
 
@@ -17,6 +18,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
+from lrfslam.tools.status import format_table
 
 pytestmark = pytest.mark.integration
 
@@ -35,7 +37,14 @@ def test_pipeline_runs_end_to_end_over_zenoh(cluster):
     with session:
         cluster.wait_for(session, lambda alive, st: {s for _, s in alive} >= set(STAGES), 30, "liveliness")
         cluster.start("sensor", "speedup=4", "seed=3", "source=sim")
-        cluster.wait_for(session, lambda a, st: out(st, "slam", "slam/state") >= 40, 60, "40 SLAM states")
+        st = cluster.wait_for(session, lambda a, st: out(st, "slam", "slam/state") >= 40 and st, 60, "40 SLAM states")
+        # Each stage's latency, receipt of an input to its outputs published: measured, ordered, in
+        # the table; the sensor, which has no inputs, reports none.
+        for name in ("denoise", "features", "slam"):
+            c = st[name].counters
+            assert 0 < c["latency.p50_us"] <= c["latency.p99_us"], (name, c)
+            assert re.search(rf"\b{name}\b.*\b\d+\.\d/\d+\.\d\b", format_table(set(), [st[name]])), name
+        assert "latency.p50_us" not in st["sensor"].counters
 
         # Bad samples on the scan key: a future schema version and a corrupt payload.
         key = topics.key(cluster.robot, "scan")

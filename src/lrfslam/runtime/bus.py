@@ -20,6 +20,7 @@ import queue
 import re
 import struct
 import threading
+import time
 from collections import Counter
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -213,6 +214,8 @@ class ZenohBus:
         self._tracker = SequenceTracker()
         self._dropped = 0
         self._left_at_stop = 0
+        #: When the Zenoh callback queued the input :meth:`get` returned last (monotonic ns).
+        self.received_ns = 0
         self._prefix = topics.key(robot, "")
         self._by_key = {topics.key(robot, t.name): t for t in inputs}
         keys = [topics.everything(robot)] if raw else list(self._by_key)
@@ -222,7 +225,7 @@ class ZenohBus:
         key = str(sample.key_expr)
         att = sample.attachment
         att_bytes = att.to_bytes() if att is not None else None
-        item = (key, sample.payload.to_bytes(), str(sample.encoding), att_bytes)
+        item = (key, sample.payload.to_bytes(), str(sample.encoding), att_bytes, time.monotonic_ns())
         seq, _, producer = parse_attachment(att_bytes)
         with self._lock:
             if att_bytes is not None:
@@ -268,7 +271,7 @@ class ZenohBus:
     def get(self, timeout_s: float) -> Message | None:
         """The next decodable input, or None after ``timeout_s`` without one."""
         try:
-            key, payload, encoding, att = self._queue.get(timeout=timeout_s)
+            key, payload, encoding, att, self.received_ns = self._queue.get(timeout=timeout_s)
         except queue.Empty:
             return None
         seq, stamp_ns, _ = parse_attachment(att)

@@ -42,6 +42,7 @@ from lrfslam.runtime.bus import (
 )
 from lrfslam.runtime.chain import Stage, replay_recording
 from lrfslam.runtime.decoding import LogOnce
+from lrfslam.runtime.latency import LatencyWindow
 from lrfslam.runtime.recording import RecordingSource, describe_source
 from lrfslam.runtime.step import RunContext, ServiceSpec, Source
 
@@ -199,6 +200,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         step = spec.build(cfg, RunContext(robot))
         is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
         bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts)
+        latency = LatencyWindow()
         slow_s = bus_cfg.debug_delay_s(spec.name)
         if slow_s:
             log.warning("debug: sleeping %.0f ms after each input (bus.debug_slow)", slow_s * 1e3)
@@ -217,6 +219,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             merged = Counter(counts)
             merged.update(bus.receive_counts())
             merged.update({f"step.{k}": v for k, v in step.counts.items()})
+            merged.update(latency.counters())
             return t.ServiceStatus(
                 spec.name, robot, level, message, time.time_ns(), time.monotonic() - started,
                 dict(merged), last_data[0], config_mod.to_json(cfg),
@@ -259,7 +262,10 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         def handle(msg) -> None:
             last_data[0] = max(last_data[0], int(msg.stamp_ns))
             try:
-                publish(step.on_message(msg))
+                outs = list(step.on_message(msg))
+                publish(outs)
+                if outs:
+                    latency.add(time.monotonic_ns() - bus.received_ns)
             except InputError as exc:
                 counts["error.input"] += 1
                 once.warning("error.input", type(exc).__name__, "skipping bad input on %s: %s", msg.name, exc)

@@ -63,16 +63,25 @@ def total(counters: dict[str, int], prefix: str) -> int:
     return sum(v for k, v in counters.items() if k.startswith(prefix))
 
 
+def latency_cell(counters: dict[str, int]) -> str:
+    """``p50/p99`` in ms from a status's ``latency.*`` counters; "–" for a service without inputs."""
+    if "latency.p50_us" not in counters:
+        return "–"
+    return f"{counters['latency.p50_us'] / 1e3:.1f}/{counters['latency.p99_us'] / 1e3:.1f}"
+
+
 def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
                  rates: dict[tuple[str, str], tuple[float, float]] | None = None) -> str:
     """One row per service. ``uptime_s`` is on the service's monotonic clock; ``dropped`` counts
     inputs it received but will not handle (``drop.*``), ``gaps``/``dups`` inputs that never reached it / came twice
-    (sequence numbers, docs/delivery.md), ``restarts`` new producers it saw on its inputs.
+    (sequence numbers, docs/delivery.md), ``restarts`` new producers it saw on its inputs;
+    ``latency_ms`` the median/99th percentile from receiving an input to publishing its outputs
+    (lrfslam/runtime/latency.py).
 
     With ``rates`` ((robot, service) -> inputs/s, outputs/s; ``--watch``), also those rates and
     each service's health message (its last error, where it has one)."""
-    head = ["robot", "service", "alive", "health", "uptime_s", "in", "out", "dropped", "gaps", "dups",
-            "restarts", "errors", "pid@host"]
+    head = ["robot", "service", "alive", "health", "uptime_s", "in", "out", "latency_ms", "dropped", "gaps",
+            "dups", "restarts", "errors", "pid@host"]
     if rates is not None:
         head[7:7] = ["in/s", "out/s"]
         head.append("message")
@@ -83,7 +92,7 @@ def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
         c = s.counters
         row = [s.robot, s.service, "yes" if (s.robot, s.service) in alive else "no",
                LEVELS.get(s.level, str(s.level)), f"{s.uptime_s:.0f}",
-               str(total(c, "in.")), str(total(c, "out.")), str(total(c, "drop.")),
+               str(total(c, "in.")), str(total(c, "out.")), latency_cell(c), str(total(c, "drop.")),
                str(total(c, "gap.")), str(total(c, "dup.")), str(total(c, "restart.")),
                str(sum(v for k, v in c.items() if k.startswith(("error.", "step.error")))),
                f"{s.pid}@{s.host}"]
