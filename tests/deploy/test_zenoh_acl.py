@@ -24,7 +24,14 @@ import zenoh
 
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.bus import ZenohBus, attachment, parse_attachment
+from lrfslam.runtime.bus import (
+    BusConfig,
+    Message,
+    ZenohBus,
+    attachment,
+    parse_attachment,
+)
+from lrfslam.tools.monitor import Monitor
 from lrfslam.tools.status import client_config
 from lrfslam.tools.status import main as status
 
@@ -120,6 +127,19 @@ class Received:
             return [(stamp_ns, payload) for key, stamp_ns, payload in self.samples if key == name]
 
 
+class Names:
+    """A monitor sink: the relative key of every message the `lrfslam monitor` feed hands it."""
+
+    def __init__(self) -> None:
+        self.names: list[str] = []
+
+    def on_message(self, msg: Message) -> None:
+        self.names.append(msg.name)
+
+    def close(self) -> None:
+        pass
+
+
 def wait_until(predicate, what: str, timeout_s: float = 15.0):
     deadline = time.monotonic() + timeout_s
     while not (value := predicate()):
@@ -149,6 +169,30 @@ def test_clients_without_the_robots_credentials_are_refused(pipeline):
 
 def test_a_monitor_reads_but_cannot_publish_or_answer(pipeline, capsys):
     paths, endpoint = pipeline
+    # The `lrfslam monitor` feed (its Foxglove server left out) with the monitor certificate.
+    feed, stop = Names(), threading.Event()
+    monitor = Monitor(BusConfig(robot=ROBOT, mode="client", connect=(endpoint,), zenoh_config=str(paths["monitor"])),
+                      [feed])
+    feed_thread = threading.Thread(target=monitor.run, args=(stop,))
+    feed_thread.start()
+    try:
+        wait_until(lambda: "health/denoise" in feed.names, "the monitor feed never got denoise's health")
+        monitor_sees_the_pipeline_but_cannot_write(paths, endpoint)
+        wait_until(lambda: "scan/filtered" in feed.names, "the monitor feed never got the pipeline's output")
+    finally:
+        stop.set()
+        feed_thread.join(10)
+    assert feed.names.count("scan") == 1 and feed.names.count("scan/filtered") == 1
+
+    # The monitor's certificate runs `lrfslam status` and sees the pipeline's counters.
+    capsys.readouterr()
+    assert status(["--zenoh-config", str(paths["monitor"]), "-e", endpoint, "--robot", ROBOT, "--json"]) == 0
+    (denoise,) = json.loads(capsys.readouterr().out)
+    assert denoise["service"] == "denoise"
+    assert denoise["counters"]["in.scan"] == 1
+
+
+def monitor_sees_the_pipeline_but_cannot_write(paths: dict[str, Path], endpoint: str) -> None:
     with open_session(paths["service"], endpoint) as svc, open_session(paths["monitor"], endpoint) as mon:
         seen_by_service, seen_by_monitor = Received(svc), Received(mon)
         monitor_queries: list[str] = []
@@ -194,10 +238,3 @@ def test_a_monitor_reads_but_cannot_publish_or_answer(pipeline, capsys):
             entity.undeclare()
         svc_bus.close()
         mon_bus.close()
-
-    # The monitor's certificate runs `lrfslam status` and sees the pipeline's counters.
-    capsys.readouterr()
-    assert status(["--zenoh-config", str(paths["monitor"]), "-e", endpoint, "--robot", ROBOT, "--json"]) == 0
-    (denoise,) = json.loads(capsys.readouterr().out)
-    assert denoise["service"] == "denoise"
-    assert denoise["counters"]["in.scan"] == 1
