@@ -3,7 +3,9 @@
 Builds the image (deploy/podman-build.sh), starts the router and the five services as
 containers, asks the published router port from the host which services are alive (as a
 remote monitor would), runs every container's healthcheck, stops the sensor first and then
-the rest, and reads the recording back. Needs podman, podman-compose and a base image
+the rest, and reads the recording back; once as shipped and once with compose.tls.yaml over
+it (every link mutual TLS, the router's access-control list, asked with the monitor
+certificate). Needs podman, podman-compose and a base image
 (deploy/setup-podman.sh prepares a Debian machine); skips when podman is missing.
 """
 
@@ -24,11 +26,13 @@ from lrfslam import services
 from lrfslam.msgs import codec
 from lrfslam.runtime.recording import ReadReport, read_recording
 from lrfslam.tools.status import check, client_config, query_status
+from lrfslam.tools.status import main as status
 
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "deploy" / "compose.yaml"
+COMPOSE_TLS = ROOT / "deploy" / "compose.tls.yaml"
 RUN_S = 40.0            # wall time with all five up; at speedup 1 that is ~400 scans at 10 Hz
 STARTUP_TIMEOUT_S = 90.0
 CONTAINERS = ("zenohd", *services.NAMES)
@@ -73,7 +77,7 @@ def run(argv: list[str], timeout: float, env: dict | None = None, check: bool = 
 class Deployment:
     """One compose project with its own name, router port and recordings folder."""
 
-    def __init__(self, compose: list[str], tmp: Path) -> None:
+    def __init__(self, compose: list[str], tmp: Path, tls: bool = False) -> None:
         self.project = f"lrfslam-test-{os.getpid()}"
         self.port = free_port()
         self.recordings = tmp / "recordings"
@@ -82,6 +86,17 @@ class Deployment:
                         LRFSLAM_RECORDINGS=str(self.recordings))
         self.compose = [*compose, "-p", self.project, "-f", str(COMPOSE)]
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.zenoh_config: str | None = None
+        if tls:
+            certs = tmp / "tls"
+            run([str(ROOT / "deploy" / "zenoh" / "make-certs.sh"), str(certs), "robot.test"], 60)
+            self.env["LRFSLAM_TLS"] = str(certs)
+            self.compose += ["-f", str(COMPOSE_TLS)]
+            self.endpoint = f"tls/127.0.0.1:{self.port}"
+            monitor = tmp / "monitor-tls.json5"
+            monitor.write_text((ROOT / "deploy" / "zenoh" / "monitor-tls.json5").read_text()
+                               .replace('"tls/', f'"{certs}/'))
+            self.zenoh_config = str(monitor)
 
     def __call__(self, *args: str, timeout: float = 120, check: bool = True) -> subprocess.CompletedProcess:
         return run([*self.compose, *args], timeout, self.env, check)
@@ -108,18 +123,19 @@ class Deployment:
         return "\n".join(out)
 
 
-def ask(endpoint: str) -> tuple[set, list]:
-    with zenoh.open(client_config([endpoint])) as session:
+def ask(dep: Deployment) -> tuple[set, list]:
+    with zenoh.open(client_config([dep.endpoint], dep.zenoh_config)) as session:
         return query_status(session, "*", 3.0)
 
 
-def test_compose_up_status_down_recording(engine, tmp_path):
+@pytest.mark.parametrize("tls", [False, True], ids=["plain", "tls-acl"])
+def test_compose_up_status_down_recording(engine, tmp_path, tls):
     t0 = time.monotonic()
     # The build is part of the test: the Dockerfile must install the repo on the base image.
     run([str(ROOT / "deploy" / "podman-build.sh")], 1200, dict(os.environ, LRFSLAM_IMAGE="lrfslam:test"))
     build_s = time.monotonic() - t0
 
-    dep = Deployment(engine, tmp_path)
+    dep = Deployment(engine, tmp_path, tls)
     try:
         dep("up", "-d", "--no-build", timeout=180)
 
@@ -128,7 +144,7 @@ def test_compose_up_status_down_recording(engine, tmp_path):
         problems = ["not asked yet"]
         while time.monotonic() < deadline:
             try:
-                alive, statuses = ask(dep.endpoint)
+                alive, statuses = ask(dep)
                 problems = check(alive, statuses, list(services.NAMES))
             except zenoh.ZError as exc:
                 problems = [f"router unreachable: {exc}"]
@@ -152,8 +168,10 @@ def test_compose_up_status_down_recording(engine, tmp_path):
             assert len(failures) < HEALTHCHECK_RETRIES, \
                 f"{service} healthcheck: {failures}\n{dep.health_log(service)}\n{dep.logs()}"
 
+        if tls:   # the published port takes no plain TCP any more
+            assert status(["-e", f"tcp/127.0.0.1:{dep.port}", "--check"]) == 2
         time.sleep(RUN_S)
-        alive, statuses = ask(dep.endpoint)
+        alive, statuses = ask(dep)
         assert not check(alive, statuses, list(services.NAMES)), dep.logs()
         by_name = {s.service: s.counters for s in statuses}
         assert set(by_name) == set(services.NAMES), sorted(by_name)
