@@ -136,6 +136,9 @@ class Names:
     def on_message(self, msg: Message) -> None:
         self.names.append(msg.name)
 
+    def on_alive(self, service: str, alive: bool) -> None:
+        pass
+
     def close(self) -> None:
         pass
 
