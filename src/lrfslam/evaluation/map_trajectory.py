@@ -56,27 +56,47 @@ def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.Map
     return out
 
 
+class FinalTrajectoryBuilder:
+    """Collects what the final trajectory needs from a recording's decoded messages, in log order.
+
+    Feed every ``slam/state``, ``map/pose`` and ``map/keyframes`` to :meth:`add` (others are
+    ignored), then ask :meth:`result`; a reader that decodes these topics anyway (``export``)
+    needs no second pass over the recording.
+    """
+
+    #: The topics :meth:`add` uses.
+    TOPICS = (topics.SLAM_STATE.name, topics.MAP_POSE.name, topics.MAP_KEYFRAMES.name)
+
+    def __init__(self) -> None:
+        self._local: dict[str, tuple[list[int], list[np.ndarray]]] = {"map": ([], []), "slam": ([], [])}
+        self._last: t.MapKeyframes | None = None
+
+    def add(self, topic: str, value) -> None:
+        if topic == topics.MAP_KEYFRAMES.name:
+            self._last = value
+        elif topic == topics.SLAM_STATE.name:
+            self._local["slam"][0].append(value.stamp_ns)
+            self._local["slam"][1].append(value.pose)
+        elif topic == topics.MAP_POSE.name and value.local_pose is not None:
+            self._local["map"][0].append(value.stamp_ns)
+            self._local["map"][1].append(value.local_pose)
+
+    def result(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Stamps (ns, (T,)) and final poses ((T, 3)); None without ``map/keyframes``."""
+        stamps, poses = self._local["map"] if self._local["map"][0] else self._local["slam"]
+        if self._last is None or not stamps:
+            return None
+        order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
+        s = np.array(stamps, dtype=np.int64)[order]
+        return s, final_poses(s, np.array(poses)[order], self._last)
+
+
 def final_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
     """Stamps (ns, (T,)) and final poses ((T, 3)) of a recording's scans; None without ``map/keyframes``."""
-    local: dict[str, tuple[list[int], list[np.ndarray]]] = {"map": ([], []), "slam": ([], [])}
-    last: t.MapKeyframes | None = None
-    for rec in read_recording(path, [topics.SLAM_STATE.name, topics.MAP_POSE.name, topics.MAP_KEYFRAMES.name]):
-        topic = topics.by_name(rec.topic)
+    builder = FinalTrajectoryBuilder()
+    for rec in read_recording(path, list(FinalTrajectoryBuilder.TOPICS)):
         try:
-            value = topic.codec.decode(rec.data, rec.schema)
+            builder.add(rec.topic, topics.by_name(rec.topic).codec.decode(rec.data, rec.schema))
         except DecodeError:
             continue
-        if topic is topics.MAP_KEYFRAMES:
-            last = value
-        elif topic is topics.SLAM_STATE:
-            local["slam"][0].append(value.stamp_ns)
-            local["slam"][1].append(value.pose)
-        elif value.local_pose is not None:
-            local["map"][0].append(value.stamp_ns)
-            local["map"][1].append(value.local_pose)
-    stamps, poses = local["map"] if local["map"][0] else local["slam"]
-    if last is None or not stamps:
-        return None
-    order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
-    s = np.array(stamps, dtype=np.int64)[order]
-    return s, final_poses(s, np.array(poses)[order], last)
+    return builder.result()

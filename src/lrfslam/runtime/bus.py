@@ -208,7 +208,8 @@ class ZenohBus:
         self._counts = counts
         self._once = LogOnce(log)
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._producer = producer_id(session)
+        #: This session's producer id, in every attachment it puts.
+        self.producer = producer_id(session)
         # Zenoh may call back from several threads; the status is read from the main one.
         self._lock = threading.Lock()
         self._tracker = SequenceTracker()
@@ -286,9 +287,11 @@ class ZenohBus:
         self._counts[f"in.{topic.name}"] += 1
         return decode_message(topic, payload, schema, self._counts, self._once, key)
 
-    def publish(self, out: Output) -> None:
-        """Encode and put ``out.value`` on its topic's key with schema and attachment."""
-        self.put(out.topic, out.topic.codec.encode(out.value), out.value.stamp_ns, out.value.seq)
+    def publish(self, out: Output) -> bytes:
+        """Encode and put ``out.value`` on its topic's key with schema and attachment; the payload put."""
+        payload = out.topic.codec.encode(out.value)
+        self.put(out.topic, payload, out.value.stamp_ns, out.value.seq)
+        return payload
 
     def publisher(self, topic: Topic) -> zenoh.Publisher:
         """``topic``'s publisher, declared on first use with the topic's delivery policy."""
@@ -302,7 +305,7 @@ class ZenohBus:
 
     def put(self, topic: Topic, payload: bytes, stamp_ns: int, seq: int) -> None:
         """Put ``payload`` on ``topic``'s key; ``seq`` numbers the topic's messages 1, 2, 3, … (gaps are losses)."""
-        self.publisher(topic).put(payload, attachment=attachment(seq, stamp_ns, self._producer))
+        self.publisher(topic).put(payload, attachment=attachment(seq, stamp_ns, self.producer))
         self._counts[f"out.{topic.name}"] += 1
 
     def close(self) -> None:

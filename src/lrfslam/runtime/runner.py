@@ -37,7 +37,6 @@ from lrfslam.runtime.bus import (
     ZenohBus,
     attachment,
     open_session,
-    producer_id,
     zenoh_config,
 )
 from lrfslam.runtime.chain import Stage, replay_recording
@@ -208,7 +207,6 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         status_q = session.declare_queryable(topics.status(robot, spec.name))
         # The newest of the outputs a late viewer needs, kept encoded.
         newest: dict[str, tuple[bytes, int, int]] = {}   # topic name -> (payload, seq, stamp ns)
-        producer = producer_id(session)
         latest_qs = {tp.name: session.declare_queryable(topics.latest(robot, tp.name)) for tp in spec.latest}
         # Last: a supervisor that sees the token may start the sensor, so the subscribers must exist by then.
         token = session.liveliness().declare_token(topics.alive(robot, spec.name))
@@ -227,12 +225,9 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
 
         def publish(outs) -> None:
             for out in outs:
+                payload = bus.publish(out)
                 if out.topic.name in latest_qs:
-                    payload = out.topic.codec.encode(out.value)
-                    bus.put(out.topic, payload, out.value.stamp_ns, out.value.seq)
                     newest[out.topic.name] = (payload, out.value.seq, out.value.stamp_ns)
-                else:
-                    bus.publish(out)
                 last_data[0] = max(last_data[0], int(out.value.stamp_ns))
 
         def answer_latest() -> None:
@@ -242,7 +237,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                         if name in newest:
                             payload, seq, stamp = newest[name]
                             query.reply(topics.latest(robot, name), payload,
-                                        attachment=attachment(seq, stamp, producer),
+                                        attachment=attachment(seq, stamp, bus.producer),
                                         encoding=zenoh.Encoding(topics.by_name(name).codec.encoding))
 
         def publish_health() -> None:

@@ -40,7 +40,7 @@ from lrfslam.algo.occupancy_grid import (
     build_grid,
 )
 from lrfslam.errors import DecodeError, MissingExtraError, RecordingError
-from lrfslam.evaluation.map_trajectory import final_trajectory
+from lrfslam.evaluation.map_trajectory import FinalTrajectoryBuilder
 from lrfslam.extras import require
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -61,7 +61,8 @@ ELLIPSE_MIN_FRACTION = 0.004
 
 
 def collect(path: RecordingSource, scans: bool = True) -> dict:
-    """Trajectory, odometry, truth, scans and the last SLAM state of a recording (file, folder or files).
+    """Trajectory, odometry, truth, scans, the last SLAM state and the mapper's final trajectory
+    (``"final"``, None without ``map/keyframes``) of a recording (file, folder or files), in one pass.
 
     Undecodable messages are skipped and counted (``"undecodable"``). ``"seen_ns"`` maps each
     landmark id to the stamp of the last state whose sightings of it grew. ``scans`` False:
@@ -77,12 +78,16 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
     undecodable = 0
     seen_ids, seen_sightings = np.zeros(0, np.int64), np.zeros(0, np.int64)
     seen_ns: dict[int, int] = {}
-    wanted = [topics.SLAM_STATE.name, topics.ODOM.name, topics.TRUTH.name] + ([topics.SCAN.name] if scans else [])
+    final = FinalTrajectoryBuilder()
+    wanted = [*FinalTrajectoryBuilder.TOPICS, topics.ODOM.name, topics.TRUTH.name] + ([topics.SCAN.name] if scans else [])
     for m in read_recording(path, wanted):
         try:
             value = topics.by_name(m.topic).codec.decode(m.data, m.schema)
         except DecodeError:
             undecodable += 1
+            continue
+        final.add(m.topic, value)
+        if m.topic in (topics.MAP_POSE.name, topics.MAP_KEYFRAMES.name):
             continue
         if m.topic == topics.SLAM_STATE.name:
             last = value
@@ -101,7 +106,7 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
     if last is None:
         raise RecordingError(f"{describe_source(path)} has no decodable {topics.SLAM_STATE.name} messages")
     return {"states": states, "odom": odom, "truth": truth, "last": last, "undecodable": undecodable,
-            "scans": scan_of, "scans_read": scans, "seen_ns": seen_ns}
+            "scans": scan_of, "scans_read": scans, "seen_ns": seen_ns, "final": final.result()}
 
 
 def _grown(ids: np.ndarray, sightings: np.ndarray, old_ids: np.ndarray, old_sightings: np.ndarray) -> np.ndarray:
@@ -157,9 +162,9 @@ class Scene:
     view: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
 
 
-def best_trajectory(path: RecordingSource, data: dict) -> tuple[np.ndarray, np.ndarray, str]:
+def best_trajectory(data: dict) -> tuple[np.ndarray, np.ndarray, str]:
     """Stamps (T,), poses (T, 3) and a label: the mapper's final trajectory when recorded, else the EKF's."""
-    final = final_trajectory(path)
+    final = data["final"]
     if final is not None:
         return final[0], final[1], "mapper's final trajectory"
     return (np.array([s for s, _ in data["states"]], dtype=np.int64),
@@ -198,7 +203,7 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None) -> 
 
     ``grid_params`` None: no grid.
     """
-    stamps, poses, label = best_trajectory(path, data)
+    stamps, poses, label = best_trajectory(data)
     last = data["last"]
     # Each landmark moves with the correction of the pose of the scan that saw it last.
     slam_at = dict(data["states"])

@@ -23,6 +23,7 @@ from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import health_file
 from lrfslam.viz.dashboard import rates as status_rates
+from lrfslam.viz.dashboard import total
 
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
 
@@ -58,11 +59,6 @@ def query_status(session: zenoh.Session, robot: str, timeout_s: float) -> tuple[
     return alive, sorted(statuses, key=lambda s: (s.robot, s.service))
 
 
-def total(counters: dict[str, int], prefix: str) -> int:
-    """Sum of the counters whose names start with ``prefix``."""
-    return sum(v for k, v in counters.items() if k.startswith(prefix))
-
-
 def latency_cell(counters: dict[str, int]) -> str:
     """``p50/p99`` in ms from a status's ``latency.*`` counters; "–" for a service without inputs."""
     if "latency.p50_us" not in counters:
@@ -94,7 +90,7 @@ def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
                LEVELS.get(s.level, str(s.level)), f"{s.uptime_s:.0f}",
                str(total(c, "in.")), str(total(c, "out.")), latency_cell(c), str(total(c, "drop.")),
                str(total(c, "gap.")), str(total(c, "dup.")), str(total(c, "restart.")),
-               str(sum(v for k, v in c.items() if k.startswith(("error.", "step.error")))),
+               str(total(c, "error.", "step.error")),
                f"{s.pid}@{s.host}"]
         if rates is not None:
             r = rates.get((s.robot, s.service))

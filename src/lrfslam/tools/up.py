@@ -52,6 +52,7 @@ from lrfslam.runtime.recording import ReadReport, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
 from lrfslam.tools.info import segment_lines
 from lrfslam.tools.status import client_config
+from lrfslam.viz.dashboard import counter_figures
 
 log = logging.getLogger("lrfslam.up")
 
@@ -636,15 +637,10 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
     lines = ["", f"lrfslam up: ran {wall_s:.1f} s (monotonic clock)", "",
              "stage      in          out         dropped  gaps    errors  restarts  exit"]
     for name, child in children.items():
-        c = observer.counters(name)
-        ins = sum(v for k, v in c.items() if k.startswith("in."))
-        outs = sum(v for k, v in c.items() if k.startswith("out.") and not k.startswith("out.health"))
-        gaps = sum(v for k, v in c.items() if k.startswith("gap."))
-        dropped = sum(v for k, v in c.items() if k.startswith("drop."))
-        errs = sum(v for k, v in c.items() if k.startswith("error.") or ".error" in k)
+        f = counter_figures(observer.counters(name))
         code = child.proc.returncode if child.proc else None
-        lines.append(f"{name:10s} {ins:<11d} {outs:<11d} {dropped:<8d} {gaps:<7d} {errs:<7d} "
-                     f"{child.restarts:<9d} {code}")
+        lines.append(f"{name:10s} {f['in']:<11d} {f['out']:<11d} {f['dropped']:<8d} {f['gaps']:<7d} "
+                     f"{f['errors']:<7d} {child.restarts:<9d} {code}")
     err = pose_errors(observer)
     lines.append("")
     if err is None:
