@@ -10,21 +10,32 @@ closes the loops it cannot, from a large prior error. A slam state waits for its
 scan: its own was lost), so the result does not depend on how the two streams interleave. The final
 trajectory of a recording is every slam state placed by the last ``map/keyframes``
 (``lrfslam.evaluation.map_trajectory``).
+
+With ``checkpoint_path`` set, the graph is saved atomically every ``checkpoint_every_keyframes``
+keyframes and on exit, and a restarted mapper continues it. The local trajectory is the chain of the
+states' motions; where that chain breaks (a state number skipped: states lost, this stage or the slam
+stage restarted) the filter's own pose change bridges the gap, taken as the motion across it: the
+closures that follow correct what the filter got wrong meanwhile.
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
-from lrfslam.errors import ConfigError
+from lrfslam.errors import ConfigError, InputError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime import npz_file
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
+
+log = logging.getLogger("lrfslam.mapper")
 
 #: What the mapper's local trajectory (its odometry edges, and each scan's place between keyframes) is made of.
 LOCAL_TRAJECTORIES = ("slam_motion", "slam_pose")
@@ -37,11 +48,15 @@ class MapperConfig:
     # "slam_motion": the chain of the motions that moved the filter (scan-matched, else odometry);
     # "slam_pose": the filter's poses, landmark corrections included (see docs/slam.md for the choice).
     local_trajectory: str = "slam_motion"
+    checkpoint_path: str = ""              # e.g. checkpoints/mapper.npz; empty = no checkpoints
+    checkpoint_every_keyframes: int = 20   # the graph and its keyframes' points: ~2 KB a keyframe
 
     def __post_init__(self) -> None:
         if self.local_trajectory not in LOCAL_TRAJECTORIES:
             raise ConfigError(f"mapper.local_trajectory must be one of {', '.join(LOCAL_TRAJECTORIES)}, "
                               f"not {self.local_trajectory!r}")
+        if self.checkpoint_every_keyframes < 1:
+            raise ConfigError("mapper.checkpoint_every_keyframes must be >= 1")
 
 
 class MapperStep(StepBase):
@@ -58,6 +73,11 @@ class MapperStep(StepBase):
         self._last_stamp = 0
         self._local: np.ndarray | None = None   # the last state's pose on the local trajectory
         self._last_slam_pose = np.zeros(3)
+        self._last_state_seq = -1   # the last state's number; -1: none yet
+        self._saved_keyframes = 0
+        self.checkpoint = Path(cfg.checkpoint_path) if cfg.checkpoint_path and not ctx.replay else None
+        if self.checkpoint is not None and self.checkpoint.exists():
+            self._restore(self.checkpoint)
 
     def on_message(self, msg: Message):
         v = msg.value
@@ -75,13 +95,15 @@ class MapperStep(StepBase):
             outs.append(self._keyframes(self._last_stamp))
         return outs
 
+    def close(self) -> None:
+        if self.checkpoint is not None and self.mapper.keyframe_count:
+            self._save(self.checkpoint)
+
     def _place(self, state: t.SlamState, points: np.ndarray | None) -> list[Output]:
         if points is None:
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
-        local = self._local_pose(state)
-        # The scan-matched motion is the reference the local motion is checked against for jumps.
-        reference = state.motion if state.motion is not None and state.motion_matched else None
+        local, reference = self._local_pose(state)
         pose = self.mapper.add_scan(state.stamp_ns, local, points, reference)
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats
@@ -96,22 +118,34 @@ class MapperStep(StepBase):
         if stats.optimisations != self.optimisations:
             self.optimisations = stats.optimisations
             outs.append(self._keyframes(state.stamp_ns))
+        if self.checkpoint is not None \
+                and self.mapper.keyframe_count >= self._saved_keyframes + self.cfg.checkpoint_every_keyframes:
+            self._save(self.checkpoint)
         return outs
 
-    def _local_pose(self, state: t.SlamState) -> np.ndarray:
-        """The state's pose on the local trajectory (``local_trajectory``), (3,)."""
+    def _local_pose(self, state: t.SlamState) -> tuple[np.ndarray, np.ndarray | None]:
+        """The state's pose on the local trajectory (``local_trajectory``), (3,), and the step the
+        mapper checks it against for jumps (3,): the scan-matched motion; None if there is none."""
+        matched = state.motion if state.motion is not None and state.motion_matched else None
         if self.cfg.local_trajectory == "slam_pose":
-            return state.pose
-        if self._local is None:
-            local = state.pose   # the chain starts where the filter does
-        elif state.motion is not None:
-            local = compose(self._local, state.motion)
-        else:
+            local, reference = state.pose, matched
+        elif self._local is None:
+            local, reference = state.pose, matched   # the chain starts where the filter does
+        elif state.motion is None:
             # A slam state recorded before they carried their motion: follow the filter's pose.
             self.counts["motion_missing"] += 1
-            local = compose(self._local, relative(self._last_slam_pose, state.pose))
-        self._local, self._last_slam_pose = local, state.pose
-        return local
+            local, reference = compose(self._local, relative(self._last_slam_pose, state.pose)), None
+        elif state.seq != self._last_state_seq + 1:
+            # States missed (this stage or the slam stage restarted, or lost): the motion is from a
+            # state this stage never saw. The filter's own pose change bridges the gap; it is
+            # trusted as it stands, because the keyframes' scans cannot check a step metres long.
+            self.counts["motion_bridged"] += 1
+            bridge = relative(self._last_slam_pose, state.pose)
+            local, reference = compose(self._local, bridge), bridge
+        else:
+            local, reference = compose(self._local, state.motion), matched
+        self._local, self._last_slam_pose, self._last_state_seq = local, state.pose, state.seq
+        return local, reference
 
     def _keyframes(self, stamp_ns: int) -> Output:
         stamps, local_poses = self.mapper.keyframe_stamped_local_poses()
@@ -120,6 +154,38 @@ class MapperStep(StepBase):
         return Output(topics.MAP_KEYFRAMES, t.MapKeyframes(stamp_ns, self.keyframes_seq, stamps, local_poses,
                                                            self.mapper.keyframe_poses(),
                                                            self.mapper.keyframe_local_edges()))
+
+    def _save(self, path: Path) -> None:
+        arrays = self.mapper.snapshot()
+        arrays.update(service_seq=self.seq, service_keyframes_seq=self.keyframes_seq,
+                      service_last_stamp_ns=self._last_stamp, service_last_state_seq=self._last_state_seq,
+                      service_local_pose=np.full(3, np.nan) if self._local is None else self._local,
+                      service_last_slam_pose=self._last_slam_pose)
+        npz_file.write_atomic(path, arrays)
+        self._saved_keyframes = self.mapper.keyframe_count
+        self.counts["checkpoints"] += 1
+
+    def _restore(self, path: Path) -> None:
+        try:
+            arrays = npz_file.read(path)
+            mapper = LoopClosingMapper.restore(self.cfg.loop_closure, arrays)
+            local = np.array(arrays["service_local_pose"], dtype=float).reshape(3)
+            last_slam_pose = np.array(arrays["service_last_slam_pose"], dtype=float).reshape(3)
+            counters = [int(arrays[k]) for k in ("service_seq", "service_keyframes_seq", "service_last_stamp_ns",
+                                                 "service_last_state_seq")]
+        except (OSError, ValueError, KeyError, InputError) as exc:
+            log.warning("ignoring unreadable checkpoint %s: %s", path, exc)
+            self.counts["checkpoint_unreadable"] += 1
+            return
+        self.mapper = mapper
+        self.seq, self.keyframes_seq, self._last_stamp, self._last_state_seq = counters
+        self._local = None if np.any(np.isnan(local)) else local
+        self._last_slam_pose = last_slam_pose
+        self.optimisations = mapper.stats.optimisations
+        self._saved_keyframes = mapper.keyframe_count
+        log.info("resumed from %s: %d keyframes, %d closures", path, mapper.keyframe_count,
+                 mapper.stats.accepted - mapper.stats.removed)
+        self.counts["restored"] += 1
 
     def health(self) -> tuple[int, str]:
         s = self.mapper.stats

@@ -190,6 +190,16 @@ def test_a_killed_stage_is_restarted_and_the_run_holds(stage, baseline, tmp_path
         assert seqs[restart] > KILL_AFTER_STATES - 50
         health = [codec.SERVICE_STATUS.decode(m.data) for m in read_recording(run.recording, ["health/slam"])]
         assert health[-1].counters.get("step.restored") == 1
+    if stage == "mapper":
+        poses = [codec.MAP_POSE.decode(m.data) for m in read_recording(run.recording, [topics.MAP_POSE.name])]
+        (restart,) = [i for i in range(1, len(poses)) if poses[i].seq != poses[i - 1].seq + 1]
+        # Resumed its graph from its last checkpoint (every 20 keyframes), not from one keyframe;
+        # the states it missed while down are bridged once.
+        before, after = poses[restart - 1].keyframes, poses[restart].keyframes
+        assert before - 20 <= after - 1 <= before and after > 20, (before, after)
+        health = [codec.SERVICE_STATUS.decode(m.data) for m in read_recording(run.recording, ["health/mapper"])]
+        assert health[-1].counters.get("step.restored") == 1
+        assert health[-1].counters.get("step.motion_bridged") == 1
 
     # Within 10 % of the uninterrupted run, or, when that is larger, within the 99 % bound the
     # filter itself gives its final position (3 sigma of the larger axis, a cm or two): the

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from lrfslam.services import build_step
+from lrfslam.services import build_step, stage
 
 from lrfslam.algo.geometry import compose, relative
 from lrfslam.algo.loop_closure import LoopClosingMapper
@@ -13,6 +13,7 @@ from lrfslam.errors import ConfigError
 from lrfslam.evaluation.map_trajectory import final_poses
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.step import Message, Output
 from lrfslam.sim.simulator import OdometryNoise, SimConfig, Simulator
 
@@ -136,3 +137,73 @@ def test_the_slam_poses_are_the_local_trajectory_when_asked_or_when_states_carry
 def test_an_unknown_local_trajectory_is_a_config_error():
     with pytest.raises(ConfigError, match="local_trajectory"):
         build_step("mapper", sets=["local_trajectory=ekf"])
+
+
+def frame_messages(frames) -> list[list[Message]]:
+    """Per frame, its scan's and its state's messages."""
+    return [[msg(Output(topics.SCAN, scan)), msg(Output(topics.SLAM_STATE, state))] for scan, state, _ in frames]
+
+
+def encoded(messages) -> list[tuple[str, bytes]]:
+    return [(m.topic.name, m.topic.codec.encode(m.value)) for m in messages]
+
+
+def test_a_restarted_mapper_continues_its_graph_exactly(mapped, tmp_path):
+    frames, _, outs = mapped
+    per_frame = frame_messages(frames)
+    live = [stage("mapper", sets=[f"checkpoint_path={tmp_path / 'mapper.npz'}", "checkpoint_every_keyframes=7"])]
+    cut = 400   # in the second lap: closures before and after
+    with Chain(live, replay=False) as first:
+        head = [o for pair in per_frame[:cut] for x in pair for o in first.push(x)]
+        before = first.step("mapper").mapper.stats
+    assert 0 < before.accepted and first.step("mapper").counts["checkpoints"] >= 2
+    with Chain(live, replay=False) as second:
+        step = second.step("mapper")
+        assert step.counts["restored"] == 1 and step.mapper.keyframe_count == first.step("mapper").mapper.keyframe_count
+        tail = [o for pair in per_frame[cut:] for x in pair for o in second.push(x)] + list(second.feed([]))
+    # Stopped and started again (close() saved where it stood): every output as if never stopped.
+    assert encoded(head + tail) == encoded(Message.of(o) for o in outs)
+    assert step.mapper.stats.accepted > before.accepted and step.counts.get("motion_bridged", 0) == 0
+
+
+def test_a_killed_mapper_resumes_from_its_checkpoint_and_bridges_the_states_it_missed(mapped, tmp_path):
+    frames, _, outs = mapped
+    per_frame = frame_messages(frames)
+    live = [stage("mapper", sets=[f"checkpoint_path={tmp_path / 'mapper.npz'}", "checkpoint_every_keyframes=7"])]
+    killed, back = 420, 450   # down for 6 s, through one of the 'filter's jumps (frame 438)
+    first = Chain(live, replay=False)   # never closed: killed, its last periodic checkpoint stays
+    for pair in per_frame[:killed]:
+        for x in pair:
+            first.push(x)
+    saved = first.step("mapper").counts["checkpoints"]
+    with Chain(live, replay=False) as second:
+        step = second.step("mapper")
+        assert step.counts["restored"] == 1 and saved >= 1
+        resumed_at = step.mapper.keyframe_count
+        tail = [o for pair in per_frame[back:] for x in pair for o in second.push(x)] + list(second.feed([]))
+    assert step.counts["motion_bridged"] == 1 and step.mapper.keyframe_count > resumed_at
+    poses = [o.value for o in tail if o.topic is topics.MAP_POSE]
+    assert [p.scan_seq for p in poses] == [s.scan_seq for _, s, _ in frames[back:]]
+    # The jump the filter made while the mapper was down is not taken for motion: the resumed
+    # graph stays as close to the truth as the uninterrupted one (its frames after the gap).
+    truth = np.array([f.true_pose for _, _, f in frames])
+    whole = final_poses(np.array([s.stamp_ns for _, s, _ in frames]),
+                        np.array([o.value.local_pose for o in outs if o.topic is topics.MAP_POSE]),
+                        [o.value for o in outs if o.topic is topics.MAP_KEYFRAMES][-1])
+    resumed = final_poses(np.array([s.stamp_ns for _, s, _ in frames[back:]]),
+                          np.array([p.local_pose for p in poses]),
+                          [o.value for o in tail if o.topic is topics.MAP_KEYFRAMES][-1])
+    # Both in the map frame of the first keyframe, placed on the truth by the first frame.
+    to_truth = compose(truth[0], relative(whole[0], np.zeros(3)))
+
+    def error_m(poses_: np.ndarray) -> float:
+        placed = np.array([compose(to_truth, p) for p in poses_])
+        return float(np.mean(np.hypot(*(placed[:, :2] - truth[back:, :2]).T)))
+    assert error_m(resumed) < 1.5 * error_m(whole[back:]) + 0.05
+
+
+def test_an_unreadable_mapper_checkpoint_is_counted_and_a_new_graph_started(tmp_path):
+    ckpt = tmp_path / "mapper.npz"
+    ckpt.write_bytes(b"not a checkpoint")
+    step = stage("mapper", sets=[f"checkpoint_path={ckpt}"]).build(replay=False)
+    assert step.counts["checkpoint_unreadable"] == 1 and step.mapper.keyframe_count == 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 
@@ -34,20 +36,23 @@ def closures_are_right(mapper: LoopClosingMapper, truth_per_scan: np.ndarray, to
 
 
 @pytest.fixture(scope="module")
-def hallway_run():
-    """Two laps of the simulator's hallway loop, fed with drifting odometry as the 'EKF' pose."""
+def hallway_frames():
+    """Two laps of the simulator's hallway loop: per scan (stamp ns, drifting odometry pose, points), truth."""
     cfg = SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3,
                     odometry=OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02))
-    sim = Simulator(cfg)
     lap_s = 62.0  # the loop is about 62 m long
+    frames = list(zip(Simulator(cfg), range(int(2 * lap_s * cfg.rate_hz / cfg.speed_mps)), strict=False))
+    return ([(int(f.t_s * 1e9), f.odom_pose, points(f.scan.ranges_m, f.scan.angles_rad)) for f, _ in frames],
+            np.array([f.true_pose for f, _ in frames]))
+
+
+@pytest.fixture(scope="module")
+def hallway_run(hallway_frames):
+    """The hallway loop fed with drifting odometry as the 'EKF' pose: mapper, truth, odometry, online poses."""
+    frames, truth = hallway_frames
     mapper = LoopClosingMapper()
-    truth, odom, online = [], [], []
-    for frame, _ in zip(sim, range(int(2 * lap_s * cfg.rate_hz / cfg.speed_mps)), strict=False):
-        online.append(mapper.add_scan(int(frame.t_s * 1e9), frame.odom_pose,
-                                      points(frame.scan.ranges_m, frame.scan.angles_rad)))
-        truth.append(frame.true_pose)
-        odom.append(frame.odom_pose)
-    return mapper, np.array(truth), np.array(odom), np.array(online)
+    online = [mapper.add_scan(*f) for f in frames]
+    return mapper, truth, np.array([f[1] for f in frames]), np.array(online)
 
 
 def test_drift_round_the_loop_is_removed(hallway_run):
@@ -66,14 +71,11 @@ def test_drift_round_the_loop_is_removed(hallway_run):
     assert np.mean(aligned_errors(online, truth)[lap:]) < 0.5 * np.mean(odom_err[lap:])
 
 
-def test_replay_is_deterministic(hallway_run):
-    mapper, truth, _, _ = hallway_run
+def test_replay_is_deterministic(hallway_run, hallway_frames):
+    mapper = hallway_run[0]
     again = LoopClosingMapper()
-    sim = Simulator(SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3, odometry=OdometryNoise(
-        trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02)))
-    for frame, _ in zip(sim, range(len(truth)), strict=False):
-        again.add_scan(int(frame.t_s * 1e9), frame.odom_pose,
-                       points(frame.scan.ranges_m, frame.scan.angles_rad))
+    for f in hallway_frames[0]:
+        again.add_scan(*f)
     assert np.array_equal(again.trajectory()[1], mapper.trajectory()[1])
 
 
@@ -217,3 +219,31 @@ def test_keyframes_without_points_are_kept_and_never_searched():
     stamps, poses = mapper.trajectory()
     assert stamps.shape == (k,) and np.all(np.isfinite(poses))
     assert mapper.keyframe_stamped_local_poses()[0].shape == (mapper.keyframe_count,)
+
+
+@pytest.mark.parametrize("cut", [330, 470])   # the first closures, the second lap
+def test_a_restored_snapshot_continues_exactly(hallway_run, hallway_frames, cut):
+    mapper, _, _, online = hallway_run
+    frames = hallway_frames[0]
+    first = LoopClosingMapper()
+    head = [first.add_scan(*f) for f in frames[:cut]]
+    buffer = io.BytesIO()
+    np.savez(buffer, **first.snapshot())   # through a file's encoding, as the mapper service stores it
+    buffer.seek(0)
+    with np.load(buffer) as data:
+        second = LoopClosingMapper.restore(None, {k: data[k] for k in data.files})
+    tail = [second.add_scan(*f) for f in frames[cut:]]
+    np.testing.assert_array_equal(np.array(head + tail), online)
+    np.testing.assert_array_equal(second.trajectory()[1], mapper.trajectory()[1])
+    assert second.stats == mapper.stats   # both solved for every closure by trajectory()
+    np.testing.assert_array_equal(second.closure_nis, mapper.closure_nis)
+
+
+def test_a_bad_snapshot_is_refused(hallway_run):
+    snap = hallway_run[0].snapshot()
+    for broken in ({**snap, "mapper_format": 99},
+                   {k: v for k, v in snap.items() if k != "keyframe_points"},
+                   {**snap, "keyframe_point_counts": snap["keyframe_point_counts"][:-1]},
+                   {**snap, "loop_edges": snap["loop_edges"] + 10**6}):
+        with pytest.raises(InputError, match="snapshot"):
+            LoopClosingMapper.restore(None, broken)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -129,3 +131,38 @@ def test_bad_input_is_refused():
         graph.add_edge(0, 1, np.zeros(3), np.eye(3))
     with pytest.raises(InputError):
         graph.add_node((np.nan, 0.0, 0.0))
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 4))
+def test_a_restored_snapshot_optimises_to_the_same_poses(seed, removed):
+    rng = np.random.default_rng(seed)
+    truth = square_loop()
+    n = len(truth)
+    graph = noisy_graph(truth, rng, [(k, n - 1 - k) for k in range(0, 10, 2)])
+    loop_edges = range(n - 1, n - 1 + 5)
+    for e in list(loop_edges)[:removed]:
+        graph.remove_edge(e)
+    buffer = io.BytesIO()
+    np.savez(buffer, **graph.snapshot())   # as the mapper's checkpoint stores it
+    buffer.seek(0)
+    with np.load(buffer) as data:
+        again = PoseGraph.restore(None, {k: data[k] for k in data.files})
+    assert again.edge_count() == graph.edge_count() == n - 1 + 5 - removed
+    graph.optimize()
+    again.optimize()
+    np.testing.assert_array_equal(again.poses, graph.poses)
+    np.testing.assert_array_equal(again.chi2(), graph.chi2())
+    # It grows on as the original does.
+    assert again.add_node(np.zeros(3)) == graph.add_node(np.zeros(3)) == n
+
+
+def test_a_bad_snapshot_is_refused():
+    graph = noisy_graph(square_loop(), np.random.default_rng(0), [(0, 30)])
+    snap = graph.snapshot()
+    for broken in ({k: v for k, v in snap.items() if k != "graph_edge_alive"},
+                   {**snap, "graph_edge_nodes": snap["graph_edge_nodes"] + len(graph)},
+                   {**snap, "graph_edge_measurement": snap["graph_edge_measurement"][:-1]},
+                   {**snap, "graph_poses": np.full_like(snap["graph_poses"], np.nan)}):
+        with pytest.raises(InputError, match="pose graph snapshot"):
+            PoseGraph.restore(None, broken)

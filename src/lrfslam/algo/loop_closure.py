@@ -80,6 +80,9 @@ from lrfslam.algo.pose_graph import PoseGraph, PoseGraphParams
 from lrfslam.algo.scan_match import ReferenceScan, ScanMatchParams, match
 from lrfslam.errors import ConfigError, InputError
 
+#: Version of :meth:`LoopClosingMapper.snapshot`'s arrays.
+SNAPSHOT_FORMAT = 1
+
 
 @dataclass(frozen=True)
 class LoopClosureParams:
@@ -306,9 +309,10 @@ class LoopClosingMapper:
         self._scan_kf: list[int] = []  # per scan fed (keep_scans): its keyframe
         self._scan_rel: list[np.ndarray] = []  # per scan: local pose relative to that keyframe's
         self._stamps: list[int] = []
-        self._loop_edges: list[int] = []
-        self._closure_nis: list[float] = []  # per closure that passed verification  # graph edge ids of the closures in the graph
-        self._submaps: OrderedDict[int, tuple[LikelihoodGrid, ReferenceScan]] = OrderedDict()
+        self._loop_edges: list[int] = []  # graph edge ids of the closures in the graph
+        self._closure_nis: list[float] = []  # per closure that passed verification
+        # keyframe -> (last neighbour in it, grid, line reference), least recently used first
+        self._submaps: OrderedDict[int, tuple[int, LikelihoodGrid, ReferenceScan]] = OrderedDict()
         self._counts = dict.fromkeys(ClosureStats.__dataclass_fields__, 0)
         self._last_local_pose = np.zeros(3)  # the previous scan's local pose
         # The reference steps since the last keyframe composed (3,); None once one was missing.
@@ -422,6 +426,108 @@ class LoopClosingMapper:
         """The closures in the graph: (old keyframe, new keyframe, pose of the new in the old's frame (3,))."""
         return [(self.graph.edge_nodes(e)[0], self.graph.edge_nodes(e)[1], self.graph.edge_measurement(e))
                 for e in self._loop_edges]
+
+    # -- checkpoint -----------------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Everything needed to continue exactly where this mapper stands, as named arrays (copies).
+
+        The graph's arrays (:meth:`PoseGraph.snapshot`); the keyframes' (``keyframe_*``, their
+        points concatenated with ``keyframe_point_counts``); the per-scan history if kept; the
+        closure search's state. Feeding the restored mapper the same scans gives the same results.
+        """
+        kfs = self._keyframes
+        tentative = self._tentative
+        snap = {
+            "mapper_format": np.int64(SNAPSHOT_FORMAT),
+            **self.graph.snapshot(),
+            "keyframe_local_pose": self.keyframe_local_poses(),
+            "keyframe_points": np.vstack([k.points_xy_m for k in kfs]) if kfs else np.zeros((0, 2)),
+            "keyframe_point_counts": np.array([k.points_xy_m.shape[0] for k in kfs], dtype=np.int64),
+            "keyframe_travel_m": np.array([k.travel_m for k in kfs], dtype=float),
+            "keyframe_local_edge": self.keyframe_local_edges(),
+            "keyframe_scan_index": self.keyframe_scans(),
+            "keyframe_stamp_ns": np.array([k.stamp_ns for k in kfs], dtype=np.int64),
+            "scans_fed": np.int64(self._scans_fed),
+            "keep_scans": np.bool_(self._keep_scans),
+            "scan_keyframe": np.array(self._scan_kf, dtype=np.int64),
+            "scan_relative_pose": np.array(self._scan_rel, dtype=float).reshape(-1, 3),
+            "scan_stamp_ns": np.array(self._stamps, dtype=np.int64),
+            "loop_edges": np.array(self._loop_edges, dtype=np.int64),
+            "closure_nis": self.closure_nis,
+            "stats": np.array([self._counts[name] for name in ClosureStats.__dataclass_fields__], dtype=np.int64),
+            "last_local_pose": self._last_local_pose.copy(),
+            "reference_step": np.full(3, np.nan) if self._reference is None else self._reference.copy(),
+            "pending_closures": np.int64(self._pending),
+            "pending_strong": np.bool_(self._pending_strong),
+            "last_wide_search_m": np.float64(self._last_wide_search_m),
+            # keyframe pairs (2,), measurement (3,), covariance (9,), innovation (3,); empty if none
+            "tentative_closure": np.zeros(0) if tentative is None else np.concatenate(
+                (np.array(tentative[:2], dtype=float), tentative[2], np.ravel(tentative[3]), tentative[4])),
+            "cached_submaps": np.array([(k, entry[0]) for k, entry in self._submaps.items()],
+                                       dtype=np.int64).reshape(-1, 2),
+        }
+        return snap
+
+    @classmethod
+    def restore(cls, params: LoopClosureParams | None, arrays) -> LoopClosingMapper:
+        """The mapper :meth:`snapshot` gave ``arrays`` of (e.g. loaded from an ``.npz``).
+
+        Raises
+        ------
+        InputError
+            If the arrays are not a snapshot of this format or disagree with each other.
+        """
+        try:
+            fmt = int(arrays["mapper_format"])
+            if fmt != SNAPSHOT_FORMAT:
+                raise InputError(f"mapper snapshot format {fmt} is not {SNAPSHOT_FORMAT}")
+            mapper = cls(params, keep_scans=bool(arrays["keep_scans"]))
+            mapper.graph = PoseGraph.restore(mapper.params.graph, arrays)
+            counts = np.array(arrays["keyframe_point_counts"], dtype=np.int64)
+            points = np.array(arrays["keyframe_points"], dtype=float).reshape(-1, 2)
+            local = np.array(arrays["keyframe_local_pose"], dtype=float).reshape(-1, 3)
+            travel = np.array(arrays["keyframe_travel_m"], dtype=float)
+            edge = np.array(arrays["keyframe_local_edge"], dtype=bool)
+            scan_index = np.array(arrays["keyframe_scan_index"], dtype=np.int64)
+            stamps = np.array(arrays["keyframe_stamp_ns"], dtype=np.int64)
+            k = len(mapper.graph)
+            if not (counts.shape == travel.shape == edge.shape == scan_index.shape == stamps.shape == (k,)
+                    and local.shape == (k, 3) and np.all(counts >= 0) and counts.sum() == points.shape[0]):
+                raise InputError("mapper snapshot: keyframe arrays disagree with the graph")
+            for i, pts in enumerate(np.split(points, np.cumsum(counts)[:-1]) if k else []):
+                mapper._keyframes.append(_Keyframe(local[i], pts, float(travel[i]), bool(edge[i]),
+                                                   int(scan_index[i]), int(stamps[i])))
+            mapper._scans_fed = int(arrays["scans_fed"])
+            if mapper._keep_scans:
+                mapper._scan_kf = np.array(arrays["scan_keyframe"], dtype=np.int64).tolist()
+                mapper._scan_rel = list(np.array(arrays["scan_relative_pose"], dtype=float).reshape(-1, 3))
+                mapper._stamps = np.array(arrays["scan_stamp_ns"], dtype=np.int64).tolist()
+            mapper._loop_edges = np.array(arrays["loop_edges"], dtype=np.int64).tolist()
+            mapper._closure_nis = np.array(arrays["closure_nis"], dtype=float).tolist()
+            stats = np.array(arrays["stats"], dtype=np.int64)
+            if stats.shape != (len(ClosureStats.__dataclass_fields__),):
+                raise InputError("mapper snapshot: wrong number of statistics")
+            mapper._counts = dict(zip(ClosureStats.__dataclass_fields__, stats.tolist(), strict=True))
+            mapper._last_local_pose = np.array(arrays["last_local_pose"], dtype=float).reshape(3)
+            reference = np.array(arrays["reference_step"], dtype=float).reshape(3)
+            mapper._reference = None if np.any(np.isnan(reference)) else reference
+            mapper._pending = int(arrays["pending_closures"])
+            mapper._pending_strong = bool(arrays["pending_strong"])
+            mapper._last_wide_search_m = float(arrays["last_wide_search_m"])
+            tentative = np.array(arrays["tentative_closure"], dtype=float)
+            if tentative.size:
+                mapper._tentative = (int(tentative[0]), int(tentative[1]), tentative[2:5],
+                                     tentative[5:14].reshape(3, 3), tentative[14:17])
+            for kf, last in np.array(arrays["cached_submaps"], dtype=np.int64).reshape(-1, 2).tolist():
+                mapper._cache_submap(kf, last)
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError(f"mapper snapshot: {exc!r}") from None
+        edges, keyframes = len(arrays["graph_edge_alive"]), len(mapper._keyframes)
+        if any(not 0 <= e < edges for e in mapper._loop_edges) or (
+                mapper._tentative is not None and not all(0 <= n < keyframes for n in mapper._tentative[:2])):
+            raise InputError("mapper snapshot: a closure names an edge or a keyframe that is not there")
+        return mapper
 
     # -- keyframes and odometry edges -----------------------------------------------------------
 
@@ -596,18 +702,24 @@ class LoopClosingMapper:
         """The likelihood grid and line reference of keyframe ``k``'s neighbourhood, in its frame (cached)."""
         if k in self._submaps:
             self._submaps.move_to_end(k)
-            return self._submaps[k]
+            return self._submaps[k][1:]
+        self._cache_submap(k, min(len(self._keyframes) - 1, k + self.params.submap_keyframes))
+        return self._submaps[k][1:]
+
+    def _cache_submap(self, k: int, last: int) -> None:
+        """Build keyframe ``k``'s submap from its neighbours up to keyframe ``last`` and cache it.
+
+        The cache keeps ``last``: a submap built before all its later neighbours existed
+        must be rebuilt the same way when a checkpoint is restored.
+        """
         p = self.params
         poses = self.graph.poses
-        lo, hi = max(0, k - p.submap_keyframes), min(len(self._keyframes) - 1, k + p.submap_keyframes)
         pts = np.vstack([from_frame(self._keyframes[i].points_xy_m, relative(poses[k], poses[i]))
-                         for i in range(lo, hi + 1)])
+                         for i in range(max(0, k - p.submap_keyframes), last + 1)])
         pts = _thin(pts, p.keyframe_cell_m)
-        entry = (LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match))
-        self._submaps[k] = entry
+        self._submaps[k] = (last, LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match))
         if len(self._submaps) > p.cached_submaps:
             self._submaps.popitem(last=False)
-        return entry
 
     def _try_closure(self, k: int, n: int, query: np.ndarray, predicted: np.ndarray, rel_cov: np.ndarray,
                      half_m: float, half_rad: float):

@@ -199,6 +199,52 @@ class PoseGraph:
         """Edges in the problem (removed ones not counted)."""
         return int(sum(self._alive))
 
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """The graph as arrays (copies): ``graph_poses`` (K, 3); per edge, removed ones included so
+        edge indices survive a restore, ``graph_edge_nodes`` (E, 2), ``graph_edge_measurement`` (E, 3),
+        ``graph_edge_information`` (E, 3, 3), ``graph_edge_robust`` and ``graph_edge_alive`` (E,)."""
+        return {
+            "graph_poses": self.poses.copy(),
+            "graph_edge_nodes": np.column_stack((np.array(self._i, dtype=np.int64),
+                                                 np.array(self._j, dtype=np.int64))).reshape(-1, 2),
+            "graph_edge_measurement": np.array(self._z, dtype=float).reshape(-1, 3),
+            "graph_edge_information": np.array(self._info, dtype=float).reshape(-1, 3, 3),
+            "graph_edge_robust": np.array(self._robust, dtype=bool),
+            "graph_edge_alive": np.array(self._alive, dtype=bool),
+        }
+
+    @classmethod
+    def restore(cls, params: PoseGraphParams | None, arrays) -> PoseGraph:
+        """The graph :meth:`snapshot` gave ``arrays`` of (e.g. loaded from an ``.npz``).
+
+        Raises
+        ------
+        InputError
+            If the arrays are missing, of the wrong shapes, not finite, or name a node that is not there.
+        """
+        try:
+            poses = np.array(arrays["graph_poses"], dtype=float)
+            nodes = np.array(arrays["graph_edge_nodes"], dtype=np.int64)
+            z = np.array(arrays["graph_edge_measurement"], dtype=float)
+            info = np.array(arrays["graph_edge_information"], dtype=float)
+            robust = np.array(arrays["graph_edge_robust"], dtype=bool)
+            alive = np.array(arrays["graph_edge_alive"], dtype=bool)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"pose graph snapshot: {exc!r}") from None
+        e = nodes.shape[0] if nodes.ndim == 2 else -1
+        if poses.ndim != 2 or poses.shape[1:] != (3,) or nodes.shape != (e, 2) or z.shape != (e, 3) \
+                or info.shape != (e, 3, 3) or robust.shape != (e,) or alive.shape != (e,):
+            raise InputError("pose graph snapshot: arrays of inconsistent shapes")
+        if not (np.all(np.isfinite(poses)) and np.all(np.isfinite(z)) and np.all(np.isfinite(info))) \
+                or np.any(nodes < 0) or np.any(nodes >= poses.shape[0]):
+            raise InputError("pose graph snapshot: non-finite values or edges to missing nodes")
+        graph = cls(params)
+        graph._poses, graph._n = poses.copy(), poses.shape[0]
+        graph._i, graph._j = nodes[:, 0].tolist(), nodes[:, 1].tolist()
+        graph._z, graph._info = list(z), list(info)
+        graph._robust, graph._alive = robust.tolist(), alive.tolist()
+        return graph
+
     def _check_node(self, node: int) -> int:
         if not 0 <= node < self._n:
             raise InputError(f"no node {node} (graph has {self._n})")

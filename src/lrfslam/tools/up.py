@@ -68,8 +68,9 @@ POLL_S = 0.05
 MAX_PENDING_TRUTH = 10_000
 #: Messages heard but not yet looked at by the supervisor's loop, at most.
 MAX_INBOX = 100_000
-#: The slam checkpoint ``up`` gives the slam unless one is configured: in the run's recording folder.
-CHECKPOINT_NAME = "slam.checkpoint.npz"
+#: The checkpoint files ``up`` gives the stages that keep state, unless one is configured: in the
+#: run's recording folder.
+CHECKPOINT_NAMES = {"slam": "slam.checkpoint.npz", "mapper": "mapper.checkpoint.npz"}
 
 
 #: glibc serves an allocation this large (bytes) from mmap, returned to the system when freed.
@@ -402,9 +403,10 @@ def main(argv: list[str] | None = None) -> int:
     sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
     topics.check_robot(args.robot)
     configs = check_configs(sets, args.config)
-    if not configs["slam"].checkpoint_path:
-        # A killed slam resumes from here (its first start finds none: the folder is new).
-        sets["slam"].append(f"checkpoint_path={recording / CHECKPOINT_NAME}")
+    for name, file in CHECKPOINT_NAMES.items():
+        if name in configs and not configs[name].checkpoint_path:
+            # A killed stage resumes from here (its first start finds none: the folder is new).
+            sets[name].append(f"checkpoint_path={recording / file}")
     extra = {n: [a for item in items for a in ("--set", item)] for n, items in sets.items()}
 
     endpoint = args.connect or f"tcp/127.0.0.1:{args.port}"
