@@ -1,25 +1,32 @@
 """deploy/compose.yaml brought up for real with podman + podman-compose.
 
-Builds the image (deploy/podman-build.sh), starts the router and the five services as
-containers, asks the published router port from the host which services are alive (as a
-remote monitor would), runs every container's healthcheck, stops the sensor first and then
-the rest, and reads the recording back; once as shipped and once with compose.tls.yaml over
-it (every link mutual TLS, the router's access-control list, asked with the monitor
-certificate). Needs podman, podman-compose and a base image
-(deploy/setup-podman.sh prepares a Debian machine); skips when podman is missing.
+Builds the image (deploy/podman-build.sh), starts the router, the six services and the
+monitor as containers, asks the published router port from the host which services are alive
+(as a remote monitor would), runs every container's healthcheck, reads the monitor's published
+Foxglove WebSocket and dashboard from the host (bound to loopback, showing the live pipeline),
+stops the sensor first and then the rest, and reads the recording back; once as shipped and
+once with compose.tls.yaml over it (every link mutual TLS, the router's access-control list,
+asked with the monitor certificate, which the monitor container holds too). Needs podman,
+podman-compose and a base image (deploy/setup-podman.sh prepares a Debian machine); skips
+when podman is missing.
 """
 
 from __future__ import annotations
 
+import asyncio
+import json
 import os
 import shutil
 import socket
+import struct
 import subprocess
 import time
+import urllib.request
 from collections import Counter
 from pathlib import Path
 
 import pytest
+import websockets
 import zenoh
 
 from lrfslam import services
@@ -27,6 +34,7 @@ from lrfslam.msgs import codec
 from lrfslam.runtime.recording import ReadReport, read_recording
 from lrfslam.tools.status import check, client_config, query_status
 from lrfslam.tools.status import main as status
+from lrfslam.viz import foxglove as fx
 
 pytestmark = pytest.mark.slow
 
@@ -35,7 +43,7 @@ COMPOSE = ROOT / "deploy" / "compose.yaml"
 COMPOSE_TLS = ROOT / "deploy" / "compose.tls.yaml"
 RUN_S = 40.0            # wall time with all five up; at speedup 1 that is ~400 scans at 10 Hz
 STARTUP_TIMEOUT_S = 90.0
-CONTAINERS = ("zenohd", *services.NAMES)
+CONTAINERS = ("zenohd", "monitor", *services.NAMES)
 HEALTHCHECK_RETRIES = 3  # deploy/compose.yaml, x-healthcheck
 
 
@@ -80,10 +88,14 @@ class Deployment:
     def __init__(self, compose: list[str], tmp: Path, tls: bool = False) -> None:
         self.project = f"lrfslam-test-{os.getpid()}"
         self.port = free_port()
+        self.foxglove_port, self.dashboard_port = free_port(), free_port()
         self.recordings = tmp / "recordings"
         self.recordings.mkdir()
+        # LRFSLAM_MONITOR_ADDRESS stays unset: the test sees the loopback binding users get.
         self.env = dict(os.environ, LRFSLAM_IMAGE="lrfslam:test", LRFSLAM_ROUTER_PORT=str(self.port),
-                        LRFSLAM_RECORDINGS=str(self.recordings))
+                        LRFSLAM_RECORDINGS=str(self.recordings), LRFSLAM_FOXGLOVE_PORT=str(self.foxglove_port),
+                        LRFSLAM_DASHBOARD_PORT=str(self.dashboard_port))
+        self.env.pop("LRFSLAM_MONITOR_ADDRESS", None)
         self.compose = [*compose, "-p", self.project, "-f", str(COMPOSE)]
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.zenoh_config: str | None = None
@@ -126,6 +138,57 @@ class Deployment:
 def ask(dep: Deployment) -> tuple[set, list]:
     with zenoh.open(client_config([dep.endpoint], dep.zenoh_config)) as session:
         return query_status(session, "*", 3.0)
+
+
+def http_get(url: str) -> tuple[str, bytes]:
+    with urllib.request.urlopen(url, timeout=10) as reply:
+        return reply.headers["Content-Type"], reply.read()
+
+
+async def foxglove_scans(port: int, enough: int, timeout_s: float) -> tuple[str, set[str], int]:
+    """As Foxglove connects: (subprotocol, the advertised topics, scan messages received after
+    subscribing to the scan view)."""
+    async with asyncio.timeout(timeout_s):
+        async with websockets.connect(f"ws://127.0.0.1:{port}",
+                                      subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"]) as ws:
+            topics, scans = {}, 0
+            while scans < enough:
+                frame = await ws.recv()
+                if isinstance(frame, str):
+                    op = json.loads(frame)
+                    if op["op"] == "advertise":
+                        new = {c["id"]: c["topic"] for c in op["channels"]}
+                        topics.update(new)
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                            {"id": cid, "channelId": cid} for cid, topic in new.items() if topic == fx.SCAN]}))
+                elif frame[0] == 0x01:   # message data: subscription id (= channel id here), log time, payload
+                    (sub,) = struct.unpack_from("<I", frame, 1)
+                    scans += topics[sub] == fx.SCAN
+            return ws.subprotocol, set(topics.values()), scans
+
+
+def check_monitor(dep: Deployment) -> dict:
+    """The monitor container from the host: both ports bound to loopback only, Foxglove's scans
+    streaming, and the dashboard showing the whole pipeline alive and its map growing."""
+    for container_port, host_port in ((8765, dep.foxglove_port), (8080, dep.dashboard_port)):
+        bound = run(["podman", "port", dep.container("monitor"), f"{container_port}/tcp"], 30).stdout.split()
+        assert bound == [f"127.0.0.1:{host_port}"], bound
+    subprotocol, advertised, scans = asyncio.run(foxglove_scans(dep.foxglove_port, enough=10, timeout_s=30))
+    assert subprotocol == "foxglove.sdk.v1"
+    assert advertised == set(fx.CHANNELS), advertised
+    assert scans >= 10
+    url = f"http://127.0.0.1:{dep.dashboard_port}"
+    content_type, page = http_get(f"{url}/")
+    assert content_type.startswith("text/html") and b"<canvas" in page
+    first = json.loads(http_get(f"{url}/state.json")[1])
+    alive = {row["service"] for row in first["services"] if row["alive"]}
+    assert alive == set(services.NAMES), first["services"]
+    assert first["scans"] > 100 and first["states"] > 100 and first["landmarks"], \
+        {k: first[k] for k in ("scans", "states")}
+    time.sleep(2)
+    later = json.loads(http_get(f"{url}/state.json")[1])
+    assert later["scans"] > first["scans"] and later["states"] > first["states"], "the dashboard is not live"
+    return later
 
 
 @pytest.mark.parametrize("tls", [False, True], ids=["plain", "tls-acl"])
@@ -177,16 +240,20 @@ def test_compose_up_status_down_recording(engine, tmp_path, tls):
         assert set(by_name) == set(services.NAMES), sorted(by_name)
         assert by_name["sensor"].get("out.scan", 0) > 100, by_name["sensor"]
         assert by_name["slam"].get("out.slam/state", 0) > 100, by_name["slam"]
+        try:
+            dashboard = check_monitor(dep)
+        except (AssertionError, OSError, TimeoutError) as exc:
+            raise AssertionError(f"monitor: {exc!r}\n{dep.logs()}") from exc
         for service in CONTAINERS:
             assert dep.inspect(service, "{{.RestartCount}}") == "0", f"{service} restarted\n{dep.logs()}"
 
         # Docker's stop order, which podman-compose does not keep by itself (deploy/README.md):
-        # the sensor first so the pipeline drains, then the stages, the recorder, the router.
-        # Exit code 0 means each process got SIGTERM through tini and stopped through its own
-        # handler, not a SIGKILL (137).
+        # the sensor first so the pipeline drains, then the stages and the monitor, the recorder,
+        # the router. Exit code 0 means each process got SIGTERM through tini and stopped through
+        # its own handler, not a SIGKILL (137).
         dep("stop", "sensor", timeout=60)
         time.sleep(3)
-        dep("stop", "denoise", "features", "slam", "mapper", timeout=60)
+        dep("stop", "denoise", "features", "slam", "mapper", "monitor", timeout=60)
         dep("stop", timeout=120)
         codes = {s: dep.inspect(s, "{{.State.ExitCode}}") for s in CONTAINERS}
         assert set(codes.values()) == {"0"}, f"{codes}\n{dep.logs()}"
@@ -207,4 +274,5 @@ def test_compose_up_status_down_recording(engine, tmp_path, tls):
     last = codec.SLAM_STATE.decode(next(m.data for m in reversed(messages) if m.topic == "slam/state"))
     assert last.landmark_ids.size > 0, "SLAM built no map"
     print(f"\nbuild {build_s:.0f} s, up to all alive {up_s:.0f} s, total {total_s:.0f} s; "
-          f"{files[0].name}: {dict(per_topic)}")
+          f"dashboard: {dashboard['scans']} scans, {dashboard['states']} states, "
+          f"{len(dashboard['landmarks'])} landmarks; {files[0].name}: {dict(per_topic)}")

@@ -2,7 +2,8 @@
 
 Catches what a schema cannot: a depends_on naming no service, a command no `lrfslam`
 understands, a config key a service would refuse at start-up, a healthcheck whose flags
-`lrfslam status` does not have, two services publishing one host port.
+`lrfslam status` does not have, two services publishing one host port, a monitor port
+(no authentication) published beyond the host's loopback by default.
 """
 
 from __future__ import annotations
@@ -22,13 +23,14 @@ from lrfslam import cli, services
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
 from lrfslam.runtime.runner import bus_config, flag_sets, service_parser
-from lrfslam.tools import status
+from lrfslam.tools import monitor, status
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
 COMPOSE = DEPLOY / "compose.yaml"
 CONFIG = DEPLOY / "config.toml"
 ROUTER = "zenohd"
+MONITOR = "monitor"
 
 _VAR = re.compile(r"\$\{(\w+)(?::?-([^}]*))?\}")
 
@@ -64,8 +66,8 @@ def mounts(svc: dict) -> dict[str, Path]:
     return out
 
 
-def test_services_are_the_router_and_the_five_stages(svcs):
-    assert set(svcs) == {ROUTER, *services.NAMES}
+def test_services_are_the_router_the_six_stages_and_the_monitor(svcs):
+    assert set(svcs) == {ROUTER, MONITOR, *services.NAMES}
 
 
 def test_depends_on_targets_exist_and_form_no_cycle(svcs):
@@ -96,6 +98,12 @@ def test_every_stage_waits_for_a_healthy_router_and_the_sensor_starts_last(svcs)
     assert sensor_deps == {ROUTER, *services.NAMES} - {"sensor"}
 
 
+def test_the_monitor_waits_for_the_router_alone_and_nothing_waits_for_it(svcs):
+    """A viewer must neither hold the pipeline back nor be stopped after it."""
+    assert svcs[MONITOR]["depends_on"] == {ROUTER: {"condition": "service_healthy"}}
+    assert not [name for name, svc in svcs.items() if MONITOR in svc.get("depends_on", {})]
+
+
 def test_commands_are_lrfslam_commands(svcs):
     known = set(services.NAMES) | set(cli.COMMANDS)
     for name, svc in svcs.items():
@@ -123,6 +131,19 @@ def test_service_commands_parse_and_their_config_loads(svcs):
         assert isinstance(cfg, spec.config_type)
 
 
+def test_monitor_command_parses_and_serves_the_published_ports(svcs):
+    """Its robot is the pipeline's (config.toml's [bus], which it does not read), it reaches the router
+    by name, listens on the container's interfaces, and serves Foxglove and the dashboard on the
+    container ports the host ports are mapped to."""
+    args = monitor.parser().parse_args(svcs[MONITOR]["command"][1:])
+    assert svcs[MONITOR]["command"][0] == "monitor"
+    assert args.robot == config_mod.read_file(CONFIG)["bus"]["robot"]
+    assert args.connect == ["tcp/zenohd:7447"]
+    assert args.host == "0.0.0.0" and args.dashboard
+    container_ports = {interpolate(p).rsplit(":", 1)[-1] for p in svcs[MONITOR]["ports"]}
+    assert container_ports == {str(args.port), str(args.http_port)}
+
+
 def test_router_listens_on_its_published_port(svcs):
     router = svcs[ROUTER]
     command = router["command"]
@@ -132,14 +153,33 @@ def test_router_listens_on_its_published_port(svcs):
     assert "7447" in published
 
 
-def test_host_ports_are_unique_and_only_the_router_publishes(svcs):
+def bindings(svc: dict, env: dict[str, str] | None = None) -> list[tuple[str, str]]:
+    """(host address, host port) of each published port; "" for every interface."""
+    out = []
+    for port in svc.get("ports", []):
+        parts = interpolate(str(port), env).split(":")
+        out.append((parts[0] if len(parts) == 3 else "", parts[-2]))
+    return out
+
+
+def test_host_ports_are_unique_and_only_the_router_and_the_monitor_publish(svcs):
     seen = {}
     for name, svc in svcs.items():
-        for port in svc.get("ports", []):
-            host = interpolate(str(port)).split(":")[-2]
+        for _, host in bindings(svc):
             assert host not in seen, f"host port {host} published by {seen.get(host)} and {name}"
             seen[host] = name
-    assert set(seen.values()) == {ROUTER}
+    assert set(seen.values()) == {ROUTER, MONITOR}
+
+
+def test_monitor_ports_are_on_loopback_unless_asked(svcs):
+    """The Foxglove WebSocket and the dashboard have no authentication: by default only the robot's
+    own host reaches them; the variables move them (and the test deployment off 8765/8080)."""
+    assert bindings(svcs[MONITOR]) == [("127.0.0.1", "8765"), ("127.0.0.1", "8080")]
+    env = {"LRFSLAM_MONITOR_ADDRESS": "0.0.0.0", "LRFSLAM_FOXGLOVE_PORT": "18765",
+           "LRFSLAM_DASHBOARD_PORT": "18080"}
+    assert bindings(svcs[MONITOR], env) == [("0.0.0.0", "18765"), ("0.0.0.0", "18080")]
+    # The router is Zenoh's port, for remote monitors and services: every interface.
+    assert bindings(svcs[ROUTER]) == [("", "7447")]
 
 
 def test_one_image_with_init_and_restart_on_failure(svcs):

@@ -1,8 +1,9 @@
 """deploy/compose.tls.yaml, the TLS + access-control override, checked without a container engine.
 
 What merging it over compose.yaml must give: every stage a client of the router's TLS port with
-the service certificate, the router listening with the access-control config on the port the
-base file publishes, every file a command names mounted from the repository, and no plain
+the service certificate, the monitor one with the monitor certificate (what the access-control
+list lets read but not publish), the router listening with the access-control config on the port
+the base file publishes, every file a command names mounted from the repository, and no plain
 tcp/ listener left. The override running for real: deploy/README.md ("Access control").
 """
 
@@ -17,10 +18,11 @@ import zenoh
 
 from lrfslam import services
 from lrfslam.runtime.runner import bus_config, service_parser
-from lrfslam.tools import status
+from lrfslam.tools import monitor, status
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 ROUTER = "zenohd"
+MONITOR = "monitor"
 _VAR = re.compile(r"\$\{(\w+)(?::?-([^}]*))?\}")
 
 
@@ -60,7 +62,7 @@ def option(argv: list[str], flag: str) -> list[str]:
 
 
 def test_overrides_only_existing_services_and_every_one(tls):
-    assert set(tls) == set(load("compose.yaml")) == {ROUTER, *services.NAMES}
+    assert set(tls) == set(load("compose.yaml")) == {ROUTER, MONITOR, *services.NAMES}
 
 
 def test_stages_are_tls_clients_with_the_service_certificate(tls):
@@ -79,6 +81,39 @@ def test_stages_are_tls_clients_with_the_service_certificate(tls):
         # The base file's mounts are all still there (a volumes list is merged by target path).
         assert targets(base[name]) <= targets(tls[name]), name
         assert "/etc/lrfslam/tls" in targets(tls[name])
+
+
+def test_monitor_is_a_tls_client_with_the_monitor_certificate(tls):
+    """monitor-tls.json5 is the desk's file, paths relative to the working directory: in the container
+    they must land on the certificate folder the override mounts (LRFSLAM_TLS), and be the monitor's."""
+    base = load("compose.yaml")[MONITOR]
+    svc = tls[MONITOR]
+    argv = svc["command"]
+    assert argv[0] == "monitor"
+    args = monitor.parser().parse_args(argv[1:])
+    assert args.connect == ["tls/zenohd:7447"]
+    conf = mounted(svc, args.zenoh_config)
+    assert conf.name == "monitor-tls.json5"
+    zenoh.Config.from_file(str(conf))
+    text = conf.read_text()
+    paths = {key: re.search(rf'{key}: "([^"]+)"', text).group(1)
+             for key in ("root_ca_certificate", "connect_certificate", "connect_private_key")}
+    tls_dir = next(_VAR.sub(lambda m: m.group(2) or "", v).split(":")[1]
+                   for v in svc["volumes"] if v.startswith("${LRFSLAM_TLS"))
+    resolved = {key: str(Path(svc["working_dir"]) / path) for key, path in paths.items()}
+    assert resolved == {"root_ca_certificate": f"{tls_dir}/ca.pem",
+                        "connect_certificate": f"{tls_dir}/monitor.pem",
+                        "connect_private_key": f"{tls_dir}/monitor-key.pem"}
+    # The certificate is the one make-certs.sh issues with the monitor's common name, which the
+    # router's list grants reading only.
+    certs = (DEPLOY / "zenoh" / "make-certs.sh").read_text()
+    assert re.search(r"^issue monitor lrfslam-monitor ", certs, re.MULTILINE)
+    acl = (DEPLOY / "zenoh" / "router-tls-acl.json5").read_text()
+    assert '{ id: "monitor", cert_common_names: ["lrfslam-monitor"] }' in acl
+    # Everything else as in the base file: robot, servers, ports, health file.
+    plain = [a for a in argv if a not in ("--zenoh-config", args.zenoh_config)]
+    assert plain == [a if a != "tcp/zenohd:7447" else "tls/zenohd:7447" for a in base["command"]]
+    assert targets(base) <= targets(svc)
 
 
 def test_router_applies_the_acl_on_the_published_port_only_over_tls(tls):

@@ -241,3 +241,37 @@ def monitor_sees_the_pipeline_but_cannot_write(paths: dict[str, Path], endpoint:
             entity.undeclare()
         svc_bus.close()
         mon_bus.close()
+
+
+def test_a_late_monitor_catches_up_through_the_acl(pipeline):
+    """What `lrfslam monitor` asks as it starts (the compose monitor with the monitor certificate):
+    every service's status and the newest of the outputs kept for late joiners (``topics.latest``),
+    answered by service-certificate queryables. Both are queries the list lets a monitor make."""
+    paths, endpoint = pipeline
+    state = t.SlamState(900_000_000, 9, 9, np.array([1.0, 2.0, 0.5]), np.eye(3) * 0.01)
+    payload = codec.SLAM_STATE.encode(state)
+    key = topics.latest(ROBOT, topics.SLAM_STATE.name)
+    asked: list[str] = []
+
+    def answer(query: zenoh.Query) -> None:
+        asked.append(str(query.key_expr))
+        query.reply(key, payload, attachment=attachment(9, state.stamp_ns, b"\0" * 16),
+                    encoding=zenoh.Encoding(codec.SLAM_STATE.encoding))
+
+    with open_session(paths["service"], endpoint) as svc:
+        queryable = svc.declare_queryable(key, answer)
+        feed, stop = Names(), threading.Event()
+        monitor = Monitor(BusConfig(robot=ROBOT, mode="client", connect=(endpoint,),
+                                    zenoh_config=str(paths["monitor"])), [feed])
+        feed_thread = threading.Thread(target=monitor.run, args=(stop,))
+        feed_thread.start()
+        try:
+            wait_until(lambda: "slam/state" in feed.names, "the monitor never got the latest SLAM state")
+        finally:
+            stop.set()
+            feed_thread.join(10)
+        queryable.undeclare()
+    # Nothing publishes slam/state here: it came by the query, as did denoise's status.
+    assert asked == [topics.latest(ROBOT, "**")]
+    assert feed.names.count("slam/state") == 1
+    assert monitor.counts["catch_up"] == 2 and not monitor.counts["catch_up.undecodable"], monitor.counts

@@ -167,6 +167,11 @@ def producer_id(session: zenoh.Session) -> bytes:
     return bytes.fromhex(str(session.info.zid()).rjust(32, "0"))
 
 
+def connected(session: zenoh.Session) -> bool:
+    """Whether the session has at least one router or peer (what a health file reports)."""
+    return any(True for _ in session.info.routers_zid()) or any(True for _ in session.info.peers_zid())
+
+
 _PRIORITY = {name: getattr(zenoh.Priority, name.upper()) for name in topics.PRIORITIES}
 
 

@@ -36,6 +36,7 @@ from lrfslam.runtime.bus import (
     BusConfig,
     ZenohBus,
     attachment,
+    connected,
     open_session,
     zenoh_config,
 )
@@ -245,11 +246,10 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             st = status()
             bus.put(health_topic, health_topic.codec.encode(st), st.wall_stamp_ns, counts["health"])
             if bus_cfg.health_file:
-                connected = any(True for _ in session.info.routers_zid()) or any(True for _ in session.info.peers_zid())
                 try:
                     health_file.write(bus_cfg.health_file, health_file.HealthRecord(
                         spec.name, robot, st.level, st.message, st.wall_stamp_ns, bus_cfg.health_period_s,
-                        connected, st.pid))
+                        connected(session), st.pid))
                 except OSError as exc:
                     counts["error.health_file"] += 1
                     once.warning("error.health_file", str(exc.errno), "cannot write the health file: %s", exc)

@@ -1,7 +1,7 @@
 """``lrfslam monitor``: a robot's live streams served to Foxglove over WebSocket.
 
     lrfslam monitor --connect tcp/ROBOT:7447 [--robot R] [--port 8765] [--host 127.0.0.1]
-                    [--dashboard [--http-port 8080]]
+                    [--dashboard [--http-port 8080]] [--health-file FILE]
 
 Joins the robot's Zenoh network as a client, subscribes to every key of the robot
 (``lrf/<robot>/**``), turns each message into Foxglove's views (lrfslam/viz/foxglove.py:
@@ -17,6 +17,10 @@ services' health (src/lrfslam/tools/dashboard.py, ``http://HOST:HTTP_PORT/``) is
 A monitor that joins late starts from the current state: it asks which services are alive,
 their status queryables, and the newest SLAM state and loop-closed map (``topics.latest``),
 then follows the liveliness tokens as they come and go.
+
+With ``--health-file`` the monitor rewrites FILE every health period as a service does
+(src/lrfslam/runtime/health_file.py), so a container runs the same healthcheck on it:
+``lrfslam status --check-file FILE`` (connected to the router, main loop turning).
 
 Exit codes: 0 stopped by SIGTERM or Ctrl-C; 2 the server or the Zenoh session could
 not start (one line).
@@ -39,10 +43,13 @@ from foxglove.websocket import Capability
 
 from lrfslam.errors import DecodeError, InputError, LrfSlamError, StartupError
 from lrfslam.msgs import codec, topics
+from lrfslam.msgs import types as t
 from lrfslam.msgs.codec import parse_encoding
+from lrfslam.runtime import health_file
 from lrfslam.runtime.bus import (
     BusConfig,
     ZenohBus,
+    connected,
     open_session,
     parse_attachment,
     zenoh_config,
@@ -141,6 +148,7 @@ class Monitor:
         self.bus_cfg = bus_cfg
         self.sinks = list(sinks)
         self.counts: Counter = Counter()
+        self._once = LogOnce(log)
 
     def run(self, stop: threading.Event) -> int:
         """Until ``stop`` is set; waits for the router while it is unreachable."""
@@ -159,6 +167,7 @@ class Monitor:
             log.info("monitoring robot %s via %s", robot, ",".join(self.bus_cfg.connect))
             try:
                 self.catch_up(session)
+                next_health = 0.0
                 while not stop.is_set():
                     while changes:
                         service, alive = changes.popleft()
@@ -166,6 +175,9 @@ class Monitor:
                             sink.on_alive(service, alive)
                     if (msg := bus.get(0.1)) is not None:
                         self.hand_on(msg)
+                    if self.bus_cfg.health_file and (now := time.monotonic()) >= next_health:
+                        next_health = now + self.bus_cfg.health_period_s
+                        self.write_health(session)
             finally:
                 tokens.undeclare()
                 self.counts.update(bus.receive_counts())
@@ -173,8 +185,20 @@ class Monitor:
         return 0
 
     def hand_on(self, msg: Message) -> None:
+        self.counts["handed_on"] += 1
         for sink in self.sinks:
             sink.on_message(msg)
+
+    def write_health(self, session: zenoh.Session) -> None:
+        """The health file (``--health-file``): rewritten while this loop turns, and says whether the
+        session still has its router. A file that cannot be written is counted and logged once."""
+        try:
+            health_file.write(self.bus_cfg.health_file, health_file.HealthRecord(
+                "monitor", self.bus_cfg.robot, t.HEALTH_OK, f"{self.counts['handed_on']} messages handed on",
+                time.time_ns(), self.bus_cfg.health_period_s, connected(session), os.getpid()))
+        except OSError as exc:
+            self.counts["error.health_file"] += 1
+            self._once.warning("error.health_file", str(exc.errno), "cannot write the health file: %s", exc)
 
     def catch_up(self, session: zenoh.Session, timeout_s: float = 2.0) -> None:
         """The state before the first message: every service's status, then the newest of the outputs
@@ -216,6 +240,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--http-port", type=int, default=DEFAULT_HTTP_PORT,
                    help=f"the dashboard's HTTP and WebSocket port (default {DEFAULT_HTTP_PORT}; 0: any free one)")
     p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config applied first (TLS, ...)")
+    p.add_argument("--health-file", metavar="FILE",
+                   help="also write the monitor's health to FILE every second, for a container healthcheck: "
+                        "lrfslam status --check-file FILE")
     p.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING, ERROR")
     return p
 
@@ -227,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     install_signal_handlers(stop)
     try:
         bus_cfg = BusConfig(robot=args.robot, mode="client", connect=tuple(args.connect or BusConfig.connect),
-                            zenoh_config=args.zenoh_config or "")
+                            zenoh_config=args.zenoh_config or "", health_file=args.health_file or "")
         server = FoxgloveServer(args.host, args.port, f"lrfslam {args.robot}")
     except (LrfSlamError, OSError) as exc:
         log.error("%s", exc)
