@@ -121,12 +121,14 @@ class PoseGraph:
         self.params = params or PoseGraphParams()
         self._poses = np.zeros((0, 3))
         self._n = 0
-        self._i: list[int] = []
-        self._j: list[int] = []
-        self._z: list[np.ndarray] = []
-        self._info: list[np.ndarray] = []
-        self._robust: list[bool] = []
-        self._alive: list[bool] = []
+        # Edges in arrays grown by doubling (a list of small arrays costs ~4x the memory):
+        # nodes (E, 2), measurement (E, 3), information (E, 3, 3), robust and alive (E,).
+        self._m = 0
+        self._nodes = np.zeros((0, 2), dtype=np.int64)
+        self._z = np.zeros((0, 3))
+        self._info = np.zeros((0, 3, 3))
+        self._robust = np.zeros(0, dtype=bool)
+        self._alive = np.zeros(0, dtype=bool)
 
     # -- building -------------------------------------------------------------------------------
 
@@ -175,29 +177,35 @@ class PoseGraph:
         if i == j or z.shape != (3,) or info.shape != (3, 3) or not (np.all(np.isfinite(z))
                                                                        and np.all(np.isfinite(info))):
             raise InputError("an edge needs two different nodes, a finite (3,) measurement and (3, 3) information")
-        self._i.append(i)
-        self._j.append(j)
-        self._z.append(z.copy())
-        self._info.append(0.5 * (info + info.T))
-        self._robust.append(bool(robust))
-        self._alive.append(True)
-        return len(self._i) - 1
+        if self._m == self._z.shape[0]:
+            size = max(16, 2 * self._m)
+            self._nodes, self._z, self._info, self._robust, self._alive = (
+                _grown(a, size) for a in (self._nodes, self._z, self._info, self._robust, self._alive))
+        m = self._m
+        self._nodes[m] = (i, j)
+        self._z[m] = z
+        self._info[m] = 0.5 * (info + info.T)
+        self._robust[m] = bool(robust)
+        self._alive[m] = True
+        self._m += 1
+        return m
 
     def remove_edge(self, edge: int) -> None:
         """Take an edge out of the problem (a closure found wrong); indices of the others stay."""
-        self._alive[edge] = False
+        self._alive[self._check_edge(edge)] = False
 
     def edge_nodes(self, edge: int) -> tuple[int, int]:
         """The nodes ``(i, j)`` an edge joins."""
-        return self._i[edge], self._j[edge]
+        i, j = self._nodes[self._check_edge(edge)]
+        return int(i), int(j)
 
     def edge_measurement(self, edge: int) -> np.ndarray:
         """An edge's measurement (3,), node ``j`` in node ``i``'s frame."""
-        return self._z[edge].copy()
+        return self._z[self._check_edge(edge)].copy()
 
     def edge_count(self) -> int:
         """Edges in the problem (removed ones not counted)."""
-        return int(sum(self._alive))
+        return int(np.count_nonzero(self._alive[: self._m]))
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """The graph as arrays (copies): ``graph_poses`` (K, 3); per edge, removed ones included so
@@ -205,12 +213,11 @@ class PoseGraph:
         ``graph_edge_information`` (E, 3, 3), ``graph_edge_robust`` and ``graph_edge_alive`` (E,)."""
         return {
             "graph_poses": self.poses.copy(),
-            "graph_edge_nodes": np.column_stack((np.array(self._i, dtype=np.int64),
-                                                 np.array(self._j, dtype=np.int64))).reshape(-1, 2),
-            "graph_edge_measurement": np.array(self._z, dtype=float).reshape(-1, 3),
-            "graph_edge_information": np.array(self._info, dtype=float).reshape(-1, 3, 3),
-            "graph_edge_robust": np.array(self._robust, dtype=bool),
-            "graph_edge_alive": np.array(self._alive, dtype=bool),
+            "graph_edge_nodes": self._nodes[: self._m].copy(),
+            "graph_edge_measurement": self._z[: self._m].copy(),
+            "graph_edge_information": self._info[: self._m].copy(),
+            "graph_edge_robust": self._robust[: self._m].copy(),
+            "graph_edge_alive": self._alive[: self._m].copy(),
         }
 
     @classmethod
@@ -240,10 +247,14 @@ class PoseGraph:
             raise InputError("pose graph snapshot: non-finite values or edges to missing nodes")
         graph = cls(params)
         graph._poses, graph._n = poses.copy(), poses.shape[0]
-        graph._i, graph._j = nodes[:, 0].tolist(), nodes[:, 1].tolist()
-        graph._z, graph._info = list(z), list(info)
-        graph._robust, graph._alive = robust.tolist(), alive.tolist()
+        graph._m = e
+        graph._nodes, graph._z, graph._info, graph._robust, graph._alive = nodes, z, info, robust, alive
         return graph
+
+    def _check_edge(self, edge: int) -> int:
+        if not 0 <= edge < self._m:
+            raise InputError(f"no edge {edge} (graph has {self._m})")
+        return edge
 
     def _check_node(self, node: int) -> int:
         if not 0 <= node < self._n:
@@ -253,12 +264,9 @@ class PoseGraph:
     # -- evaluation -----------------------------------------------------------------------------
 
     def _arrays(self):
-        alive = np.flatnonzero(np.array(self._alive, dtype=bool))
-        i = np.array(self._i, dtype=np.int64)[alive]
-        j = np.array(self._j, dtype=np.int64)[alive]
-        z = np.array(self._z, dtype=float).reshape(-1, 3)[alive]
-        info = np.array(self._info, dtype=float).reshape(-1, 3, 3)[alive]
-        robust = np.array(self._robust, dtype=bool)[alive]
+        alive = np.flatnonzero(self._alive[: self._m])
+        i, j = self._nodes[alive, 0], self._nodes[alive, 1]
+        z, info, robust = self._z[alive], self._info[alive], self._robust[alive]
         return alive, i, j, z, info, robust
 
     @staticmethod
@@ -306,7 +314,7 @@ class PoseGraph:
     def chi2(self) -> np.ndarray:
         """``eᵀ Ω e`` of every edge at the current estimate, shape (edges added,); NaN for removed ones."""
         alive, i, j, z, info, _ = self._arrays()
-        out = np.full(len(self._alive), np.nan)
+        out = np.full(self._m, np.nan)
         if alive.size:
             e, _, _ = self._residuals(self.poses, i, j, z, with_jacobians=False)
             out[alive] = _mahalanobis2(e, info)
@@ -315,7 +323,7 @@ class PoseGraph:
     def loop_weights(self) -> np.ndarray:
         """Cauchy weight in (0, 1] of every edge at the current estimate (1 for plain edges, NaN if removed)."""
         chi2 = self.chi2()
-        robust = np.array(self._robust, dtype=bool)
+        robust = self._robust[: self._m]
         return np.where(np.isnan(chi2), np.nan, self._robust_terms(np.nan_to_num(chi2), robust)[1])
 
     # -- solving --------------------------------------------------------------------------------
@@ -427,6 +435,13 @@ class PoseGraph:
         rot_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
         cov = rot_t @ cov_world @ rot_t.T
         return 0.5 * (cov + cov.T)
+
+
+def _grown(a: np.ndarray, rows: int) -> np.ndarray:
+    """``a`` with room for ``rows`` rows, the first ``len(a)`` kept."""
+    out = np.zeros((rows, *a.shape[1:]), dtype=a.dtype)
+    out[: a.shape[0]] = a
+    return out
 
 
 def _mahalanobis2(e: np.ndarray, info: np.ndarray) -> np.ndarray:
