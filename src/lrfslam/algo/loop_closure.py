@@ -69,7 +69,7 @@ Everything is deterministic: same calls, same results.
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -180,6 +180,12 @@ class LoopClosureParams:
         differs from the keyframes' scans matched (point-to-line, the local
         motion as the guess) by more than this (m, rad): then it is the match.
         0 always takes the match, a large value (1e9) always the local motion.
+    trim_revisits : bool
+        A keyframe that closed a loop (a revisit of a mapped place) is never a
+        candidate, and its points are dropped once it is no longer one of the last
+        ``max(query_keyframes, odometry_keyframes)``: a place's map is the visit that
+        first mapped it, and a robot driving the same rounds adds a node and its edges
+        per keyframe (~0.3 KB), not a scan's points (~2.4 KB).
     """
 
     keyframe_trans_m: float = 0.5
@@ -224,6 +230,7 @@ class LoopClosureParams:
     ekf_jump_m: float = 0.05
     interpolate: bool = True
     ekf_jump_rad: float = 0.02
+    trim_revisits: bool = True
 
     def __post_init__(self) -> None:
         positive = ("max_range_m", "keyframe_cell_m", "query_cell_m", "odom_trans_sigma_m", "odom_rot_sigma_rad",
@@ -285,6 +292,7 @@ class _Keyframe:
     local_edge: bool  # the odometry edge into it is the local motion (no jump)
     scan_index: int  # the scan that made it, in the order fed
     stamp_ns: int  # that scan's stamp
+    revisit: bool = False  # it closed a loop into an older part of the map
 
 
 class LoopClosingMapper:
@@ -448,6 +456,7 @@ class LoopClosingMapper:
             "keyframe_local_edge": self.keyframe_local_edges(),
             "keyframe_scan_index": self.keyframe_scans(),
             "keyframe_stamp_ns": np.array([k.stamp_ns for k in kfs], dtype=np.int64),
+            "keyframe_revisit": np.array([k.revisit for k in kfs], dtype=bool),
             "scans_fed": np.int64(self._scans_fed),
             "keep_scans": np.bool_(self._keep_scans),
             "scan_keyframe": np.array(self._scan_kf, dtype=np.int64),
@@ -491,13 +500,15 @@ class LoopClosingMapper:
             edge = np.array(arrays["keyframe_local_edge"], dtype=bool)
             scan_index = np.array(arrays["keyframe_scan_index"], dtype=np.int64)
             stamps = np.array(arrays["keyframe_stamp_ns"], dtype=np.int64)
+            revisit = np.array(arrays["keyframe_revisit"], dtype=bool)
             k = len(mapper.graph)
-            if not (counts.shape == travel.shape == edge.shape == scan_index.shape == stamps.shape == (k,)
+            if not (counts.shape == travel.shape == edge.shape == scan_index.shape == stamps.shape == revisit.shape
+                    == (k,)
                     and local.shape == (k, 3) and np.all(counts >= 0) and counts.sum() == points.shape[0]):
                 raise InputError("mapper snapshot: keyframe arrays disagree with the graph")
             for i, pts in enumerate(np.split(points, np.cumsum(counts)[:-1]) if k else []):
                 mapper._keyframes.append(_Keyframe(local[i], pts, float(travel[i]), bool(edge[i]),
-                                                   int(scan_index[i]), int(stamps[i])))
+                                                   int(scan_index[i]), int(stamps[i]), bool(revisit[i])))
             mapper._scans_fed = int(arrays["scans_fed"])
             if mapper._keep_scans:
                 mapper._scan_kf = np.array(arrays["scan_keyframe"], dtype=np.int64).tolist()
@@ -552,6 +563,24 @@ class LoopClosingMapper:
         self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
         self._keyframes.append(_Keyframe(local_pose.copy(), pts, self._keyframes[-1].travel_m + dist,
                                          step is moved, self._scans_fed, stamp_ns))
+        self._trim(len(self._keyframes) - 1 - self._recent_keyframes)
+
+    @property
+    def _recent_keyframes(self) -> int:
+        """The last this many keyframes keep their points whatever they are (the query and the edge checks use them)."""
+        return max(self.params.query_keyframes, self.params.odometry_keyframes)
+
+    def _mark_revisit(self, k: int) -> None:
+        """Keyframe ``k`` closed a loop: with ``trim_revisits``, no candidate, and no points once not recent."""
+        if self.params.trim_revisits and not self._keyframes[k].revisit:
+            self._keyframes[k] = replace(self._keyframes[k], revisit=True)
+            self._trim(k)
+
+    def _trim(self, k: int) -> None:
+        """Drop keyframe ``k``'s points if it is a revisit and no longer one of the recent keyframes."""
+        if 0 <= k < len(self._keyframes) - self._recent_keyframes + 1 and self._keyframes[k].revisit \
+                and self._keyframes[k].points_xy_m.shape[0]:
+            self._keyframes[k] = replace(self._keyframes[k], points_xy_m=np.zeros((0, 2)))
 
     def _step_or_jump(self, moved: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """``moved`` (3,), or ``reference`` (3,) where the two differ by more than ``ekf_jump_*``."""
@@ -602,7 +631,10 @@ class LoopClosingMapper:
             return
         poses = self.graph.poses
         travel = np.array([kf.travel_m for kf in self._keyframes])
-        old = np.flatnonzero(travel <= travel[n] - p.min_travel_m)
+        older = travel <= travel[n] - p.min_travel_m
+        if p.trim_revisits:
+            older &= ~np.array([kf.revisit for kf in self._keyframes])
+        old = np.flatnonzero(older)
         if old.size == 0:
             return
         dist = np.hypot(poses[old, 0] - poses[n, 0], poses[old, 1] - poses[n, 1])
@@ -649,6 +681,7 @@ class LoopClosingMapper:
                 self._tentative = closure
         urgent = False
         for k, n_, z, cov, innovation in found:
+            self._mark_revisit(n_)
             info = np.linalg.inv(cov)
             self._loop_edges.append(self.graph.add_edge(k, n_, z, info, robust=True))
             self._counts["accepted"] += 1
