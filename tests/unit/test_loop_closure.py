@@ -247,3 +247,23 @@ def test_a_bad_snapshot_is_refused(hallway_run):
                    {**snap, "loop_edges": snap["loop_edges"] + 10**6}):
         with pytest.raises(InputError, match="snapshot"):
             LoopClosingMapper.restore(None, broken)
+
+
+def test_revisits_keep_no_points_and_are_never_candidates(hallway_run, hallway_frames):
+    mapper = hallway_run[0]
+    snap = mapper.snapshot()
+    counts, revisit, first_scan = snap["keyframe_point_counts"], snap["keyframe_revisit"], snap["keyframe_scan_index"]
+    second_lap = first_scan >= len(hallway_frames[0]) // 2
+    recent = max(mapper.params.query_keyframes, mapper.params.odometry_keyframes)
+    # The second lap closes into the first: most of its keyframes are revisits, and the old
+    # ones have dropped their points; every closure's old keyframe is a first visit.
+    assert revisit[second_lap].mean() > 0.8 and not revisit[~second_lap][:10].any()
+    assert np.all(counts[:-recent][revisit[:-recent]] == 0) and np.all(counts[-recent:] > 0)
+    assert not any(revisit[k] for k, _, _ in mapper.closures())
+    assert counts[second_lap].sum() < 0.2 * counts[~second_lap].sum()
+    # Without trimming every keyframe keeps its points.
+    untrimmed = LoopClosingMapper(LoopClosureParams(trim_revisits=False))
+    for f in hallway_frames[0]:
+        untrimmed.add_scan(*f)
+    kept = untrimmed.snapshot()
+    assert not kept["keyframe_revisit"].any() and np.all(kept["keyframe_point_counts"] > 0)
