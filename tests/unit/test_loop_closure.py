@@ -7,7 +7,7 @@ import io
 import numpy as np
 import pytest
 
-from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.algo.geometry import compose, from_frame, relative, wrap_angle
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.sim.simulator import OdometryNoise, SimConfig, Simulator
@@ -267,3 +267,22 @@ def test_revisits_keep_no_points_and_are_never_candidates(hallway_run, hallway_f
         untrimmed.add_scan(*f)
     kept = untrimmed.snapshot()
     assert not kept["keyframe_revisit"].any() and np.all(kept["keyframe_point_counts"] > 0)
+
+
+@pytest.mark.parametrize("trim", [False, True])
+def test_a_stretch_of_lost_scans_is_never_a_candidate(trim):
+    # 16 m of the first lap came without scans: a keyframe there has no points and neither
+    # have its neighbours, so its submap would be empty. The later laps search past it.
+    mapper = LoopClosingMapper(LoopClosureParams(trim_revisits=trim))
+    rng = np.random.default_rng(4)
+    clutter = rng.uniform(-4, 4, (120, 2))
+    k = 0
+    for lap in range(3):
+        for side in range(4):
+            for i in range(40):
+                pose = compose((0.0, 0.0, side * np.pi / 2), (-8.0 + 0.4 * i, -8.0, 0.0))
+                lost = lap == 0 and side == 1
+                mapper.add_scan(k, pose, np.zeros((0, 2)) if lost else from_frame(clutter, relative(pose, np.zeros(3))))
+                k += 1
+    stamps, poses = mapper.trajectory()
+    assert stamps.shape == (k,) and np.all(np.isfinite(poses)) and mapper.stats.searched > 0

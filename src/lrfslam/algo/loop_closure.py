@@ -631,9 +631,11 @@ class LoopClosingMapper:
             return
         poses = self.graph.poses
         travel = np.array([kf.travel_m for kf in self._keyframes])
-        older = travel <= travel[n] - p.min_travel_m
-        if p.trim_revisits:
-            older &= ~np.array([kf.revisit for kf in self._keyframes])
+        # A candidate has points of its own (its scan may have been lost; its neighbours' may
+        # have been trimmed), so its submap is never empty.
+        older = (travel <= travel[n] - p.min_travel_m) & np.array([kf.points_xy_m.shape[0] > 0 and not
+                                                                   (p.trim_revisits and kf.revisit)
+                                                                   for kf in self._keyframes])
         old = np.flatnonzero(older)
         if old.size == 0:
             return
