@@ -1,10 +1,11 @@
 """``lrfslam play`` against live services, all real processes on a real router (TCP on loopback).
 
-Fast: ``--loop`` numbering every topic on across loops under one producer, with the recorded stamps and
-payloads, stopped by SIGINT; a stalled stage failing ``--rate max`` loudly; refusals (no live stage to wait
-for, a live sensor on the same keys). Slow: a recording played ``--rate max`` through the stages as
-separate processes gives, in the recorder's recording, the same outputs byte for byte as
-``lrfslam pipeline --replay`` of the same input, with no drop and no gap anywhere.
+Fast: ``--loop`` numbering every topic on across loops under one producer, with the recorded
+stamps and payloads, stopped by SIGINT; refusals (no live stage to wait for, a live sensor on the
+same keys). Slow: the same stopped by SIGTERM; a stalled stage failing ``--rate max`` loudly; a
+recording played ``--rate max`` through the stages as separate processes gives, in the recorder's
+recording, the same outputs byte for byte as ``lrfslam pipeline --replay`` of the same input, with
+no drop and no gap anywhere; ``lrfslam up --skip sensor`` fed by play.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from lrfslam import services
 from lrfslam.msgs import codec, topics
 from lrfslam.runtime.bus import parse_attachment
 from lrfslam.runtime.recording import read_recording
+from lrfslam.runtime.sequence import SequenceTracker
 from lrfslam.tools.status import query_status
 from lrfslam.viz.dashboard import total
 
@@ -45,7 +47,9 @@ def alive(cluster, session, *names: str) -> None:
     cluster.wait_for(session, lambda a, st: {s for _, s in a} >= set(names), 60, f"{', '.join(names)} alive")
 
 
-def test_loop_numbers_each_topic_on_across_loops_and_sigint_stops_it(cluster):
+@pytest.mark.parametrize("sig", [signal.SIGINT, pytest.param(signal.SIGTERM, marks=pytest.mark.slow)],
+                         ids=["SIGINT", "SIGTERM"])
+def test_loop_numbers_each_topic_on_across_loops_and_a_signal_stops_it(cluster, sig):
     source = GOLDEN / "sim_head.mcap"   # 80 frames of scan, odom and truth at 10 Hz
     recorded = defaultdict(list)
     for m in read_recording(source):
@@ -69,26 +73,30 @@ def test_loop_numbers_each_topic_on_across_loops_and_sigint_stops_it(cluster):
             assert proc.poll() is None, proc.communicate()
             assert time.monotonic() < deadline, "too few scans played"
             time.sleep(0.05)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         out, err = proc.communicate(timeout=30)
         time.sleep(0.5)   # the last samples on their way
         sub.undeclare()
-    assert proc.returncode == 130, err
+    assert proc.returncode == 128 + sig, err
     lines = out.splitlines()
     m = SUMMARY.match(lines[0]) if len(lines) == 1 else None
     assert m, out
-    assert re.search(r"; (\d+) loops;", lines[0]) and lines[0].endswith("stopped by SIGINT"), lines[0]
+    assert re.search(r"; (\d+) loops;", lines[0]) and lines[0].endswith(f"stopped by {sig.name}"), lines[0]
     assert int(m.group(1)) == sum(len(v) for v in got.values()) and int(m.group(2)) == len(got["scan"])
     producers = {p for samples in got.values() for _, _, p, _ in samples}
     assert len(producers) == 1 and len(next(iter(producers))) == 16
+    tracker = SequenceTracker()   # what every consumer counts (docs/delivery.md)
     for topic in ("scan", "odom", "truth"):
         samples = got[topic]
         # Numbered by play, on and on: the consumers count no gap and no restart at a new loop.
         assert [s for s, _, _, _ in samples] == list(range(1, len(samples) + 1)), topic
+        for seq, _, producer, _ in samples:
+            tracker.observe(producer, topic, seq)
         # Each loop: the recorded stamps and payloads, in order.
         for i, (_, stamp, _, payload) in enumerate(samples):
             r = recorded[topic][i % len(recorded[topic])]
             assert (stamp, payload) == (r.log_time_ns, r.data), (topic, i)
+    assert +tracker.counts == {}
 
 
 @pytest.mark.slow

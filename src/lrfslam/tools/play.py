@@ -292,18 +292,20 @@ class Player:
         if stamp:
             self._answers.put(stamp)
 
-    def wait_for_subscribers(self, consumed: bool) -> None:
-        """Declare the publishers; while a live service consumes them, give its subscriptions up to
-        :data:`MATCH_WAIT_S` to reach them, so the first messages are not put before anyone listens."""
+    def wait_for_subscribers(self, alive: Iterable[str]) -> None:
+        """Declare the publishers, and give the subscriptions of the live services that take a played
+        topic up to :data:`MATCH_WAIT_S` to reach them, so that the first messages find their consumers."""
         pubs = {name: self.bus.publisher(tp) for name, tp in self.played.items()}
+        specs = [services.spec(n) for n in alive if n in services.NAMES]
+        taken = {name for name in pubs if any(sp.raw_inputs or name in {tp.name for tp in sp.inputs} for sp in specs)}
         deadline = time.monotonic() + MATCH_WAIT_S
-        while consumed and not self.stop.is_set() and time.monotonic() < deadline:
-            if all(p.matching_status.matching for p in pubs.values()):
+        while not self.stop.is_set() and time.monotonic() < deadline:
+            if all(pubs[name].matching_status.matching for name in taken):
                 return
             time.sleep(0.01)
-        for name, pub in pubs.items():
-            if consumed and not pub.matching_status.matching:
-                log.warning("nothing subscribes to %s", topics.key(self.robot, name))
+        for name in sorted(taken):
+            if not pubs[name].matching_status.matching:
+                log.warning("no subscriber of %s has reached play yet", topics.key(self.robot, name))
 
     def _take_answers(self, timeout_s: float) -> None:
         """Apply the answers that came, waiting up to ``timeout_s`` for the first."""
@@ -364,10 +366,26 @@ class Player:
             return None
 
     def run(self) -> Summary:
-        """Play until the end (every loop until stopped with ``loop``); then wait for the last answers."""
+        """Play until the end (every loop until stopped with ``loop``); then wait for the last answers.
+
+        Raises
+        ------
+        Stalled
+            With ``--rate max``: no answer, or a backlog not going down, for the timeout.
+        """
         started = time.monotonic_ns()
+        try:
+            self._play(started)
+            self._drain()
+        finally:
+            self.summary.seconds = (time.monotonic_ns() - started) / 1e9
+            if notes := {k: v for k, v in self.counts.items() if not k.startswith("out.")}:
+                log.info("also: %s", ", ".join(f"{k} {v}" for k, v in sorted(notes.items())))
+        return self.summary
+
+    def _play(self, started: int) -> None:
         next_progress = time.monotonic() + PROGRESS_PERIOD_S
-        first_ns = last_ns = None
+        last_ns = None
         while not self.stop.is_set():
             played_this_loop = 0
             for m in read_recording(self.source, list(self.played)):
@@ -394,7 +412,6 @@ class Player:
                 played_this_loop += 1
                 self.summary.messages += 1
                 self.summary.scans += topic is topics.SCAN
-                first_ns = m.log_time_ns if first_ns is None else first_ns
                 if last_ns is not None and m.log_time_ns > last_ns:
                     self.summary.data_s += (m.log_time_ns - last_ns) / 1e9
                 last_ns = m.log_time_ns
@@ -410,11 +427,6 @@ class Player:
             last_ns = None   # the next loop's stamps start over: no data time between the loops
             if self.schedule is not None:
                 self.schedule.next_loop()
-        try:
-            self._drain()
-        finally:
-            self.summary.seconds = (time.monotonic_ns() - started) / 1e9
-        return self.summary
 
     def _drain(self) -> None:
         """Wait for the watched stage to answer the scans still in flight (up to the timeout without one)."""
@@ -533,7 +545,7 @@ def main(argv: list[str] | None = None) -> int:
                         stop)
         code = 0
         try:
-            player.wait_for_subscribers(consumed=bool(alive))
+            player.wait_for_subscribers(alive)
             player.run()
         except Stalled as exc:
             log.error("%s", exc)
