@@ -33,7 +33,7 @@ def test_ten_hz_at_twice_the_pace_is_one_every_50_ms():
     assert [schedule.due_ns(s) for s in stamps] == [0, 50_000_000, 100_000_000, 150_000_000, 200_000_000]
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(STAMPS, RATES)
 def test_due_times_are_the_stamps_offsets_divided_by_the_rate(stamps, rate):
     schedule = RateSchedule(rate)
@@ -44,7 +44,7 @@ def test_due_times_are_the_stamps_offsets_divided_by_the_rate(stamps, rate):
     assert due == sorted(due)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.lists(st.integers(0, 10**12), min_size=1, max_size=60), RATES)
 def test_what_was_played_is_never_waited_for_again(stamps, rate):
     """Stamps out of order: every due time is the latest so far of the in-order schedule."""
@@ -115,7 +115,7 @@ def simulate(stamps, answered, size, moves):
         yield window, sent, last_answered
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(pipeline_runs(unique=True))
 def test_every_scan_up_to_the_last_answered_one_is_freed(run):
     stamps, answered, size, moves = run
@@ -130,7 +130,7 @@ def test_every_scan_up_to_the_last_answered_one_is_freed(run):
         assert window.in_flight == 0
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(pipeline_runs(unique=False))
 def test_with_repeated_stamps_a_scan_is_never_freed_before_its_answer(run):
     """An answer matches the oldest scan in flight with its stamp: never one played after the scan answered."""
@@ -185,7 +185,7 @@ def test_the_watched_stage_is_the_deepest_fed_one_alive(alive, played, expected)
     assert (stage.name if stage else None) == expected
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.sets(st.sampled_from([s.name for s in PIPELINE])),
        st.sets(st.sampled_from(["scan", "odom", "truth", "scan/filtered", "features", "slam/state"])))
 def test_the_watched_stage_is_alive_and_fed_and_none_deeper_is(alive, played):
