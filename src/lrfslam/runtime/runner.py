@@ -57,6 +57,8 @@ STOP_STACKS_AFTER_S = 5.0
 #: On a stop, inputs already received are still handled for this long; the rest are counted
 #: (``drop.stop``). Well inside ``lrfslam up``'s 15 s before SIGKILL.
 STOP_DRAIN_S = 2.0
+#: Status counter holding the service's input backlog: samples queued, not yet handled (a gauge).
+BACKLOG = "queue.pending"
 #: How long a same-named service's token that nobody answers for may stay before this one refuses to start, s
 #: (a little over Zenoh's default lease, after which the token of a silently dead process goes).
 STALE_TOKEN_S = 12.0
@@ -219,6 +221,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             merged.update(bus.receive_counts())
             merged.update({f"step.{k}": v for k, v in step.counts.items()})
             merged.update(latency.counters())
+            # A gauge, not a count: inputs received and not yet handled (lrfslam play --rate max holds back on it).
+            merged[BACKLOG] = bus.pending()
             return t.ServiceStatus(
                 spec.name, robot, level, message, time.time_ns(), time.monotonic() - started,
                 dict(merged), last_data[0], config_mod.to_json(cfg),

@@ -14,7 +14,9 @@ is now, and the recorder adds a segment. While it runs, a status line every
 ``--quiet``: none); ``--monitor`` also runs ``lrfslam monitor --dashboard`` as one more
 supervised process. On Ctrl-C, SIGTERM or after ``--duration`` seconds the sensor stops
 first, the pipeline drains, the rest stop in order, and a summary compares the SLAM estimate
-with the simulator's ground truth.
+with the simulator's ground truth. ``--skip sensor`` runs the pipeline without one, for a
+recording played in (``lrfslam play RECORDING --robot R``, src/lrfslam/tools/play.py): the
+summary then compares with the truth played, where the recording has it.
 """
 
 from __future__ import annotations
@@ -59,8 +61,9 @@ log = logging.getLogger("lrfslam.up")
 START_ORDER = ("recorder", "mapper", "slam", "features", "denoise", "sensor")
 #: How long the stages before the sensor have to declare their liveliness tokens.
 START_TIMEOUT_S = 30.0
-#: Stages ``--skip`` may leave out (every other one is needed for SLAM to run at all).
-OPTIONAL = ("mapper",)
+#: Stages ``--skip`` may leave out (every other one is needed for SLAM to run at all; without the
+#: sensor, the scans come from ``lrfslam play``).
+OPTIONAL = ("mapper", "sensor")
 #: How often the supervisor looks for dead children, s (a restart is that much late at most).
 POLL_S = 0.05
 #: Ground truth waiting for its SLAM state, at most (over two minutes at 75 Hz): a stalled or
@@ -369,7 +372,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="override one service setting, e.g. --set features.mode=paper")
     parser.add_argument("--skip", action="append", default=[], choices=OPTIONAL, metavar="SERVICE",
                         help="leave a stage out: --skip mapper runs the EKF without loop closing (with "
-                             "--set slam.scan_matching=false, the paper's filter alone)")
+                             "--set slam.scan_matching=false, the paper's filter alone); --skip sensor waits for "
+                             "scans from lrfslam play")
     parser.add_argument("--recordings", default="recordings",
                         help="parent of the recording folder (<UTC time>_<robot>/, one MCAP segment per recorder start)")
     parser.add_argument("--max-restarts", type=int, default=3, help="restarts of each process (the router too)")
@@ -400,7 +404,8 @@ def main(argv: list[str] | None = None) -> int:
     # One folder for the run: a restarted recorder adds the next segment to it.
     recording = Path(args.recordings) / f"{stamp}_{args.robot}"
     sets["recorder"] += [f"directory={recording.parent}", f"name={recording.name}"]
-    sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
+    if "sensor" in sets:
+        sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
     topics.check_robot(args.robot)
     configs = check_configs(sets, args.config)
     for name, file in CHECKPOINT_NAMES.items():
@@ -449,18 +454,23 @@ def main(argv: list[str] | None = None) -> int:
                     f"robot {args.robot!r} already has services running on {endpoint}: "
                     + ", ".join(f"{n} ({w})" if w else n for n, w in sorted(found.items()))
                     + "; start with another --robot, or with --join to run beside them")
-            for name in order[:-1]:
+            stages = [n for n in order if n != "sensor"]
+            for name in stages:
                 children[name].start()
-            up = wait_alive(session, args.robot, [children[n] for n in order[:-1]], START_TIMEOUT_S, stop)
+            up = wait_alive(session, args.robot, [children[n] for n in stages], START_TIMEOUT_S, stop)
         except StartupError:
             abort()
             remove_if_empty(recording)
             raise
         if up:
-            children["sensor"].start()
+            if "sensor" in children:
+                children["sensor"].start()
             if monitor:
                 monitor.start()
         log.info("pipeline up: robot %s, router %s, recording %s", args.robot, endpoint, recording)
+        if "sensor" not in children:
+            log.info("no sensor: play a recording in with lrfslam play RECORDING --robot %s --connect %s",
+                     args.robot, endpoint)
         if monitor:
             log.info("monitor: Foxglove ws://127.0.0.1:%d, dashboard http://127.0.0.1:%d/", args.monitor_port,
                      args.http_port)
@@ -468,7 +478,7 @@ def main(argv: list[str] | None = None) -> int:
         next_line = time.monotonic() + args.status_period
         # The run's length counts from here: starting the processes can take seconds on a busy machine.
         deadline = time.monotonic() + args.duration if args.duration > 0 else None
-        rate_hz = configs["sensor"].rate_hz
+        rate_hz = configs["sensor"].rate_hz if "sensor" in configs else 0.0
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             observer.process()
             note_returns(observer, router, children)
@@ -499,8 +509,11 @@ def main(argv: list[str] | None = None) -> int:
                 next_line += args.status_period
                 print(live.line(observer, time.monotonic()), flush=True)
             stop.wait(POLL_S)
-        log.info("stopping: sensor first, then draining the pipeline")
-        children["sensor"].stop(10)
+        if "sensor" in children:
+            log.info("stopping: sensor first, then draining the pipeline")
+            children["sensor"].stop(10)
+        else:
+            log.info("stopping: draining the pipeline")
         _drain(observer, 5.0)
         for name in ("denoise", "features", "slam", "mapper", "recorder"):
             if name in children:
@@ -528,7 +541,9 @@ class LiveLine:
     def line(self, observer: Observer, now_s: float) -> str:
         """The line at monotonic time ``now_s``."""
         observer.process()
-        scans = observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0)
+        # Without a sensor (--skip sensor), the scans played in, as the first stage took them.
+        scans = (observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0)
+                 or observer.counters("denoise").get(f"in.{topics.SCAN.name}", 0))
         rate = (scans - self.last_scans) / (now_s - self.last_s) if now_s > self.last_s else 0.0
         self.last_s, self.last_scans = now_s, scans
         parts = [f"[{now_s - self.started_s:6.1f} s] scans {scans} ({rate:.1f}/s)"]
@@ -652,7 +667,8 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
                      f"({err['confirmed']:.0f} confirmed)")
         lines.append(f"      final pose error {err['final_xy_m'] * 100:.1f} cm, {err['final_heading_deg']:.2f} deg; "
                      f"trajectory RMSE {err['ate_rmse_m'] * 100:.1f} cm (first pose anchored)")
-    lines += recording_lines(recording, observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0))
+    lines += recording_lines(recording, observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0)
+                             if "sensor" in children else None)
     lines += unrecorded_lines(observer, recording, children.get("recorder"))
     lines += restart_lines(([router] if router else []) + list(children.values()) + ([monitor] if monitor else []))
     return "\n".join(lines)
@@ -682,12 +698,14 @@ def restart_lines(children: list[Child]) -> list[str]:
     return ["restarts: " + "; ".join(parts)] if parts else []
 
 
-def recording_lines(recording: Path, published_scans: int) -> list[str]:
-    """Scans published against scans recorded; the folder: messages per topic, then each segment
-    (size, messages, whether it needs recovering)."""
+def recording_lines(recording: Path, published_scans: int | None) -> list[str]:
+    """Scans published against scans recorded (``published_scans`` None: no sensor ran); the folder:
+    messages per topic, then each segment (size, messages, whether it needs recovering)."""
     report = ReadReport()
 
     def lost(recorded: int) -> str:
+        if published_scans is None:
+            return f"scans in the recording {recorded} (no sensor: played in or published by another process)"
         return (f"scans published by the sensor {published_scans} / scans in the recording {recorded} / "
                 f"lost {published_scans - recorded}")
     try:
