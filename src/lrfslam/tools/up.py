@@ -401,6 +401,10 @@ def main(argv: list[str] | None = None) -> int:
     recording = Path(args.recordings) / f"{stamp}_{args.robot}"
     sets["recorder"] += [f"directory={recording.parent}", f"name={recording.name}"]
     sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
+    if args.speedup != 1:
+        # Simulated stamps leave the wall clock: no stage reports their age (docs/monitoring.md).
+        # Through the environment every process up starts shares it, as it shares the router.
+        os.environ.setdefault(f"{config_mod.ENV_PREFIX}_BUS_WALL_CLOCK_STAMPS", "false")
     topics.check_robot(args.robot)
     configs = check_configs(sets, args.config)
     for name, file in CHECKPOINT_NAMES.items():
