@@ -69,8 +69,8 @@ def compare(live: Path, offline: Path, names: list[str]) -> list[str]:
     """One line per topic: messages in each, and whether every one is identical."""
     lines = []
     for topic in names:
-        a = [(m.log_time_ns, m.sequence, m.data) for m in read_recording(live, [topic])]
-        b = [(m.log_time_ns, m.sequence, m.data) for m in read_recording(offline, [topic])]
+        a = [(m.stamp_ns, m.sequence, m.data) for m in read_recording(live, [topic])]
+        b = [(m.stamp_ns, m.sequence, m.data) for m in read_recording(offline, [topic])]
         diff = first_difference(a, b)
         lines.append(f"{topic:15s} live {len(a):6d}  offline {len(b):6d}  "
                      + ("identical" if diff is None else f"DIFFERENT from message {diff}"))

@@ -5,9 +5,11 @@ out: recordings/<name>/<name>_<n>.mcap, name <UTC YYYYmmdd-HHMMSS>_<robot> by de
      chunks, flushed every second, finished on SIGTERM
 
 Payloads are stored as received, never re-encoded, with each channel's schema
-(name with version, protobuf FileDescriptorSet) embedded. Beside them (``foxglove = true``,
+(name with version, protobuf FileDescriptorSet) embedded, at MCAP's times: ``log_time`` the
+recorder's wall clock when the message arrived, ``publish_time`` its data stamp
+(lrfslam/runtime/recording.py). Beside them (``foxglove = true``,
 the default) go Foxglove's views of them, ``/foxglove/...`` channels of Foxglove's
-well-known schemas at the same log times (lrfslam/viz/foxglove.py), so the recording
+well-known schemas at the same times (lrfslam/viz/foxglove.py), so the recording
 opens in Foxglove or Lichtblick as a map. A payload the views cannot decode is counted
 (``foxglove.undecodable``) and recorded all the same: the views never stop the raw recording. Each start of the
 recorder opens the next free segment number of its folder (never an existing
@@ -65,7 +67,7 @@ class RecorderStep(StepBase):
                                       metadata={"lrfslam": {"robot": ctx.robot, "recording": name}},
                                       chunk_size_bytes=cfg.chunk_size_kb * 1024,
                                       max_bytes=int(cfg.max_segment_mb * 1e6), max_duration_s=cfg.max_segment_s,
-                                      extra_schemas=schema_sets() if self.views else None)
+                                      extra_schemas=schema_sets() if self.views else None, receive_times=True)
         self.folder = self.writer.folder
         self._next_flush = time.monotonic() + cfg.flush_period_s
         self._once = LogOnce(log)
@@ -117,7 +119,7 @@ class RecorderStep(StepBase):
             return
         for view in views:
             try:
-                self.writer.write(view.topic, view.schema, view.encode(), view.log_time_ns, received)
+                self.writer.write(view.topic, view.schema, view.encode(), view.stamp_ns, received)
             except RecordingError as exc:
                 self._failed("write", exc)
                 return

@@ -106,24 +106,29 @@ def test_the_live_pipeline_opens_in_foxglove_recorded_and_live(cluster):
 
     # The recording, read back with the mcap library: its raw channels and its views.
     path = cluster.tmp / "recordings" / "run" / "run_0.mcap"
-    raw, views, schemas, tf = defaultdict(dict), defaultdict(dict), {}, []
+    raw, views, schemas, tf, receive_times = defaultdict(dict), defaultdict(dict), {}, [], defaultdict(dict)
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        # MCAP's times: publish time the data stamp, log time the recorder's receive time (the
+        # simulated stamps run ahead of it here: speedup 4).
         for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=True):
             if topics.is_foxglove(channel.topic):
                 schemas[channel.topic] = (schema.name, schema.encoding, channel.message_encoding)
                 if channel.topic == fx.TF:    # odometry and EKF both send transforms at a scan's stamp
-                    tf.append((message.log_time, decoded))
+                    tf.append((message.publish_time, decoded))
                 else:
-                    assert message.log_time not in views[channel.topic]
-                    views[channel.topic][message.log_time] = decoded
+                    assert message.publish_time not in views[channel.topic]
+                    views[channel.topic][message.publish_time] = decoded
+                    receive_times[channel.topic][message.publish_time] = message.log_time
             elif channel.topic in ("scan", "slam/state", "odom", "map/pose"):
                 value = topics.by_name(channel.topic).codec.decode(message.data, schema.name)
-                raw[channel.topic][message.log_time] = value
+                raw[channel.topic][message.publish_time] = value
+                receive_times[channel.topic][message.publish_time] = message.log_time
     assert schemas == {tp: (fx.SCHEMA_NAMES[cls], "protobuf", "protobuf") for tp, cls in fx.CHANNELS.items()}
 
-    # Scans: one view per scan, at its log time, the same ranges (live too).
+    # Scans: one view per scan, at its stamp and its receive time, the same ranges (live too).
     assert set(views[fx.SCAN]) == set(raw["scan"]) and len(raw["scan"]) >= 60
+    assert receive_times[fx.SCAN] == receive_times["scan"]
     for stamp, scan in raw["scan"].items():
         np.testing.assert_array_equal(views[fx.SCAN][stamp].ranges, scan.ranges_m)
         assert ns(views[fx.SCAN][stamp].timestamp) == stamp

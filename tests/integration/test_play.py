@@ -95,7 +95,7 @@ def test_loop_numbers_each_topic_on_across_loops_and_a_signal_stops_it(cluster, 
         # Each loop: the recorded stamps and payloads, in order.
         for i, (_, stamp, _, payload) in enumerate(samples):
             r = recorded[topic][i % len(recorded[topic])]
-            assert (stamp, payload) == (r.log_time_ns, r.data), (topic, i)
+            assert (stamp, payload) == (r.stamp_ns, r.data), (topic, i)
     assert +tracker.counts == {}
 
 
@@ -179,12 +179,12 @@ def test_rate_max_through_live_stages_equals_the_offline_pipeline(cluster, name,
     inputs = by_topic(source, ["scan", "odom", "truth"])
     # The played inputs: the recorded stamps and payloads, numbered by play from 1.
     for topic, recorded in inputs.items():
-        assert [(m.log_time_ns, m.data) for m in live[topic]] == [(m.log_time_ns, m.data) for m in recorded], topic
+        assert [(m.stamp_ns, m.data) for m in live[topic]] == [(m.stamp_ns, m.data) for m in recorded], topic
         assert [m.sequence for m in live[topic]] == list(range(1, len(recorded) + 1)), topic
     for topic in outputs:
         assert offline[topic], topic
-        assert [(m.log_time_ns, m.sequence) for m in live[topic]] == \
-               [(m.log_time_ns, m.sequence) for m in offline[topic]], topic
+        assert [(m.stamp_ns, m.sequence) for m in live[topic]] == \
+               [(m.stamp_ns, m.sequence) for m in offline[topic]], topic
         if topic == "slam/state":   # per scan: pose, covariance and landmarks, for a readable failure
             for a, b in zip(live[topic], offline[topic], strict=True):
                 sa, sb = codec.SLAM_STATE.decode(a.data), codec.SLAM_STATE.decode(b.data)

@@ -29,8 +29,9 @@ def up_run(tmp_path_factory):
     res = lrfslam("up", "--duration", "12", "--speedup", "4", "--port", str(port), "--robot", "r7", cwd=cwd)
     assert res.returncode == 0, res.stderr[-3000:]
     (recording,) = (cwd / "recordings").glob("*_r7")
-    # One segment, and the slam's checkpoint that up gives it (a restarted slam would resume from it).
-    assert sorted(p.name for p in recording.iterdir()) == [f"{recording.name}_0.mcap", "slam.checkpoint.npz"]
+    # One segment, and the checkpoints that up gives the slam and the mapper (a restarted one resumes from it).
+    assert sorted(p.name for p in recording.iterdir()) == [f"{recording.name}_0.mcap", "mapper.checkpoint.npz",
+                                                           "slam.checkpoint.npz"]
     return res.stdout, recording, cwd
 
 

@@ -1,4 +1,7 @@
-"""``lrfslam export RECORDING --foxglove OUT.mcap``: an older recording copied with Foxglove's views added."""
+"""``lrfslam export RECORDING --foxglove OUT.mcap``: a recording made without views copied with Foxglove's views added.
+
+An older layout of the times is exported in tests/unit/test_time_layouts.py.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +18,7 @@ from lrfslam.viz import foxglove as fx
 
 
 def recording_without_views(path, n=30):
-    with RecordingWriter(path, {"lrfslam": {"robot": "r1"}}) as w:
+    with RecordingWriter(path, {"lrfslam": {"robot": "r1"}}, receive_times=True) as w:
         for o in sim_outputs(n):
             w.write(o.topic.name, o.topic.schema, o.topic.codec.encode(o.value), o.value.stamp_ns,
                     o.value.stamp_ns + 5, o.value.seq)
@@ -37,7 +40,7 @@ def test_the_copy_holds_every_message_and_the_views(tmp_path, capsys):
     views = Counter(m.topic for m in after if topics.is_foxglove(m.topic))
     # scan, odom, truth of 30 steps (3 s): a scan view and a transform each, paths at 0, 1 and 2 s
     assert (views[fx.SCAN], views[fx.TF], views[fx.TRAJECTORY_TRUTH], views[fx.TRAJECTORY_ODOM]) == (30, 30, 3, 3)
-    # each view at its source's log time, the schema embedded and decodable by the mcap library
+    # each view at its source's log time (its receive time), the schema embedded and decodable by the mcap library
     scan_times = [m.log_time_ns for m in after if m.topic == "scan" and m.data != b"\xff\xfe garbage"]
     with open(out, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])

@@ -116,7 +116,7 @@ def test_scans_keep_every_range_and_the_beam_layout(run):
     assert len(raw) == 120
     for _, scan, view in raw:
         msg = decode(view)
-        assert view.log_time_ns == scan.stamp_ns == ns(msg.timestamp)
+        assert view.stamp_ns == scan.stamp_ns == ns(msg.timestamp)
         np.testing.assert_array_equal(np.array(msg.ranges), scan.ranges_m)   # inf and NaN where they were
         assert msg.frame_id == "laser" and msg.start_angle == scan.angle_min_rad
         assert msg.end_angle == pytest.approx(scan.angle_min_rad + (scan.ranges_m.size - 1) * scan.angle_increment_rad)
@@ -201,7 +201,7 @@ def test_trajectories_are_thinned_sent_at_a_bounded_rate_and_end_at_the_robot(ru
                                   (fx.TRAJECTORY_ODOM, topics.ODOM, "odom"),
                                   (fx.TRAJECTORY_TRUTH, topics.TRUTH, "world")):
         sent = views_on(run, channel)
-        stamps = [v.log_time_ns for _, _, v in sent]
+        stamps = [v.stamp_ns for _, _, v in sent]
         assert np.all(np.diff(stamps) >= cfg.path_period_s * 1e9)
         assert len(sent) >= 11        # 12 s of data at 1 Hz
         for _, value, view in sent:

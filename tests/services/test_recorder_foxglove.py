@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections import Counter
 
 import numpy as np
@@ -11,7 +12,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.recording import read_recording
+from lrfslam.runtime.recording import read_metadata, read_recording
 from lrfslam.runtime.step import Message, RunContext
 from lrfslam.tools import info
 
@@ -21,7 +22,9 @@ def raw(i: int, data: bytes | None = None, schema: str = topics.SCAN.schema) -> 
     return Message(None, data if data is not None else codec.LASER_SCAN.encode(scan), scan.stamp_ns, schema, "scan", i)
 
 
-def test_views_go_beside_the_payloads_at_their_log_times(tmp_path):
+def test_views_go_beside_the_payloads_at_their_times(tmp_path):
+    """MCAP's times: log time the recorder's receive time (wall clock), publish time the data stamp."""
+    started = time.time_ns()
     step = RecorderStep(RecorderConfig(directory=str(tmp_path), name="r"), RunContext("r1"))
     for i in range(5):
         step.on_message(raw(i))
@@ -32,16 +35,23 @@ def test_views_go_beside_the_payloads_at_their_log_times(tmp_path):
     step.on_message(Message(None, codec.SERVICE_STATUS.encode(status), 123, codec.SERVICE_STATUS.schema,
                             "health/slam", 1))
     step.close()
+    ended = time.time_ns()
     assert step.counts["messages"] == 8 and step.counts["foxglove.undecodable"] == 2
     assert step.counts["foxglove.messages"] == 6 and step.health()[0] == t.HEALTH_OK
 
     (path,) = (tmp_path / "r").iterdir()
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        got = [(c.topic, s.name, c.message_encoding, m.log_time, d)
+        got = [(c.topic, s.name, c.message_encoding, m.publish_time, d, m.log_time)
                for s, c, m, d in reader.iter_decoded_messages(topics=["/foxglove/scan", "/foxglove/log"])]
+    assert read_metadata(path)["lrfslam.times"] == {"log_time": "receive", "publish_time": "stamp"}
     scans = [g for g in got if g[0] == "/foxglove/scan"]
     assert [g[3] for g in scans] == [1_000_000 + i for i in range(5)]
+    raw_scans = [m for m in read_recording(tmp_path / "r") if m.topic == "scan"][:5]
+    assert [m.stamp_ns for m in raw_scans] == [1_000_000 + i for i in range(5)]
+    # a view at the receive time of its source, which the recorder took from its wall clock
+    assert [g[5] for g in scans] == [m.receive_ns for m in raw_scans] == [m.log_time_ns for m in raw_scans]
+    assert all(started <= m.receive_ns <= ended for m in raw_scans)
     assert {(g[1], g[2]) for g in scans} == {("foxglove.LaserScan", "protobuf")}
     np.testing.assert_array_equal(scans[0][4].ranges, codec.LASER_SCAN.decode(raw(0).value).ranges_m)
     (log,) = [g for g in got if g[0] == "/foxglove/log"]

@@ -137,7 +137,7 @@ def test_a_recording_folder_scores_as_its_single_file(tmp_path, capsys):
     # The same messages in a folder of one-message segments.
     folder = SegmentedWriter(tmp_path / "run", "run", max_bytes=1)
     for m in read_recording(single):
-        folder.write(m.topic, m.schema, m.data, m.log_time_ns)
+        folder.write(m.topic, m.schema, m.data, m.stamp_ns)
     folder.close()
     assert len(folder.segments) == 2 * len(STAMPS_S)
     assert evaluate.main(["relations", str(single), str(rel)]) == 0

@@ -53,7 +53,7 @@ def test_a_split_recording_replays_as_the_single_file(as_files, tmp_path):
     def split(golden: str, name: str) -> list[str]:
         writer = SegmentedWriter(tmp_path / name, name, chunk_size_bytes=2048, max_bytes=6000)
         for m in read_recording(GOLDEN / golden):
-            writer.write(m.topic, m.schema, m.data, m.log_time_ns, m.publish_time_ns, m.sequence)
+            writer.write(m.topic, m.schema, m.data, m.stamp_ns, m.receive_ns, m.sequence)
         writer.close()
         assert len(writer.segments) > 3
         return [str(p) for p in writer.segments] if as_files else [str(tmp_path / name)]

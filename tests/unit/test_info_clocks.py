@@ -2,7 +2,7 @@
 
 The recording is laid out as the recorder writes one under ``lrfslam up --speedup 2.5``: data
 stamped with simulated time (2.5 s per wall second, from the sensor's start), health stamped
-with each service's wall clock, every message's publish time the recorder's receive time. Mixing
+with each service's wall clock, every message's log time the recorder's receive time. Mixing
 the two in one span made info report a 22 s duration and a 0.26 Hz health rate for this run.
 """
 
@@ -32,7 +32,7 @@ def test_duration_is_the_run_and_each_rate_is_on_its_own_clock(tmp_path):
     path = tmp_path / "run.mcap"
     sensor_start = T0 + S // 2
     scans = int((RUN_S - 1) * 10 * SPEEDUP)      # 10 Hz of simulated time, stopped before the rest
-    with RecordingWriter(path) as w:
+    with RecordingWriter(path, receive_times=True) as w:
         for i in range(RUN_S + 1):               # health once a wall second, from the start
             for service in ("denoise", "slam"):
                 st = t.ServiceStatus(service, "r", t.HEALTH_OK, "ok", T0 + i * S, float(i), {"health": i + 1})

@@ -89,7 +89,7 @@ def test_same_outputs_as_the_services_replayed_one_by_one(sim_recording, tmp_pat
     with RecordingWriter(tmp_path / "odom_features.mcap") as writer:
         for path in (sim_recording, tmp_path / "f.mcap"):
             for r in read_recording(path, slam_inputs):
-                writer.write(r.topic, r.schema, r.data, r.log_time_ns, r.publish_time_ns, r.sequence)
+                writer.write(r.topic, r.schema, r.data, r.stamp_ns, r.receive_ns, r.sequence)
     replay(services.spec("slam"), cfg("slam"), ROBOT, tmp_path / "odom_features.mcap", tmp_path / "s.mcap")
 
     for topic, path in (("scan/filtered", "d.mcap"), ("features", "f.mcap"), ("slam/state", "s.mcap")):

@@ -64,6 +64,11 @@ class BusConfig:
     #: Also write each health status to this local file, for a container healthcheck
     #: (``lrfslam status --check-file``, lrfslam/runtime/health_file.py); "" for none.
     health_file: str = ""
+    #: The data stamps are wall-clock times (the LMS200 driver's; the simulator's at speedup 1),
+    #: so each stage reports the data's age at publishing, ``age.*`` (lrfslam/runtime/latency.py).
+    #: ``lrfslam up --speedup`` other than 1 sets it false in every process it starts: simulated
+    #: stamps run faster or slower than the wall clock and their age would mean nothing.
+    wall_clock_stamps: bool = True
 
     def __post_init__(self) -> None:
         from lrfslam.errors import ConfigError

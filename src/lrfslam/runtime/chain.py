@@ -99,7 +99,7 @@ class Item:
         """The undecoded message a raw-input service (the recorder) receives."""
         if self.rec is not None:
             r = self.rec
-            return Message(None, r.data, r.publish_time_ns, r.schema, r.topic, r.sequence)
+            return Message(None, r.data, r.stamp_ns, r.schema, r.topic, r.sequence)
         m = self.msg
         return Message(None, self.payload or m.topic.codec.encode(m.value), m.stamp_ns, m.schema, m.name, m.seq)
 
@@ -240,14 +240,15 @@ class Chain:
 def replay_recording(stages: Iterable[Stage], robot: str, in_path: RecordingSource, out_path: str | Path | None, *,
                      copy_inputs: bool, metadata: dict[str, dict[str, str]], progress: bool = False
                      ) -> dict[str, Counter]:
-    """Run ``stages`` over the recording ``in_path`` (file, folder or files), in log-time order; write ``out_path``.
+    """Run ``stages`` over the recording ``in_path`` (file, folder or files), in data-stamp order; write ``out_path``.
 
     Input messages on a topic one of the stages produces are dropped (that
     stage's outputs replace them, and they are not fed to later stages), and so
     are Foxglove's views (``/foxglove/...``, made from the inputs: ``lrfslam export
     --foxglove`` makes new ones). With
-    ``copy_inputs`` the other input messages are written too, as recorded.
-    Deterministic: nothing reads the clock and the output carries no wall-clock
+    ``copy_inputs`` the other input messages are written too, as recorded but for their times:
+    the output is an offline file, every message's ``log_time`` and ``publish_time`` its data
+    stamp (lrfslam/runtime/recording.py). Deterministic: nothing reads the clock and the output carries no wall-clock
     metadata, so two runs give the same bytes. ``out_path`` appears only when the
     run has finished (:func:`~lrfslam.runtime.outputs.atomic_output`).
 
@@ -289,11 +290,11 @@ def _replay(stages: Iterable[Stage], robot: str, in_path: RecordingSource, out_p
         for item in items:
             if item.rec is None:
                 m = item.msg
-                writer.write(m.name, m.schema, item.payload, m.stamp_ns, m.stamp_ns, m.seq)
+                writer.write(m.name, m.schema, item.payload, m.stamp_ns, sequence=m.seq)
             elif copy_inputs:
                 r = item.rec
                 read["copied"] += 1
-                writer.write(r.topic, r.schema, r.data, r.log_time_ns, r.publish_time_ns, r.sequence)
+                writer.write(r.topic, r.schema, r.data, r.stamp_ns, sequence=r.sequence)
 
     try:
         records = read_recording(in_path, None if everything else list(consumed), report)

@@ -9,7 +9,15 @@ folder of numbered segments ``<name>/<name>_0.mcap``, ``<name>_1.mcap``, … :
 each recorder process opens the next free number with exclusive create, so a
 restarted recorder never overwrites, and splits by size or duration. Every
 reader here takes a file, a folder or several paths and yields one stream in
-log-time order.
+data-stamp order.
+
+Times follow the MCAP specification: ``publish_time`` is the message's data stamp (its
+``stamp_ns``) and ``log_time`` the time the recorder received it (its wall clock, ns since
+the epoch). An offline writer (a replay, an import) has no receive time and puts the data
+stamp in both. Every file written so says which in its metadata record ``lrfslam.times``
+(:data:`TIMES`); a file without it is of the older layout, whose ``log_time`` held the data
+stamp and ``publish_time`` the receive time, and reads as before. :class:`RecordedMessage`
+gives both ways of a file the same meaning: ``stamp_ns`` and ``receive_ns``.
 
 A file whose writer was killed has no summary; it is read from its complete
 chunks and :func:`recover` rewrites it as an indexed file. A write error (a full
@@ -64,6 +72,19 @@ RecordingSource = str | os.PathLike | Sequence[str | os.PathLike]
 #: Segment files of a recording folder: ``<name>_<n>.mcap``.
 SEGMENT = re.compile(r"^(?P<stem>.+)_(?P<index>\d+)\.mcap$")
 
+#: The metadata record that says what a file's times are: ``{"log_time": RECEIVE or STAMP, "publish_time": STAMP}``.
+TIMES = "lrfslam.times"
+#: ``log_time`` is the recorder's wall clock on receipt (a live recording).
+RECEIVE = "receive"
+#: The data stamp (``publish_time`` always; ``log_time`` too where no receive time exists: offline outputs).
+STAMP = "stamp"
+#: A file without :data:`TIMES`: ``log_time`` the data stamp, ``publish_time`` the receive time.
+OLD_LAYOUT = "old"
+
+#: How long (receive time, ns) the reader holds a message back to let one received later with
+#: an earlier data stamp overtake it: the transport's jitter between topics is far below it.
+REORDER_WINDOW_NS = 5_000_000_000
+
 #: What the mcap library raises on a file without a valid end (it has no single base).
 _PARSE_ERRORS = (McapError, ValueError, EOFError, struct.error)
 
@@ -76,7 +97,12 @@ def _known_protos() -> dict[str, type]:
 
 @dataclass(frozen=True)
 class RecordedMessage:
-    """One message as stored: relative topic, schema name, payload, times in ns."""
+    """One message as stored: relative topic, schema name, payload, times in ns.
+
+    ``log_time_ns`` and ``publish_time_ns`` are the file's fields as written; ``stamp_ns`` is
+    the data stamp and ``receive_ns`` the recorder's receive time (0 where the file has
+    none: an offline output), whichever field of the file's layout holds them.
+    """
 
     topic: str
     schema: str
@@ -84,6 +110,8 @@ class RecordedMessage:
     log_time_ns: int
     publish_time_ns: int
     sequence: int
+    stamp_ns: int
+    receive_ns: int
 
 
 class _OutFile:
@@ -174,6 +202,10 @@ class RecordingWriter:
     extra_schemas : mapping of str to bytes
         Protobuf FileDescriptorSets of schemas that are not lrfslam's, by full name (Foxglove's,
         lrfslam/viz/foxglove.py), embedded like lrfslam's when a channel names one.
+    receive_times : bool
+        What ``log_time`` holds: False, the data stamp as in ``publish_time`` (offline outputs,
+        :data:`STAMP`); True, the receive time (a recorder, :data:`RECEIVE`). Written in the
+        metadata record :data:`TIMES`.
 
     A write error (``OSError``, e.g. a full disk) ends the file at its last
     complete record (valid, unindexed), closes it and raises :class:`RecordingError`.
@@ -181,8 +213,9 @@ class RecordingWriter:
 
     def __init__(self, path: str | Path, metadata: dict[str, dict[str, str]] | None = None,
                  chunk_size_bytes: int = 256 * 1024, overwrite: bool = True,
-                 extra_schemas: Mapping[str, bytes] | None = None) -> None:
+                 extra_schemas: Mapping[str, bytes] | None = None, receive_times: bool = False) -> None:
         self.path = Path(path)
+        self.receive_times = receive_times
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = _OutFile(self.path, overwrite)
         self._closed = False
@@ -196,7 +229,10 @@ class RecordingWriter:
         self._channels: dict[tuple[str, str], int] = {}
         with self._on_error("start"):
             self._writer.start(profile=PROFILE, library=f"{_lib}-python")
+            self._writer.add_metadata(TIMES, {"log_time": RECEIVE if receive_times else STAMP, "publish_time": STAMP})
             for name, record in (metadata or {}).items():
+                if name == TIMES:
+                    continue  # a copy's source said what its own times were; this file's are above
                 self._writer.add_metadata(name, {k: str(v) for k, v in record.items()})
         self._file.floor = self._file.pos
 
@@ -233,9 +269,13 @@ class RecordingWriter:
             self._schemas[schema] = self._writer.register_schema(schema, "protobuf", fds)
         return self._schemas[schema]
 
-    def write(self, topic: str, schema: str, data: bytes, log_time_ns: int,
-              publish_time_ns: int | None = None, sequence: int = 0) -> None:
-        """Append one message; ``log_time_ns`` must be ≥ 0.
+    def write(self, topic: str, schema: str, data: bytes, stamp_ns: int,
+              receive_ns: int = 0, sequence: int = 0) -> None:
+        """Append one message with its data stamp and receive time (ns; negative ones are written as 0).
+
+        ``publish_time`` gets ``stamp_ns``; ``log_time`` gets ``receive_ns`` in a file of
+        ``receive_times`` (``stamp_ns`` where it is 0: nothing received it) and ``stamp_ns``
+        in any other, which ignores ``receive_ns``.
 
         Raises
         ------
@@ -248,9 +288,9 @@ class RecordingWriter:
                 schema_id = self._schema_id(schema)
                 self._channels[key] = self._writer.register_channel(
                     topic, "protobuf" if schema_id else "", schema_id, metadata={"schema": schema})
-            self._writer.add_message(self._channels[key], log_time=max(0, int(log_time_ns)), data=bytes(data),
-                                     publish_time=max(0, int(publish_time_ns if publish_time_ns is not None
-                                                             else log_time_ns)),
+            stamp = max(0, int(stamp_ns))
+            log_time = max(0, int(receive_ns)) if self.receive_times and receive_ns else stamp
+            self._writer.add_message(self._channels[key], log_time=log_time, data=bytes(data), publish_time=stamp,
                                      sequence=int(sequence) & 0xFFFFFFFF)
             self.messages_written += 1
 
@@ -319,12 +359,14 @@ class SegmentedWriter:
         Seconds (monotonic) for ``max_duration_s``.
     extra_schemas : mapping of str to bytes
         See :class:`RecordingWriter`.
+    receive_times : bool
+        See :class:`RecordingWriter` (the recorder: True).
     """
 
     def __init__(self, folder: str | Path, name: str, metadata: dict[str, dict[str, str]] | None = None,
                  chunk_size_bytes: int = 256 * 1024, max_bytes: int = 0, max_duration_s: float = 0.0,
-                 clock: Callable[[], float] = time.monotonic, extra_schemas: Mapping[str, bytes] | None = None
-                 ) -> None:
+                 clock: Callable[[], float] = time.monotonic, extra_schemas: Mapping[str, bytes] | None = None,
+                 receive_times: bool = False) -> None:
         self.folder = Path(folder)
         self.name = name
         self._metadata = metadata or {}
@@ -333,6 +375,7 @@ class SegmentedWriter:
         self._max_duration_s = max_duration_s
         self._clock = clock
         self._extra_schemas = dict(extra_schemas or {})
+        self._receive_times = receive_times
         #: Segments this writer opened, in order.
         self.segments: list[Path] = []
         self.messages_written = 0
@@ -371,7 +414,8 @@ class SegmentedWriter:
             meta = {k: dict(v) for k, v in self._metadata.items()}
             meta.setdefault("lrfslam", {})["segment"] = str(index)
             try:
-                writer = RecordingWriter(path, meta, self._chunk, overwrite=False, extra_schemas=self._extra_schemas)
+                writer = RecordingWriter(path, meta, self._chunk, overwrite=False, extra_schemas=self._extra_schemas,
+                                         receive_times=self._receive_times)
             except FileExistsError:
                 index += 1  # another writer took it between the listing and the open
                 continue
@@ -396,9 +440,9 @@ class SegmentedWriter:
         return ((self._max_bytes > 0 and w.bytes_written >= self._max_bytes)
                 or (self._max_duration_s > 0 and self._clock() - self._opened_at >= self._max_duration_s))
 
-    def write(self, topic: str, schema: str, data: bytes, log_time_ns: int,
-              publish_time_ns: int | None = None, sequence: int = 0) -> None:
-        """Append one message, opening or splitting segments as needed.
+    def write(self, topic: str, schema: str, data: bytes, stamp_ns: int,
+              receive_ns: int = 0, sequence: int = 0) -> None:
+        """Append one message (see :meth:`RecordingWriter.write`), opening or splitting segments as needed.
 
         Raises
         ------
@@ -409,7 +453,7 @@ class SegmentedWriter:
         if self._writer is None or self.due():
             self.open_next()
         try:
-            self._writer.write(topic, schema, data, log_time_ns, publish_time_ns, sequence)
+            self._writer.write(topic, schema, data, stamp_ns, receive_ns, sequence)
         except RecordingError:
             self._drop_failed()
             raise
@@ -516,13 +560,20 @@ class ReadReport:
 
 def read_recording(source: RecordingSource, topics: Iterable[str] | None = None,
                    report: ReadReport | None = None) -> Iterator[RecordedMessage]:
-    """Yield the messages of ``topics`` (all if None) of every file of ``source``, in log-time order.
+    """Yield the messages of ``topics`` (all if None) of every file of ``source``, in data-stamp order.
 
     ``source`` is a file, a recording folder or several of them
     (:func:`recording_files`); their files are merged by log time (ties in file
     order) into one stream. A file whose writer was killed has no summary: the
     messages of its complete chunks are read, sorted by log time, and its
     :class:`SegmentReport` says ``truncated``.
+
+    The stream is then put in data-stamp order, as the pipeline takes time from the
+    stamps: a message waits up to :data:`REORDER_WINDOW_NS` of log time for one with
+    an earlier stamp (ties keep the log-time order). Where ``log_time`` is the data stamp
+    (offline outputs, older recordings) that is the log-time order unchanged; in a live
+    recording it undoes the transport's reordering between topics, so a replay does not
+    depend on it. Either way the order is a function of the file alone.
     """
     topic_list = list(topics) if topics is not None else None
     files = recording_files(source)
@@ -532,14 +583,35 @@ def read_recording(source: RecordingSource, topics: Iterable[str] | None = None,
         seg = SegmentReport(path)
         report.segments.append(seg)
         streams.append(_read_file(path, topic_list, seg, report))
-    if len(streams) == 1:
-        yield from streams[0]
-    else:
-        yield from heapq.merge(*streams, key=lambda m: m.log_time_ns)
+    merged = streams[0] if len(streams) == 1 else heapq.merge(*streams, key=lambda m: m.log_time_ns)
+    yield from _by_stamp(merged)
+
+
+def _by_stamp(messages: Iterable[RecordedMessage]) -> Iterator[RecordedMessage]:
+    """``messages`` (in log-time order) in stamp order within :data:`REORDER_WINDOW_NS` of log time."""
+    held: list[tuple[int, int, RecordedMessage]] = []   # (stamp, arrival, message): a heap
+    for arrival, m in enumerate(messages):
+        heapq.heappush(held, (m.stamp_ns, arrival, m))
+        while held and held[0][2].log_time_ns + REORDER_WINDOW_NS <= m.log_time_ns:
+            yield heapq.heappop(held)[2]
+    while held:
+        yield heapq.heappop(held)[2]
+
+
+def time_layout(path: str | Path) -> str:
+    """What the times of the MCAP file ``path`` mean: :data:`RECEIVE`, :data:`STAMP` or :data:`OLD_LAYOUT`.
+
+    From its :data:`TIMES` metadata record (read also from an unfinished file).
+    """
+    times = read_metadata(path).get(TIMES)
+    if times is None:
+        return OLD_LAYOUT
+    return RECEIVE if times.get("log_time") == RECEIVE else STAMP
 
 
 def _read_file(path: Path, topics: list[str] | None, seg: SegmentReport,
                report: ReadReport) -> Iterator[RecordedMessage]:
+    layout = time_layout(path)
     f = open(path, "rb")  # noqa: SIM115 - closed below, also when the generator is abandoned
     try:
         try:
@@ -554,7 +626,7 @@ def _read_file(path: Path, topics: list[str] | None, seg: SegmentReport,
             if indexed:
                 for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
                     seg.messages += 1
-                    yield _recorded(schema, channel, message)
+                    yield _recorded(schema, channel, message, layout)
                 return
             seg.state = UNINDEXED
         f.seek(0)
@@ -571,7 +643,7 @@ def _read_file(path: Path, topics: list[str] | None, seg: SegmentReport,
                 seg.reason = f"stopped at {type(exc).__name__}: {exc}".rstrip(": ")
                 report.reason = report.reason or seg.reason
                 break
-            messages.append(_recorded(schema, channel, message))
+            messages.append(_recorded(schema, channel, message, layout))
         # Stable: equal log times keep their file order, as the indexed reader does.
         messages.sort(key=lambda m: m.log_time_ns)
         seg.messages = len(messages)
@@ -580,10 +652,14 @@ def _read_file(path: Path, topics: list[str] | None, seg: SegmentReport,
         f.close()
 
 
-def _recorded(schema, channel, message) -> RecordedMessage:
+def _recorded(schema, channel, message, layout: str) -> RecordedMessage:
     name = schema.name if schema is not None and schema.id else channel.metadata.get("schema", "")
+    if layout == OLD_LAYOUT:
+        stamp, received = message.log_time, message.publish_time
+    else:
+        stamp, received = message.publish_time, message.log_time if layout == RECEIVE else 0
     return RecordedMessage(channel.topic, name, bytes(message.data), message.log_time,
-                           message.publish_time, message.sequence)
+                           message.publish_time, message.sequence, stamp, received)
 
 
 def read_metadata(source: RecordingSource) -> dict[str, dict[str, str]]:

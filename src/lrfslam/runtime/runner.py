@@ -202,7 +202,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         step = spec.build(cfg, RunContext(robot))
         is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
         bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts)
-        latency = LatencyWindow()
+        latency = LatencyWindow("latency")
+        age = LatencyWindow("age") if bus_cfg.wall_clock_stamps else None
         slow_s = bus_cfg.debug_delay_s(spec.name)
         if slow_s:
             log.warning("debug: sleeping %.0f ms after each input (bus.debug_slow)", slow_s * 1e3)
@@ -223,17 +224,24 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             merged.update(latency.counters())
             # A gauge, not a count: inputs received and not yet handled (lrfslam play --rate max holds back on it).
             merged[BACKLOG] = bus.pending()
+            if age is not None:
+                merged.update(age.counters())
             return t.ServiceStatus(
                 spec.name, robot, level, message, time.time_ns(), time.monotonic() - started,
                 dict(merged), last_data[0], config_mod.to_json(cfg),
                 tuple(tp.schema for tp in spec.inputs + spec.outputs), os.getpid(), socket.gethostname())
 
         def publish(outs) -> None:
+            newest_stamp = None
             for out in outs:
                 payload = bus.publish(out)
                 if out.topic.name in latest_qs:
                     newest[out.topic.name] = (payload, out.value.seq, out.value.stamp_ns)
                 last_data[0] = max(last_data[0], int(out.value.stamp_ns))
+                newest_stamp = max(newest_stamp or 0, int(out.value.stamp_ns))
+            if age is not None and newest_stamp is not None:
+                # One figure per input (or sensor poll): the age of the newest scan it published about.
+                age.add(time.time_ns() - newest_stamp)
 
         def answer_latest() -> None:
             for name, queryable in latest_qs.items():

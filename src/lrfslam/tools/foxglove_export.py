@@ -1,9 +1,12 @@
 """``lrfslam export RECORDING --foxglove OUT.mcap``: a copy of a recording that opens in Foxglove as a map.
 
-Every message is copied as recorded (same channels, schemas, times and metadata), and
-Foxglove's views of them (lrfslam/viz/foxglove.py, docs/monitoring.md) are added at the
-same log times, so a recording made before the recorder wrote them opens in Foxglove
-or Lichtblick as a map too. Views already in the input are made anew, not copied. A
+Every message is copied as recorded (same channels, schemas, metadata, data stamps and
+receive times), and Foxglove's views of them (lrfslam/viz/foxglove.py, docs/monitoring.md)
+are added at the same times, so a recording made before the recorder wrote them opens in
+Foxglove or Lichtblick as a map too. The copy follows MCAP's times (lrfslam/runtime/recording.py)
+whatever the input's layout: a recording's receive times go to ``log_time`` (the timeline
+Foxglove plays, as the recorder would have written the views live), an offline output's
+data stamps to both fields (its timeline is data time). Views already in the input are made anew, not copied. A
 message whose payload does not decode is copied without a view and counted.
 """
 
@@ -17,6 +20,7 @@ from lrfslam.errors import InputError, RecordingError
 from lrfslam.msgs import topics
 from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import (
+    STAMP,
     ReadReport,
     RecordingSource,
     RecordingWriter,
@@ -24,6 +28,7 @@ from lrfslam.runtime.recording import (
     read_metadata,
     read_recording,
     recording_files,
+    time_layout,
 )
 from lrfslam.viz.foxglove import FoxgloveViews, ViewConfig, schema_sets
 
@@ -51,20 +56,23 @@ def add_views(source: RecordingSource, out: str | Path, cfg: ViewConfig | None =
     views = FoxgloveViews(cfg)
     counts: Counter = Counter()
     report = ReadReport()
-    with atomic_output(out) as partial, RecordingWriter(partial, metadata, extra_schemas=schema_sets()) as writer:
+    # An older recording's publish_time holds its receive times (an offline output's: the stamps again).
+    received = time_layout(files[0]) != STAMP
+    with atomic_output(out) as partial, RecordingWriter(partial, metadata, extra_schemas=schema_sets(),
+                                                        receive_times=received) as writer:
         for rec in read_recording(source, report=report):
             if topics.is_foxglove(rec.topic):
                 counts["replaced"] += 1
                 continue
-            writer.write(rec.topic, rec.schema, rec.data, rec.log_time_ns, rec.publish_time_ns, rec.sequence)
+            writer.write(rec.topic, rec.schema, rec.data, rec.stamp_ns, rec.receive_ns, rec.sequence)
             counts["copied"] += 1
             try:
-                made = views.from_payload(rec.topic, rec.schema, rec.data, rec.log_time_ns)
+                made = views.from_payload(rec.topic, rec.schema, rec.data, rec.stamp_ns)
             except InputError:
                 counts["undecodable"] += 1
                 continue
             for view in made:
-                writer.write(view.topic, view.schema, view.encode(), view.log_time_ns, rec.publish_time_ns)
+                writer.write(view.topic, view.schema, view.encode(), view.stamp_ns, rec.receive_ns)
                 counts["views"] += 1
     if report.truncated:
         counts["truncated"] = 1

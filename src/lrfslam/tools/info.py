@@ -6,9 +6,10 @@ was killed) is named with the ``lrfslam recover`` command that makes it an
 indexed file again.
 
 Two clocks, never mixed: the *duration* is the span of the recorder's receive
-times (MCAP publish time: wall time of the run); *data time* is the span of the
-data stamps (MCAP log time), which run faster than wall time under a simulator
-speedup. A topic's rate is its messages per second between its first and last
+times (MCAP log time; in a recording older than that convention, publish time: wall
+time of the run; an offline output has none and gives its data stamps); *data time* is
+the span of the data stamps (MCAP publish time, in older recordings log time), which
+run faster than wall time under a simulator speedup. A topic's rate is its messages per second between its first and last
 one: data topics' on the data stamps, health topics' (stamped with each
 service's wall clock) and their Foxglove log on the receive clock.
 """
@@ -84,16 +85,19 @@ def describe(source: RecordingSource) -> str:
     """Everything ``lrfslam info`` prints about the recording ``source`` (file, folder or files)."""
     files = recording_files(source)
     report = ReadReport()
-    # per (topic, schema): count, first/last log time, first/last publish (receive) time
+    # per (topic, schema): count, first/last data stamp, first/last receive time (the stamp where none)
     stats: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 2**63, 0, 2**63, 0])
     first_scan = None
+    received_any = False
     for m in read_recording(files, report=report):
         if first_scan is None and m.topic == topics.SCAN.name:
             first_scan = (m.data, m.schema)
         s = stats[(m.topic, m.schema)]
         s[0] += 1
-        s[1], s[2] = min(s[1], m.log_time_ns), max(s[2], m.log_time_ns)
-        s[3], s[4] = min(s[3], m.publish_time_ns), max(s[4], m.publish_time_ns)
+        received = m.receive_ns or m.stamp_ns
+        received_any = received_any or m.receive_ns > 0
+        s[1], s[2] = min(s[1], m.stamp_ns), max(s[2], m.stamp_ns)
+        s[3], s[4] = min(s[3], received), max(s[4], received)
     size = sum(p.stat().st_size for p in files)
     if isinstance(source, (str, os.PathLike)) and Path(source).is_file():
         lines = [f"file:      {source} ({size / 1e6:.2f} MB)"]
@@ -112,7 +116,9 @@ def describe(source: RecordingSource) -> str:
     data = [s for (topic, _), s in stats.items() if not topics.on_wall_clock(topic)]
     data_time = span(data, 1) if data else 0.0
     ratio = f"; {data_time / duration:.2f} × the duration" if data and duration > 0 else ""
-    lines += [f"duration:  {duration:.2f} s (receive clock: first to last message received)",
+    clock = ("receive clock: first to last message received" if received_any
+             else "an offline output, no receive times: first to last data stamp")
+    lines += [f"duration:  {duration:.2f} s ({clock})",
               f"data time: {data_time:.2f} s (data stamps: first to last{ratio})" if data
               else "data time: no data topics",
               f"messages:  {sum(s[0] for s in stats.values())}"]

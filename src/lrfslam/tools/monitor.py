@@ -127,7 +127,7 @@ class FoxgloveServer:
                                msg.name, exc)
             return
         for view in views:
-            self.channels[view.topic].log(view.encode(), log_time=view.log_time_ns)
+            self.channels[view.topic].log(view.encode(), log_time=view.stamp_ns)
             self.counts["views"] += 1
         # The app's clock: the newest data stamp (a health status is stamped by the wall clock).
         if views and not topics.is_health(msg.name) and stamp > self._time_ns:

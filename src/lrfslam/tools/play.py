@@ -398,7 +398,7 @@ class Player:
                                        "publishes %s)", m.topic, m.schema, topic.schema)
                     continue
                 if self.schedule is not None:
-                    self._wait_until(started, self.schedule.due_ns(m.log_time_ns))
+                    self._wait_until(started, self.schedule.due_ns(m.stamp_ns))
                 if topic is topics.SCAN and self.watched is not None \
                         and (stamp := self._scan_stamp(m.data, m.schema)) is not None:
                     self._wait_for_room()
@@ -408,13 +408,13 @@ class Player:
                         self._progress_ns = time.monotonic_ns()
                     self.window.send(stamp)
                 self._seq[m.topic] += 1
-                self.bus.put(topic, m.data, m.log_time_ns, self._seq[m.topic])
+                self.bus.put(topic, m.data, m.stamp_ns, self._seq[m.topic])
                 played_this_loop += 1
                 self.summary.messages += 1
                 self.summary.scans += topic is topics.SCAN
-                if last_ns is not None and m.log_time_ns > last_ns:
-                    self.summary.data_s += (m.log_time_ns - last_ns) / 1e9
-                last_ns = m.log_time_ns
+                if last_ns is not None and m.stamp_ns > last_ns:
+                    self.summary.data_s += (m.stamp_ns - last_ns) / 1e9
+                last_ns = m.stamp_ns
                 self._take_answers(0)
                 if time.monotonic() >= next_progress:
                     next_progress += PROGRESS_PERIOD_S

@@ -59,11 +59,12 @@ def query_status(session: zenoh.Session, robot: str, timeout_s: float) -> tuple[
     return alive, sorted(statuses, key=lambda s: (s.robot, s.service))
 
 
-def latency_cell(counters: dict[str, int]) -> str:
-    """``p50/p99`` in ms from a status's ``latency.*`` counters; "–" for a service without inputs."""
-    if "latency.p50_us" not in counters:
+def latency_cell(counters: dict[str, int], name: str = "latency") -> str:
+    """``p50/p99`` in ms from a status's ``<name>.*`` counters; "–" where it has none (``latency``:
+    a service without inputs; ``age``: stamps not on the wall clock)."""
+    if f"{name}.p50_us" not in counters:
         return "–"
-    return f"{counters['latency.p50_us'] / 1e3:.1f}/{counters['latency.p99_us'] / 1e3:.1f}"
+    return f"{counters[f'{name}.p50_us'] / 1e3:.1f}/{counters[f'{name}.p99_us'] / 1e3:.1f}"
 
 
 def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
@@ -71,12 +72,13 @@ def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
     """One row per service. ``uptime_s`` is on the service's monotonic clock; ``dropped`` counts
     inputs it received but will not handle (``drop.*``), ``gaps``/``dups`` inputs that never reached it / came twice
     (sequence numbers, docs/delivery.md), ``restarts`` new producers it saw on its inputs;
-    ``latency_ms`` the median/99th percentile from receiving an input to publishing its outputs
-    (lrfslam/runtime/latency.py).
+    ``latency_ms`` the median/99th percentile from receiving an input to publishing its outputs,
+    ``age_ms`` from the sensor stamp of the scan the outputs derive from to publishing them, on
+    the wall clock (lrfslam/runtime/latency.py).
 
     With ``rates`` ((robot, service) -> inputs/s, outputs/s; ``--watch``), also those rates and
     each service's health message (its last error, where it has one)."""
-    head = ["robot", "service", "alive", "health", "uptime_s", "in", "out", "latency_ms", "dropped", "gaps",
+    head = ["robot", "service", "alive", "health", "uptime_s", "in", "out", "latency_ms", "age_ms", "dropped", "gaps",
             "dups", "restarts", "errors", "pid@host"]
     if rates is not None:
         head[7:7] = ["in/s", "out/s"]
@@ -88,7 +90,8 @@ def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
         c = s.counters
         row = [s.robot, s.service, "yes" if (s.robot, s.service) in alive else "no",
                LEVELS.get(s.level, str(s.level)), f"{s.uptime_s:.0f}",
-               str(total(c, "in.")), str(total(c, "out.")), latency_cell(c), str(total(c, "drop.")),
+               str(total(c, "in.")), str(total(c, "out.")), latency_cell(c), latency_cell(c, "age"),
+               str(total(c, "drop.")),
                str(total(c, "gap.")), str(total(c, "dup.")), str(total(c, "restart.")),
                str(total(c, "error.", "step.error")),
                f"{s.pid}@{s.host}"]

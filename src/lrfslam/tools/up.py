@@ -406,6 +406,11 @@ def main(argv: list[str] | None = None) -> int:
     sets["recorder"] += [f"directory={recording.parent}", f"name={recording.name}"]
     if "sensor" in sets:
         sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
+    if args.speedup != 1 or "sensor" not in sets:
+        # Simulated stamps (or a recording's, played in) leave the wall clock: no stage reports
+        # their age (docs/monitoring.md). Through the environment every process up starts shares
+        # it, as it shares the router.
+        os.environ.setdefault(f"{config_mod.ENV_PREFIX}_BUS_WALL_CLOCK_STAMPS", "false")
     topics.check_robot(args.robot)
     configs = check_configs(sets, args.config)
     for name, file in CHECKPOINT_NAMES.items():

@@ -52,13 +52,17 @@ def total(counters: dict[str, int], *prefixes: str) -> int:
 
 def counter_figures(counters: dict[str, int]) -> dict[str, int]:
     """A service's totals: inputs, outputs (health not counted), dropped (``drop.*``), gaps (``gap.*``), errors;
-    and its latency percentiles (ms) from receiving an input to publishing its outputs, when it has inputs."""
+    its latency percentiles (ms) from receiving an input to publishing its outputs, when it has inputs; and
+    the age percentiles (ms) of what it published, from the scan's sensor stamp on the wall clock, when it
+    reports them (lrfslam/runtime/latency.py)."""
     figures = {"in": total(counters, "in."), "out": total(counters, "out.") - total(counters, "out.health"),
                "dropped": total(counters, "drop."), "gaps": total(counters, "gap."),
                "errors": total(counters, "error.", "step.error")}
     if "latency.p50_us" in counters:
         figures |= {"latency_p50_ms": counters["latency.p50_us"] / 1e3,
                     "latency_p99_ms": counters["latency.p99_us"] / 1e3}
+    if "age.p50_us" in counters:
+        figures |= {"age_p50_ms": counters["age.p50_us"] / 1e3, "age_p99_ms": counters["age.p99_us"] / 1e3}
     return figures
 
 

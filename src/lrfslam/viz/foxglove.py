@@ -32,8 +32,9 @@ the robot's reference point (odometry is the laser's path, lrfslam/tools/importe
 ``base_link`` → ``laser`` is the identity. ``world`` is the simulator's frame of the ground
 truth, tied to ``map`` by the first EKF pose that has a true pose at its stamp.
 
-Each view carries its source's log time (the data stamp; a health status's is the wall
-clock). Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
+Each view carries its source's data stamp (a health status's is the wall clock); a
+recording writes it as the view's ``publish_time`` and gives the view its source's
+``log_time`` (lrfslam/runtime/recording.py). Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
 at most every ``path_period_s`` of data time, a long one less often, so that their cost stays
 bounded (:class:`ViewConfig`). A service's health is logged when its level or message changes.
 """
@@ -118,11 +119,11 @@ class ViewConfig:
 
 @dataclass(frozen=True)
 class View:
-    """One Foxglove message on view channel ``topic``, at ``log_time_ns`` (its source's)."""
+    """One Foxglove message on view channel ``topic``, stamped ``stamp_ns`` (its source's data stamp, ns)."""
 
     topic: str
     message: Any
-    log_time_ns: int
+    stamp_ns: int
 
     @property
     def schema(self) -> str:
@@ -370,7 +371,7 @@ class FoxgloveViews:
         """Whether messages on lrfslam topic ``name`` have views."""
         return name in self._handlers or topics.is_health(name)
 
-    def from_payload(self, name: str, schema: str, data: bytes, log_time_ns: int) -> list[View]:
+    def from_payload(self, name: str, schema: str, data: bytes, stamp_ns: int) -> list[View]:
         """The views of one recorded or received payload on lrfslam topic ``name``; [] if it has none.
 
         Raises
@@ -380,14 +381,14 @@ class FoxgloveViews:
         """
         if not self.viewed(name):
             return []
-        return self.convert(name, topics.by_name(name).codec.decode(data, schema), log_time_ns)
+        return self.convert(name, topics.by_name(name).codec.decode(data, schema), stamp_ns)
 
-    def convert(self, name: str, value: Any, log_time_ns: int) -> list[View]:
-        """The views of decoded message ``value`` on lrfslam topic ``name``, at its log time."""
+    def convert(self, name: str, value: Any, stamp_ns: int) -> list[View]:
+        """The views of decoded message ``value`` on lrfslam topic ``name``, at its data stamp ``stamp_ns``."""
         if topics.is_health(name):
-            return self._status(value, log_time_ns)
+            return self._status(value, stamp_ns)
         handler = self._handlers.get(name)
-        return handler(value, log_time_ns) if handler else []
+        return handler(value, stamp_ns) if handler else []
 
     # -- one handler per topic
 
