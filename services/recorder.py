@@ -46,7 +46,10 @@ class RecorderConfig:
     name: str = ""                  # recording folder and segment stem; default <YYYYmmdd-HHMMSS>_<robot> (UTC)
     flush_period_s: float = 1.0     # a killed recorder loses at most this much
     chunk_size_kb: int = 256
-    max_segment_mb: float = 0.0     # start the next segment past this size (MB); 0: no limit
+    # Start the next segment past this size (MB); 0: no limit. MCAP's writer keeps an index entry
+    # per chunk until the file closes (~10 MB of memory per GB written, +12 MB in a one-hour soak):
+    # the limit bounds it.
+    max_segment_mb: float = 512.0
     max_segment_s: float = 0.0      # start the next segment at this age (s); 0: no limit
     retry_period_s: float = 10.0    # after a write error (full disk), try a new segment this often
     include_health: bool = True     # also record health/<service>
