@@ -127,10 +127,8 @@ class MapperStep(StepBase):
         """The state's pose on the local trajectory (``local_trajectory``), (3,), and the step the
         mapper checks it against for jumps (3,): the scan-matched motion; None if there is none."""
         matched = state.motion if state.motion is not None and state.motion_matched else None
-        if self.cfg.local_trajectory == "slam_pose":
-            local, reference = state.pose, matched
-        elif self._local is None:
-            local, reference = state.pose, matched   # the chain starts where the filter does
+        if self.cfg.local_trajectory == "slam_pose" or self._local is None:
+            local, reference = state.pose, matched   # (a chain starts where the filter does)
         elif state.motion is None:
             # A slam state recorded before they carried their motion: follow the filter's pose.
             self.counts["motion_missing"] += 1

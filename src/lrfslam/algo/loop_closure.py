@@ -446,7 +446,7 @@ class LoopClosingMapper:
         """
         kfs = self._keyframes
         tentative = self._tentative
-        snap = {
+        return {
             "mapper_format": np.int64(SNAPSHOT_FORMAT),
             **self.graph.snapshot(),
             "keyframe_local_pose": self.keyframe_local_poses(),
@@ -476,7 +476,6 @@ class LoopClosingMapper:
             "cached_submaps": np.array([(k, entry[0]) for k, entry in self._submaps.items()],
                                        dtype=np.int64).reshape(-1, 2),
         }
-        return snap
 
     @classmethod
     def restore(cls, params: LoopClosureParams | None, arrays) -> LoopClosingMapper:
@@ -578,7 +577,7 @@ class LoopClosingMapper:
 
     def _trim(self, k: int) -> None:
         """Drop keyframe ``k``'s points if it is a revisit and no longer one of the recent keyframes."""
-        if 0 <= k < len(self._keyframes) - self._recent_keyframes + 1 and self._keyframes[k].revisit \
+        if 0 <= k < len(self._keyframes) - self._recent_keyframes and self._keyframes[k].revisit \
                 and self._keyframes[k].points_xy_m.shape[0]:
             self._keyframes[k] = replace(self._keyframes[k], points_xy_m=np.zeros((0, 2)))
 
@@ -633,8 +632,8 @@ class LoopClosingMapper:
         travel = np.array([kf.travel_m for kf in self._keyframes])
         # A candidate has points of its own (its scan may have been lost; its neighbours' may
         # have been trimmed), so its submap is never empty.
-        older = (travel <= travel[n] - p.min_travel_m) & np.array([kf.points_xy_m.shape[0] > 0 and not
-                                                                   (p.trim_revisits and kf.revisit)
+        # (A revisit is marked only with ``trim_revisits``.)
+        older = (travel <= travel[n] - p.min_travel_m) & np.array([kf.points_xy_m.shape[0] > 0 and not kf.revisit
                                                                    for kf in self._keyframes])
         old = np.flatnonzero(older)
         if old.size == 0:
