@@ -3,12 +3,15 @@
 in:  odom        Odometry  (motion between scans)
      scan        LaserScan (scan matching: the motion between scans from their overlap)
      features    Features  (robot frame, with covariances; the walls' direction mod 90° corrects the heading)
-out: slam/state  SlamState (pose, 3x3 covariance, landmarks with stable ids and 2x2 covariances,
-                 the motion that moved the filter)
+out: slam/state  SlamState (pose, 3x3 covariance, the landmarks that changed, the motion that moved the filter)
+     slam/map    LandmarkMap (every landmark with its stable id and 2x2 covariance; every ``map_period_s``
+                 of data time, at the first and the last state, and on request)
 
 Features wait for their odometry and scan (``lrfslam.algo.stream_alignment``), so the result does not
 depend on how the streams interleave; then ``lrfslam.algo.corner_slam`` moves the filter (scan-matched
-motion, else odometry), corrects the heading and adds the features. With ``checkpoint_path`` set, the
+motion, else odometry), corrects the heading and adds the features. A state carries only the landmarks
+that moved (or whose spread changed) beyond ``landmark_tolerance_m`` since they were last sent, so its
+size does not grow with the map (``lrfslam.msgs.landmark_map``). With ``checkpoint_path`` set, the
 filter is saved atomically every ``checkpoint_every_scans`` scans and on exit, and a restart resumes.
 """
 
@@ -28,7 +31,7 @@ from lrfslam.algo.motion_source import MotionParams
 from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.algo.stream_alignment import Aligned, AlignmentParams, StreamAligner
 from lrfslam.errors import InputError
-from lrfslam.msgs import topics
+from lrfslam.msgs import landmark_map, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import npz_file
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
@@ -49,6 +52,8 @@ class SlamConfig:
     scan_match: ScanMatchParams = field(default_factory=ScanMatchParams)
     no_odometry_sigma_m: float = 0.2     # scan matching without odometry: guess "no motion" +- this per scan
     no_odometry_sigma_rad: float = 0.2
+    map_period_s: float = 5.0            # the whole map on slam/map at least this often (data time)
+    landmark_tolerance_m: float = 0.005  # a state carries a landmark that moved (or whose spread changed) more
 
 
 class SlamStep(StepBase):
@@ -61,6 +66,11 @@ class SlamStep(StepBase):
         self.checkpoint = Path(cfg.checkpoint_path) if cfg.checkpoint_path and not ctx.replay else None
         if self.checkpoint is not None and self.checkpoint.exists():
             self._restore(self.checkpoint)
+        self.current = t.Landmarks()         # the filter's map after the last update
+        self.sent = t.Landmarks()            # the map as the subscribers hold it (sorted by id)
+        self.last_state: t.SlamState | None = None
+        self.maps = 0                        # slam/map messages published (their sequence numbers)
+        self.map_sent_ns: int | None = None  # the stamp of the last one
 
     def on_message(self, msg: Message):
         v = msg.value
@@ -72,12 +82,23 @@ class SlamStep(StepBase):
             self.align.add_scan(v.seq, v.stamp_ns, polar_to_xy(v.ranges_m[valid], v.angles_rad[valid]))
         elif msg.topic is topics.FEATURES:
             self.align.add_features(v.stamp_ns, v.scan_seq, v)
-        return [self._process(a) for a in self.align.ready()]
+        return [out for a in self.align.ready() for out in self._process(a)]
 
     def finish(self):
-        return [self._process(a) for a in self.align.ready(final=True)]
+        outs = [out for a in self.align.ready(final=True) for out in self._process(a)]
+        if self.last_state is not None and self.map_sent_ns != self.last_state.stamp_ns:
+            outs.append(self._whole_map())
+        return outs
 
-    def _process(self, a: Aligned[t.Features]) -> Output:
+    def latest(self, topic):
+        if topic is topics.SLAM_MAP and self.last_state is not None:
+            # The map every subscriber holds now (not the filter's exact one: the states that
+            # follow carry their changes against it).
+            return t.LandmarkMap(self.last_state.stamp_ns, self.maps, self.last_state.seq, self.sent,
+                                 self.cfg.landmark_tolerance_m)
+        return None
+
+    def _process(self, a: Aligned[t.Features]) -> list[Output]:
         f = a.features
         wall = (f.wall_direction_rad, f.wall_direction_sigma_rad) if f.has_wall_direction else None
         # Wire kinds (1 forward, 2 backward; 0 unknown, treated as forward) -> the filter's (0, 1).
@@ -86,11 +107,30 @@ class SlamStep(StepBase):
         if self.checkpoint is not None and self.slam.scans % self.cfg.checkpoint_every_scans == 0:
             self._save(self.checkpoint)
         ekf, lm = self.slam.ekf, self.slam.ekf.landmarks()
-        return Output(topics.SLAM_STATE, t.SlamState(
-            f.stamp_ns, self.slam.scans, f.scan_seq, ekf.pose, ekf.pose_cov, lm.ids, lm.xy, lm.cov,
-            np.where(lm.kinds == 0, t.FEATURE_FORWARD, t.FEATURE_BACKWARD), lm.sightings, lm.confirmed,
+        self.current = t.Landmarks(lm.ids, lm.xy, lm.cov, np.where(lm.kinds == 0, t.FEATURE_FORWARD, t.FEATURE_BACKWARD),
+                                   lm.sightings, lm.confirmed)
+        changed, removed = landmark_map.changes(self.sent, self.current, self.cfg.landmark_tolerance_m)
+        self.sent = landmark_map.apply(self.sent, changed, removed)
+        self.last_state = t.SlamState(
+            f.stamp_ns, self.slam.scans, f.scan_seq, ekf.pose, ekf.pose_cov, changed, removed, False,
+            len(self.current), int(np.count_nonzero(lm.confirmed)),
             report.n_matched, report.n_new, report.n_ambiguous + report.n_rejected, self._motion(),
-            self.slam.last_update.motion_matched))
+            self.slam.last_update.motion_matched)
+        outs = [Output(topics.SLAM_STATE, self.last_state)]
+        since = None if self.map_sent_ns is None else f.stamp_ns - self.map_sent_ns
+        # A first state (of the run, or after a restart) is followed by the whole map, so late
+        # and restarted subscribers have one; data time going back (another run) restarts the period.
+        if since is None or not 0 <= since < self.cfg.map_period_s * 1e9:
+            outs.append(self._whole_map())
+        return outs
+
+    def _whole_map(self) -> Output:
+        """The filter's map as it stands, on slam/map; the subscribers then hold it exactly."""
+        self.sent = landmark_map.by_id(self.current)
+        self.maps += 1
+        self.map_sent_ns = self.last_state.stamp_ns
+        return Output(topics.SLAM_MAP, t.LandmarkMap(self.last_state.stamp_ns, self.maps, self.last_state.seq,
+                                                     self.sent, self.cfg.landmark_tolerance_m))
 
     def _motion(self) -> np.ndarray:
         """What moved the filter to this scan, (3,); zero where nothing did (absent only in older recordings)."""
@@ -120,7 +160,7 @@ SPEC = ServiceSpec(
     summary="EKF-SLAM over odometry, scan matching and corner features; publishes pose, covariance and landmarks.",
     config_type=SlamConfig,
     inputs=(topics.ODOM, topics.SCAN, topics.FEATURES),
-    outputs=(topics.SLAM_STATE,),
-    latest=(topics.SLAM_STATE,),
+    outputs=(topics.SLAM_STATE, topics.SLAM_MAP),
+    latest=(topics.SLAM_STATE, topics.SLAM_MAP),
     build=lambda cfg, ctx: SlamStep(cfg, ctx),
 )

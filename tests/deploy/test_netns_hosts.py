@@ -40,6 +40,7 @@ import zenoh
 from lrfslam.services.sensor import SensorConfig, SimSource
 
 from lrfslam.msgs import codec, topics
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime.recording import read_recording
 from lrfslam.sim import floor_plans
 from lrfslam.tools.status import client_config, query_status
@@ -188,12 +189,19 @@ def accuracy(recording: Path, world_name: str) -> tuple[float, float, float, int
     filter's first state; the fraction of confirmed landmarks within 0.3 m of a true corner or
     wall end of ``world_name``, and how many were confirmed."""
     truth = true_pose_by_stamp(recording)
-    states = [codec.SLAM_STATE.decode(m.data) for m in read_recording(recording, [topics.SLAM_STATE.name])]
+    states, replica = [], LandmarkMapReplica()
+    for m in read_recording(recording, [topics.SLAM_STATE.name, topics.SLAM_MAP.name]):
+        value = topics.by_name(m.topic).codec.decode(m.data, m.schema)
+        replica.apply_message(value)
+        if m.topic == topics.SLAM_STATE.name:
+            states.append(value)
     first = states[0]
     world = to_world(first.pose, truth[first.stamp_ns])
     errors = [np.hypot(*(world(s.pose[:2]) - truth[s.stamp_ns][:2])) for s in states]
     last = states[-1]
-    landmarks = world(last.landmark_xy_m[last.landmark_confirmed])
+    lms = replica.landmarks
+    assert replica.complete and len(lms) == last.n_landmarks
+    landmarks = world(lms.xy_m[lms.confirmed])
     # Corners, and wall ends (jump edges: the slam's backward features).
     world_map = floor_plans.build_world(world_name)
     corners = np.vstack([world_map.corners().xy_m, world_map.free_endpoints()])

@@ -28,6 +28,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from lrfslam.algo.geometry import compose
 from lrfslam.msgs import topics
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.viz import foxglove as fx
 
 pytestmark = pytest.mark.integration
@@ -107,6 +108,7 @@ def test_the_live_pipeline_opens_in_foxglove_recorded_and_live(cluster):
     # The recording, read back with the mcap library: its raw channels and its views.
     path = cluster.tmp / "recordings" / "run" / "run_0.mcap"
     raw, views, schemas, tf, receive_times = defaultdict(dict), defaultdict(dict), {}, [], defaultdict(dict)
+    replica, map_at = LandmarkMapReplica(), {}   # the landmark map after each state, as the recorder's views saw it
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         # MCAP's times: publish time the data stamp, log time the recorder's receive time (the
@@ -120,10 +122,14 @@ def test_the_live_pipeline_opens_in_foxglove_recorded_and_live(cluster):
                     assert message.publish_time not in views[channel.topic]
                     views[channel.topic][message.publish_time] = decoded
                     receive_times[channel.topic][message.publish_time] = message.log_time
-            elif channel.topic in ("scan", "slam/state", "odom", "map/pose"):
+            elif channel.topic in ("scan", "slam/state", "slam/map", "odom", "map/pose"):
                 value = topics.by_name(channel.topic).codec.decode(message.data, schema.name)
                 raw[channel.topic][message.publish_time] = value
                 receive_times[channel.topic][message.publish_time] = message.log_time
+                if channel.topic.startswith("slam/"):
+                    replica.apply_message(value)
+                    if channel.topic == "slam/state":
+                        map_at[message.publish_time] = replica.landmarks
     assert schemas == {tp: (fx.SCHEMA_NAMES[cls], "protobuf", "protobuf") for tp, cls in fx.CHANNELS.items()}
 
     # Scans: one view per scan, at its stamp and its receive time, the same ranges (live too).
@@ -136,15 +142,17 @@ def test_the_live_pipeline_opens_in_foxglove_recorded_and_live(cluster):
         np.testing.assert_array_equal(msg.ranges, raw["scan"][stamp].ranges_m)
 
     # Landmarks: ids and 95 % ellipses from the EKF's covariances (recorded and live).
+    # The slam stage sends changes; the views draw the map they add up to (slam/map now and then).
+    assert replica.complete and len(raw["slam/map"]) >= 2
     for stamp, msg in [*views[fx.LANDMARKS].items(), *live[fx.LANDMARKS]]:
-        state = raw["slam/state"][stamp]
+        lms = map_at[stamp]
         ents = {e.id: e for e in msg.entities}
-        assert set(ents) == {f"landmark/{i}" for i in state.landmark_ids} | {"pose"}
-        for i, lid in enumerate(state.landmark_ids):
+        assert set(ents) == {f"landmark/{i}" for i in lms.ids} | {"pose"}
+        for i, lid in enumerate(lms.ids):
             ell = ents[f"landmark/{lid}"].spheres[1]
-            vals = np.linalg.eigvalsh(state.landmark_cov_m2[i])
+            vals = np.linalg.eigvalsh(lms.cov_m2[i])
             np.testing.assert_allclose(np.array([ell.size.y, ell.size.x]) ** 2 / 4 / 5.991, vals, rtol=1e-3)
-    assert max(len(s.landmark_ids) for s in raw["slam/state"].values()) >= 3
+    assert max(s.n_landmarks for s in raw["slam/state"].values()) >= 3
 
     # The EKF's trajectory ends at the state it was sent with; the transforms put the robot there.
     for stamp, msg in [*views[fx.TRAJECTORY_SLAM].items(), *live[fx.TRAJECTORY_SLAM]]:

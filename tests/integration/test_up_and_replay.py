@@ -43,7 +43,9 @@ def test_up_summarises_every_stage_and_the_pose_error(up_run):
     scans = rows["sensor"][1] // 3            # scan + odom + truth per step
     assert scans >= 50
     assert rows["denoise"] == (scans, scans)
-    assert rows["features"][0] == scans and rows["slam"][1] == scans
+    # The slam stage's outputs: a state per scan, and the whole landmark map now and then.
+    maps = sum(1 for _ in read_recording(recording, ["slam/map"]))
+    assert rows["features"][0] == scans and rows["slam"][1] == scans + maps and maps >= 2
     err = re.search(r"final pose error ([\d.]+) cm", stdout)
     assert err and float(err.group(1)) < 50, stdout
     assert f"{recording.name}_0.mcap" in stdout     # the summary lists the segments
@@ -76,7 +78,7 @@ def test_a_stage_replays_its_recording_deterministically(up_run):
         assert res.returncode == 0, res.stderr
         outs.append(cwd / name)
     assert outs[0].read_bytes() == outs[1].read_bytes()
-    states = [codec.SLAM_STATE.decode(m.data) for m in read_recording(outs[0])]
+    states = [codec.SLAM_STATE.decode(m.data) for m in read_recording(outs[0], ["slam/state"])]
     recorded = [m for m in read_recording(recording, ["features"])]
     assert len(states) == len(recorded) > 0
     assert [s.stamp_ns for s in states] == sorted(s.stamp_ns for s in states)

@@ -23,6 +23,7 @@ from test_steps import sim_outputs
 from lrfslam.errors import StartupError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.step import Message
 from lrfslam.tools.dashboard import DashboardServer
@@ -74,8 +75,13 @@ def test_the_snapshot_draws_the_newest_state_at_its_pose(wire):
     kept = next(v for n, _, _, v in wire if n == "scan/filtered" and v.stamp_ns == last.stamp_ns)
     assert len(snap["kept"]) == kept.kept_beams.size > 0
     # Landmarks: ids, and the 95 % ellipse's axes square to chi2 × the covariance's eigenvalues.
-    assert [lm[5] for lm in snap["landmarks"]] == last.landmark_ids.tolist() and snap["landmarks"]
-    for lm, cov in zip(snap["landmarks"], last.landmark_cov_m2):
+    replica = LandmarkMapReplica()
+    for n, _, _, v in wire:
+        if n in ("slam/state", "slam/map"):
+            replica.apply_message(v)
+    lms = replica.landmarks
+    assert [lm[5] for lm in snap["landmarks"]] == lms.ids.tolist() and snap["landmarks"]
+    for lm, cov in zip(snap["landmarks"], lms.cov_m2):
         np.testing.assert_allclose(sorted([lm[2] ** 2, lm[3] ** 2]),
                                    CHI2_2D_95 * np.linalg.eigvalsh(cov), rtol=1e-2, atol=1e-7)
     # The trajectory ends within a thinning step of the pose; the truth is tied to the estimate

@@ -17,13 +17,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from test_steps import chain, run, sim_outputs
+from lrfslam.services import stage
+from test_steps import chain, sim_outputs
 
 from lrfslam.algo.geometry import from_frame
 from lrfslam.algo.occupancy_grid import GridParams
 from lrfslam.evaluation.map_trajectory import final_trajectory
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.recording import RecordingWriter, read_recording
 from lrfslam.sim import SimConfig, Simulator
 from lrfslam.sim.odometry import OdometryNoise
@@ -106,16 +108,18 @@ def sim_run(tmp_path_factory):
 
 def test_export_writes_json_and_png(tmp_path, capsys):
     outs = sim_outputs(40)
-    states, _ = run("slam", chain(outs))
+    slam = [m for m in Chain([stage("slam")], robot="r1").feed(chain(outs))]   # states and whole maps
+    states = [m.value for m in slam if m.topic is topics.SLAM_STATE]
     path = tmp_path / "r.mcap"
     with RecordingWriter(path) as w:
-        for o in [o for o in outs if o.topic in (topics.TRUTH, topics.ODOM)] + \
-                 [type(outs[0])(topics.SLAM_STATE, s) for s in states]:
+        for o in [o for o in outs if o.topic in (topics.TRUTH, topics.ODOM)] + slam:
             w.write(o.topic.name, o.topic.schema, o.topic.codec.encode(o.value), o.value.stamp_ns)
     assert export.main([str(path), "-o", str(tmp_path / "out")]) == 0
     doc = json.loads((tmp_path / "out" / "map.json").read_text())
-    last = states[-1]
-    assert [lm["id"] for lm in doc["landmarks"]] == last.landmark_ids.tolist()
+    last, final_map = states[-1], slam[-1].value
+    assert slam[-1].topic is topics.SLAM_MAP and final_map.state_seq == last.seq   # the last state's whole map
+    assert [lm["id"] for lm in doc["landmarks"]] == final_map.landmarks.ids.tolist()
+    assert [lm["x_m"] for lm in doc["landmarks"]] == final_map.landmarks.xy_m[:, 0].tolist()
     assert len(doc["trajectory"]) == len(states)
     np.testing.assert_allclose([doc["trajectory"][-1][k] for k in ("x_m", "y_m", "theta_rad")], last.pose)
     png = (tmp_path / "out" / "map.png").read_bytes()

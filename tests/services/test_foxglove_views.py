@@ -24,6 +24,7 @@ from lrfslam.algo.geometry import compose
 from lrfslam.errors import DecodeError
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.step import Message
 from lrfslam.viz import foxglove as fx
@@ -151,19 +152,26 @@ def test_landmarks_carry_ids_and_95_percent_ellipses(run):
     states = [v for name, v, _ in run if name == topics.SLAM_STATE.name]
     # At most every landmark_period_s of data time (0.5 s at 10 Hz: every 5th state), the first at once.
     assert sent[0][1] is states[0] and len(sent) == pytest.approx(len(states) / 5, abs=1)
-    last = sent[-1][1]
-    assert len(last.landmark_ids) > 3
+    # The map drawn is the one the slam stage's messages add up to at that state.
+    replica, map_at = LandmarkMapReplica(), {}
+    for name, value, _ in run:
+        if name in (topics.SLAM_STATE.name, topics.SLAM_MAP.name):
+            replica.apply_message(value)
+            if name == topics.SLAM_STATE.name:
+                map_at[value.seq] = replica.landmarks
+    last = map_at[sent[-1][1].seq]
+    assert len(last) > 3
     msg = decode(sent[-1][2])
     by_id = {e.id: e for e in msg.entities}
-    assert set(by_id) == {f"landmark/{i}" for i in last.landmark_ids} | {"pose"}
-    for i, lid in enumerate(last.landmark_ids):
+    assert set(by_id) == {f"landmark/{i}" for i in last.ids} | {"pose"}
+    for i, lid in enumerate(last.ids):
         ent = by_id[f"landmark/{lid}"]
         assert ent.frame_id == "slam" and ent.texts[0].text == str(lid)
         ell = ent.spheres[1]
-        vals = np.linalg.eigvalsh(last.landmark_cov_m2[i])
+        vals = np.linalg.eigvalsh(last.cov_m2[i])
         assert (ell.size.x / 2) ** 2 / 5.991 == pytest.approx(vals[1], rel=1e-3)
         assert (ell.size.y / 2) ** 2 / 5.991 == pytest.approx(vals[0], rel=1e-3)
-        assert {kv.key: kv.value for kv in ent.metadata}["sightings"] == str(last.landmark_sightings[i])
+        assert {kv.key: kv.value for kv in ent.metadata}["sightings"] == str(last.sightings[i])
 
 
 def test_transforms_chain_to_the_estimated_pose(run):

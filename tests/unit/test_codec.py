@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -37,14 +39,52 @@ def test_features_and_slam_state_round_trip(k, seed):
     back = codec.FEATURES.decode(codec.FEATURES.encode(feats))
     for name in ("kind", "xy_m", "cov_m2", "beam", "angle_deg"):
         np.testing.assert_array_equal(getattr(back, name), getattr(feats, name))
-    state = t.SlamState(9, 1, 2, rng.normal(size=3), np.eye(3), np.arange(k), rng.normal(size=(k, 2)),
-                        a @ a.transpose(0, 2, 1), rng.choice([1, 2], k), rng.integers(1, 9, k),
-                        rng.integers(0, 2, k).astype(bool), 1, 2, 3, rng.normal(size=3) if k % 2 else None, k % 3 == 0)
+    lms = t.Landmarks(np.arange(k) * 3, rng.normal(size=(k, 2)), a @ a.transpose(0, 2, 1), rng.choice([1, 2], k),
+                      rng.integers(1, 9, k), rng.integers(0, 2, k).astype(bool))
+    state = t.SlamState(9, 1, 2, rng.normal(size=3), np.eye(3), lms, [1, 4], False, k + 5, k, 1, 2, 3,
+                        rng.normal(size=3) if k % 2 else None, k % 3 == 0)
     back = codec.SLAM_STATE.decode(codec.SLAM_STATE.encode(state))
-    for name in ("pose", "pose_cov", "landmark_ids", "landmark_xy_m", "landmark_cov_m2", "landmark_kind",
-                 "landmark_sightings", "landmark_confirmed", "motion"):
+    for name in ("pose", "pose_cov", "removed_landmark_ids", "motion"):
         np.testing.assert_array_equal(getattr(back, name), getattr(state, name))
+    assert_same_landmarks(back.landmarks, lms)
+    assert (back.n_landmarks, back.n_confirmed, back.landmarks_complete) == (k + 5, k, False)
     assert (back.associated, back.added, back.rejected, back.motion_matched) == (1, 2, 3, k % 3 == 0)
+    whole = t.LandmarkMap(9, 4, 1, lms, 0.005)
+    back_map = codec.LANDMARK_MAP.decode(codec.LANDMARK_MAP.encode(whole))
+    assert (back_map.stamp_ns, back_map.seq, back_map.state_seq, back_map.tolerance_m) == (9, 4, 1, 0.005)
+    assert_same_landmarks(back_map.landmarks, lms)
+
+
+def assert_same_landmarks(a: t.Landmarks, b: t.Landmarks) -> None:
+    for name in ("ids", "xy_m", "cov_m2", "kind", "sightings", "confirmed"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_a_v1_slam_state_decodes_as_a_whole_map():
+    # v1 states carried every landmark in every message; recordings of them still replay.
+    from lrfslam.msgs.v1 import slam_state_pb2 as v1
+    p = v1.SlamState(scan_seq=8, associated=2, added=1, rejected=0, motion_matched=True)
+    p.header.stamp_ns, p.header.seq = 50, 7
+    p.pose.x_m, p.pose.theta_rad = 1.5, 0.25
+    p.pose_covariance.extend(np.eye(3).ravel().tolist())
+    for i, (x, ok) in enumerate([(2.0, True), (-1.0, False)]):
+        p.landmarks.add(id=10 + i, x_m=x, y_m=0.5, covariance_m2=[0.01, 0, 0, 0.02], kind=1, sightings=3, confirmed=ok)
+    old = codec.SLAM_STATE.decode(p.SerializeToString(), "lrfslam.msgs.v1.SlamState")
+    assert old.landmarks_complete and (old.n_landmarks, old.n_confirmed) == (2, 1)
+    assert (old.stamp_ns, old.seq, old.scan_seq, old.associated, old.motion_matched) == (50, 7, 8, 2, True)
+    np.testing.assert_array_equal(old.landmarks.ids, [10, 11])
+    np.testing.assert_array_equal(old.landmarks.xy_m, [[2.0, 0.5], [-1.0, 0.5]])
+    assert old.motion is None   # absent in the v1 message
+    p.landmarks[1].covariance_m2.append(0.0)
+    with pytest.raises(DecodeError, match="v1.SlamState"):
+        codec.SLAM_STATE.decode(p.SerializeToString(), "lrfslam.msgs.v1.SlamState")
+
+
+def test_a_landmark_both_changed_and_removed_is_a_decode_error():
+    lms = t.Landmarks([3], [[1.0, 2.0]], [np.eye(2)], [1], [2], [True])
+    state = t.SlamState(9, 1, 2, np.zeros(3), np.eye(3), lms, [3], False, 1, 1)
+    with pytest.raises(DecodeError, match="both changed and removed"):
+        codec.SLAM_STATE.decode(codec.SLAM_STATE.encode(state))
 
 
 def test_wall_direction_round_trips_and_absence_is_nan():
@@ -89,7 +129,7 @@ def test_filtered_scan_keeps_beams_and_points():
 
 def test_every_topic_names_a_versioned_schema():
     for topic in topics.DATA_TOPICS + (topics.health("slam"),):
-        assert topic.schema.startswith("lrfslam.msgs.v1."), topic.schema
+        assert re.fullmatch(r"lrfslam\.msgs\.v[1-9][0-9]*\.[A-Za-z]+", topic.schema), topic.schema
         assert codec.parse_encoding(topic.codec.encoding) == topic.schema
 
 

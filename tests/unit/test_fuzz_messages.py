@@ -36,6 +36,10 @@ def _cov(rng, k):
     return a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(2)
 
 
+def _landmarks(rng):
+    return t.Landmarks([4, 7], rng.normal(size=(2, 2)), _cov(rng, 2), [1, 2], [3, 1], [True, False])
+
+
 #: One valid value per schema name. The registry (codec.CODECS) decides what must be here:
 #: test_every_schema_is_fuzzed fails for a schema added without a sample.
 SAMPLES = {
@@ -45,9 +49,9 @@ SAMPLES = {
                                                            rng.normal(size=(10, 2)), 4.0, "default"),
     codec.FEATURES.schema: lambda rng: t.Features(5, 1, 1, [1, 2, 1], rng.normal(size=(3, 2)), _cov(rng, 3),
                                                   [3, 9, 20], [90.0, np.nan, 85.0], 0.1, 0.01),
-    codec.SLAM_STATE.schema: lambda rng: t.SlamState(5, 1, 1, rng.normal(size=3), np.eye(3) * 0.01, [4, 7],
-                                                     rng.normal(size=(2, 2)), _cov(rng, 2), [1, 2], [3, 1],
-                                                     [True, False], 2, 1, 0, rng.normal(size=3), True),
+    codec.SLAM_STATE.schema: lambda rng: t.SlamState(5, 1, 1, rng.normal(size=3), np.eye(3) * 0.01, _landmarks(rng),
+                                                     [2], False, 9, 4, 2, 1, 0, rng.normal(size=3), True),
+    codec.LANDMARK_MAP.schema: lambda rng: t.LandmarkMap(5, 1, 1, _landmarks(rng), 0.005),
     codec.GROUND_TRUTH.schema: lambda rng: t.GroundTruth(5, 1, rng.normal(size=3), [1, 2],
                                                          rng.normal(size=(2, 2)), "hallway"),
     codec.SERVICE_STATUS.schema: lambda rng: t.ServiceStatus("slam", "r1", 0, "ok", 7, 1.5, {"in.scan": 3},
@@ -143,7 +147,7 @@ def test_any_encoding_string_gives_a_counted_result(topic, encoding):
 
 
 @pytest.mark.parametrize("topic", TOPICS, ids=lambda tp: tp.name)
-@pytest.mark.parametrize("schema", ["", "lrfslam.msgs.v2.{}", "lrfslam.msgs.v0.{}", "lrfslam.msgs.v1.{}Extra"])
+@pytest.mark.parametrize("schema", ["", "lrfslam.msgs.v9.{}", "lrfslam.msgs.v0.{}", "lrfslam.msgs.v1.{}Extra"])
 def test_no_schema_and_unknown_versions_are_schema_errors(topic, schema):
     name = schema.format(topic.schema.rsplit(".", 1)[1]) if schema else ""
     msg, counts = decode(topic, payload_of(topic), name)

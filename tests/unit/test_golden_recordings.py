@@ -11,9 +11,12 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from lrfslam import cli
+from lrfslam.msgs import topics
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime.recording import SegmentedWriter, read_recording
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "golden"
@@ -67,3 +70,41 @@ def test_a_split_recording_replays_as_the_single_file(as_files, tmp_path):
     assert cli.main(["export", *exported, "-o", str(tmp_path / "a"), "--no-png"]) == 0
     assert cli.main(["export", str(GOLDEN / "sim_head.pipeline.mcap"), "-o", str(tmp_path / "b"), "--no-png"]) == 0
     assert (tmp_path / "a" / "map.json").read_text() == (tmp_path / "b" / "map.json").read_text()
+
+
+def test_a_v1_recording_holds_the_map_its_v2_rerun_sends_as_changes():
+    """``intel_150.slam_v1.mcap`` is the slam stage's output while every state held the whole map
+    (lrfslam.msgs.v1.SlamState); ``intel_150.slam.mcap`` the same command's since states carry
+    changes (v2). Read with the same code, they are the same filter: poses equal, maps equal
+    within the stage's tolerance at every state, and exactly at each whole map."""
+    def states_and_maps(name: str) -> list[tuple]:
+        replica, out = LandmarkMapReplica(), []
+        for m in read_recording(GOLDEN / name, [topics.SLAM_STATE.name, topics.SLAM_MAP.name]):
+            value = topics.by_name(m.topic).codec.decode(m.data, m.schema)
+            replica.apply_message(value)
+            out.append((m.topic, m.schema, value, replica.landmarks, replica.complete))
+        return out
+
+    old, new = states_and_maps("intel_150.slam_v1.mcap"), states_and_maps("intel_150.slam.mcap")
+    assert {s for _, s, *_ in old} == {"lrfslam.msgs.v1.SlamState"}
+    assert {s for _, s, *_ in new} == {"lrfslam.msgs.v2.SlamState", "lrfslam.msgs.v2.LandmarkMap"}
+    old_states = {v.seq: (v, lms) for _, _, v, lms, _ in old}
+    whole = [(v, lms) for topic, _, v, lms, _ in new if topic == topics.SLAM_MAP.name]
+    assert len(whole) >= 3 and whole[-1][0].state_seq == max(old_states)
+    for v, lms in whole:
+        expected = old_states[v.state_seq][1]
+        np.testing.assert_array_equal(lms.ids, expected.ids)
+        np.testing.assert_array_equal(lms.xy_m, expected.xy_m)
+        np.testing.assert_array_equal(lms.cov_m2, expected.cov_m2)
+    checked = 0
+    for topic, _, v, lms, complete in new:
+        if topic != topics.SLAM_STATE.name:
+            continue
+        was, expected = old_states[v.seq]
+        assert complete and v.n_landmarks == len(expected)
+        np.testing.assert_array_equal(v.pose, was.pose)
+        np.testing.assert_array_equal(lms.ids, expected.ids)
+        np.testing.assert_array_equal(lms.sightings, expected.sightings)
+        assert np.all(np.hypot(*(lms.xy_m - expected.xy_m).T) <= 0.005)
+        checked += 1
+    assert checked == len(old_states) == 150

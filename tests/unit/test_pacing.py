@@ -205,4 +205,4 @@ def test_the_watched_stage_is_alive_and_fed_and_none_deeper_is(alive, played):
 
 
 def test_stage_topics_are_plain_names():
-    assert StageTopics("slam", ("odom", "scan", "features"), ("slam/state",)) in PIPELINE
+    assert StageTopics("slam", ("odom", "scan", "features"), ("slam/state", "slam/map")) in PIPELINE

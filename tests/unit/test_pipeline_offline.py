@@ -57,8 +57,10 @@ def test_outputs_per_stage_and_passthrough(sim_recording, tmp_path):
     counts = run_pipeline(default_stages(), ROBOT, sim_recording, out)
     by_topic = Counter(r.topic for r in read_recording(out))
     per_scan = ("scan", "odom", "truth", "scan/filtered", "features", "slam/state", "map/pose")
-    # map/keyframes: after each graph optimisation and once at the end.
-    assert by_topic == {**{name: N_SCANS for name in per_scan}, "map/keyframes": by_topic["map/keyframes"]}
+    # map/keyframes: after each graph optimisation and once at the end; slam/map: the whole landmark
+    # map at the first state, every 5 s of data time (6 s here) and at the last.
+    assert by_topic == {**{name: N_SCANS for name in per_scan}, "map/keyframes": by_topic["map/keyframes"],
+                        "slam/map": 3}
     assert by_topic["map/keyframes"] >= 1
     assert counts["input"] == {"read": 3 * N_SCANS, "copied": 3 * N_SCANS}
     assert counts["denoise"]["in.scan"] == counts["denoise"]["out.scan/filtered"] == N_SCANS
@@ -101,7 +103,7 @@ def test_stage_outputs_replace_the_inputs_copies(sim_recording, tmp_path):
     run_pipeline(default_stages(), ROBOT, sim_recording, first)
     again = tmp_path / "again.mcap"
     counts = run_pipeline(default_stages(("features", "slam")), ROBOT, first, again)
-    assert counts["input"]["dropped"] == 2 * N_SCANS   # the old features and slam/state
+    assert counts["input"]["dropped"] == 2 * N_SCANS + 3   # the old features, slam/state and slam/map
     assert Counter(r.topic for r in read_recording(again))["features"] == N_SCANS
     assert payloads(again, "slam/state") == payloads(first, "slam/state")
 

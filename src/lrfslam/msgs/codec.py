@@ -34,6 +34,7 @@ from lrfslam.msgs.v1 import (
     service_status_pb2,
     slam_state_pb2,
 )
+from lrfslam.msgs.v2 import slam_state_pb2 as slam_state_v2_pb2
 
 T = TypeVar("T")
 
@@ -80,20 +81,21 @@ class Codec(Generic[T]):
         DecodeError
             The bytes do not parse, or parse into an inconsistent message.
         """
+        convert: Callable[[Any], T] = self.from_proto
+        proto, name = self.proto, self.schema
         if schema is not None and schema != self.schema:
             upgrade = UPGRADES.get((schema, self.schema))
             if upgrade is None:
                 raise SchemaVersionError(schema, f"expected {self.schema}; no upgrade path known")
-            old_proto, convert = upgrade
-            return convert(_parse(old_proto, data, schema))
-        msg = _parse(self.proto, data, self.schema)
+            (proto, convert), name = upgrade, schema
+        msg = _parse(proto, data, name)
         try:
             # A float32 signalling NaN (a flipped bit) warns when widened; the checks reject NaN
             # wherever it is not a legal value.
             with np.errstate(invalid="ignore"):
-                return self.from_proto(msg)
+                return convert(msg)
         except (ValueError, TypeError, OverflowError) as exc:  # OverflowError: an enum value beyond int8
-            raise DecodeError(self.schema, str(exc)) from exc
+            raise DecodeError(name, str(exc)) from exc
 
 
 def _parse(proto: type, data: bytes, schema: str) -> Any:
@@ -248,41 +250,83 @@ def _features_from(p) -> t.Features:
     )
 
 
+def _landmarks_to(target, lms: t.Landmarks) -> None:
+    for i in range(len(lms)):
+        lm = target.add()
+        lm.id = int(lms.ids[i])
+        lm.x_m, lm.y_m = float(lms.xy_m[i, 0]), float(lms.xy_m[i, 1])
+        lm.covariance_m2.extend(lms.cov_m2[i].ravel().tolist())
+        lm.kind = int(lms.kind[i])
+        lm.sightings = int(lms.sightings[i])
+        lm.confirmed = bool(lms.confirmed[i])
+
+
+def _landmarks_from(lms) -> t.Landmarks:
+    if any(len(lm.covariance_m2) != 4 for lm in lms):
+        raise ValueError("a landmark covariance is not 2x2")
+    ids = [lm.id for lm in lms]
+    if len(set(ids)) != len(ids):
+        raise ValueError("a landmark id appears twice")
+    return t.Landmarks(
+        ids, _bounded("landmark xy", [(lm.x_m, lm.y_m) for lm in lms]).reshape(-1, 2),
+        _bounded("landmark covariance", [list(lm.covariance_m2) for lm in lms], MAX_ABS ** 2).reshape(-1, 2, 2),
+        [lm.kind for lm in lms], [lm.sightings for lm in lms], [lm.confirmed for lm in lms])
+
+
+def _pose_covariance(p) -> np.ndarray:
+    if len(p.pose_covariance) != 9:
+        raise ValueError("pose_covariance is not 3x3")
+    return _bounded("pose_covariance", p.pose_covariance, MAX_ABS ** 2).reshape(3, 3)
+
+
 def _slam_to(m: t.SlamState):
-    p = slam_state_pb2.SlamState()
+    if m.landmarks_complete:
+        raise ValueError("a v2 slam state carries changes, not a whole map (a v1 state's landmarks)")
+    p = slam_state_v2_pb2.SlamState(
+        scan_seq=m.scan_seq, landmarks=m.n_landmarks, confirmed_landmarks=m.n_confirmed,
+        associated=m.associated, added=m.added, rejected=m.rejected, motion_matched=bool(m.motion_matched))
     _header(p.header, m.stamp_ns, m.seq, "map")
-    p.pose.x_m, p.pose.y_m, p.pose.theta_rad = (float(v) for v in m.pose)
+    _pose2d(p.pose, m.pose)
     p.pose_covariance.extend(m.pose_cov.ravel().tolist())
-    for i in range(m.landmark_ids.size):
-        lm = p.landmarks.add()
-        lm.id = int(m.landmark_ids[i])
-        lm.x_m, lm.y_m = float(m.landmark_xy_m[i, 0]), float(m.landmark_xy_m[i, 1])
-        lm.covariance_m2.extend(m.landmark_cov_m2[i].ravel().tolist())
-        lm.kind = int(m.landmark_kind[i])
-        lm.sightings = int(m.landmark_sightings[i])
-        lm.confirmed = bool(m.landmark_confirmed[i])
-    p.scan_seq = m.scan_seq
-    p.associated, p.added, p.rejected = m.associated, m.added, m.rejected
+    _landmarks_to(p.changed_landmarks, m.landmarks)
+    p.removed_landmark_ids.extend(m.removed_landmark_ids.tolist())
     if m.motion is not None:
         _pose2d(p.motion, m.motion)
-    p.motion_matched = bool(m.motion_matched)
     return p
 
 
 def _slam_from(p) -> t.SlamState:
-    if len(p.pose_covariance) != 9:
-        raise ValueError("pose_covariance is not 3x3")
-    lms = p.landmarks
-    if any(len(lm.covariance_m2) != 4 for lm in lms):
-        raise ValueError("a landmark covariance is not 2x2")
+    changed = _landmarks_from(p.changed_landmarks)
+    if np.intersect1d(changed.ids, np.asarray(p.removed_landmark_ids, np.int64)).size:
+        raise ValueError("a landmark is both changed and removed")
     return t.SlamState(
         p.header.stamp_ns, p.header.seq, p.scan_seq, _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
-        _bounded("pose_covariance", p.pose_covariance, MAX_ABS ** 2).reshape(3, 3),
-        [lm.id for lm in lms], _bounded("landmark xy", [(lm.x_m, lm.y_m) for lm in lms]),
-        _bounded("landmark covariance", [list(lm.covariance_m2) for lm in lms], MAX_ABS ** 2).reshape(-1, 2, 2),
-        [lm.kind for lm in lms], [lm.sightings for lm in lms], [lm.confirmed for lm in lms],
+        _pose_covariance(p), changed, list(p.removed_landmark_ids), False, p.landmarks, p.confirmed_landmarks,
         p.associated, p.added, p.rejected, _pose2d_or_none(p, "motion"), p.motion_matched,
     )
+
+
+def _slam_from_v1(p) -> t.SlamState:
+    """A v1 state: every message held the whole map."""
+    lms = _landmarks_from(p.landmarks)
+    return t.SlamState(
+        p.header.stamp_ns, p.header.seq, p.scan_seq, _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
+        _pose_covariance(p), lms, (), True, len(lms), int(np.count_nonzero(lms.confirmed)),
+        p.associated, p.added, p.rejected, _pose2d_or_none(p, "motion"), p.motion_matched,
+    )
+
+
+def _landmark_map_to(m: t.LandmarkMap):
+    p = slam_state_v2_pb2.LandmarkMap(state_seq=m.state_seq, tolerance_m=m.tolerance_m)
+    _header(p.header, m.stamp_ns, m.seq, "map")
+    _landmarks_to(p.landmarks, m.landmarks)
+    return p
+
+
+def _landmark_map_from(p) -> t.LandmarkMap:
+    if not 0 <= p.tolerance_m <= MAX_ABS:
+        raise ValueError("tolerance_m must be finite and not negative")
+    return t.LandmarkMap(p.header.stamp_ns, p.header.seq, p.state_seq, _landmarks_from(p.landmarks), p.tolerance_m)
 
 
 def _pose2d(target, pose) -> None:
@@ -372,7 +416,8 @@ LASER_SCAN: Codec[t.LaserScan] = Codec(laser_scan_pb2.LaserScan, _scan_to, _scan
 ODOMETRY: Codec[t.Odometry] = Codec(odometry_pb2.Odometry, _odom_to, _odom_from)
 FILTERED_SCAN: Codec[t.FilteredScan] = Codec(filtered_scan_pb2.FilteredScan, _filtered_to, _filtered_from)
 FEATURES: Codec[t.Features] = Codec(features_pb2.Features, _features_to, _features_from)
-SLAM_STATE: Codec[t.SlamState] = Codec(slam_state_pb2.SlamState, _slam_to, _slam_from)
+SLAM_STATE: Codec[t.SlamState] = Codec(slam_state_v2_pb2.SlamState, _slam_to, _slam_from)
+LANDMARK_MAP: Codec[t.LandmarkMap] = Codec(slam_state_v2_pb2.LandmarkMap, _landmark_map_to, _landmark_map_from)
 GROUND_TRUTH: Codec[t.GroundTruth] = Codec(ground_truth_pb2.GroundTruth, _truth_to, _truth_from)
 SERVICE_STATUS: Codec[t.ServiceStatus] = Codec(service_status_pb2.ServiceStatus, _status_to, _status_from)
 MAP_POSE: Codec[t.MapPose] = Codec(map_pb2.MapPose, _map_pose_to, _map_pose_from)
@@ -380,9 +425,11 @@ MAP_KEYFRAMES: Codec[t.MapKeyframes] = Codec(map_pb2.MapKeyframes, _keyframes_to
 
 #: Every codec of the current version, by schema name.
 CODECS: dict[str, Codec] = {c.schema: c for c in
-                            (LASER_SCAN, ODOMETRY, FILTERED_SCAN, FEATURES, SLAM_STATE, GROUND_TRUTH, SERVICE_STATUS,
-                             MAP_POSE, MAP_KEYFRAMES)}
+                            (LASER_SCAN, ODOMETRY, FILTERED_SCAN, FEATURES, SLAM_STATE, LANDMARK_MAP, GROUND_TRUTH,
+                             SERVICE_STATUS, MAP_POSE, MAP_KEYFRAMES)}
 
 #: (old schema, current schema) -> (old generated class, converter to the current type).
-#: Empty while v1 is the only version; a v2 adds its v1 entries here.
-UPGRADES: dict[tuple[str, str], tuple[type, Callable[[Any], Any]]] = {}
+UPGRADES: dict[tuple[str, str], tuple[type, Callable[[Any], Any]]] = {
+    # v1 states carried the whole map in every message; v2 carries the changes (and slam/map the whole).
+    (slam_state_pb2.SlamState.DESCRIPTOR.full_name, SLAM_STATE.schema): (slam_state_pb2.SlamState, _slam_from_v1),
+}

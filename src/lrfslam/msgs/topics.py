@@ -72,12 +72,16 @@ ODOM: Topic = Topic("odom", c.ODOMETRY)
 SCAN_FILTERED: Topic = Topic("scan/filtered", c.FILTERED_SCAN)
 FEATURES: Topic = Topic("features", c.FEATURES)
 SLAM_STATE: Topic = Topic("slam/state", c.SLAM_STATE)
+#: The whole landmark map, at a low rate (slam/state carries the changes): a replica heals on
+#: the next one, so a lost one costs seconds of staleness, not a stalled filter.
+SLAM_MAP: Topic = Topic("slam/map", c.LANDMARK_MAP)
 TRUTH: Topic = Topic("truth", c.GROUND_TRUTH)
 MAP_POSE: Topic = Topic("map/pose", c.MAP_POSE)
 MAP_KEYFRAMES: Topic = Topic("map/keyframes", c.MAP_KEYFRAMES, SNAPSHOT)
 
 #: Data topics in pipeline order.
-DATA_TOPICS: tuple[Topic, ...] = (SCAN, ODOM, TRUTH, SCAN_FILTERED, FEATURES, SLAM_STATE, MAP_POSE, MAP_KEYFRAMES)
+DATA_TOPICS: tuple[Topic, ...] = (SCAN, ODOM, TRUTH, SCAN_FILTERED, FEATURES, SLAM_STATE, SLAM_MAP, MAP_POSE,
+                                   MAP_KEYFRAMES)
 
 
 def health(service: str) -> Topic:

@@ -199,15 +199,50 @@ class MapKeyframes:
 
 
 @dataclass(frozen=True, eq=False)
-class SlamState:
-    """The EKF after one scan's features.
+class Landmarks:
+    """A set of the EKF's landmarks, one row each, sorted by id or in the filter's order.
 
-    ``pose`` (3,), ``pose_cov`` (3, 3); landmarks: ``landmark_ids`` (L,) stable ids,
-    ``landmark_xy_m`` (L, 2), ``landmark_cov_m2`` (L, 2, 2), ``landmark_kind`` (L,),
-    ``landmark_sightings`` (L,), ``landmark_confirmed`` (L,) bool; ``motion`` (3,), what
-    moved the filter to this scan (scan-matched, else odometry: dx m, dy m, dtheta rad in
-    the previous pose's frame), zero where it did not move, None in recordings made before
-    slam states carried it; ``motion_matched``, whether it was found by scan matching.
+    ``ids`` (L,) stable ids, ``xy_m`` (L, 2) map frame, ``cov_m2`` (L, 2, 2), ``kind`` (L,)
+    FEATURE_* codes, ``sightings`` (L,), ``confirmed`` (L,) bool (false while tentative).
+    """
+
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    cov_m2: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
+    sightings: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ids", _array(self.ids, np.int64))
+        n = self.ids.size
+        object.__setattr__(self, "xy_m", _array(self.xy_m, np.float64, (n, 2)))
+        object.__setattr__(self, "cov_m2", _array(self.cov_m2, np.float64, (n, 2, 2)))
+        object.__setattr__(self, "kind", _array(self.kind, np.int8, (n,)))
+        object.__setattr__(self, "sightings", _array(self.sightings, np.int64, (n,)))
+        object.__setattr__(self, "confirmed", _array(self.confirmed, bool, (n,)))
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+    def take(self, rows) -> Landmarks:
+        """The landmarks at ``rows`` (an index array or a boolean mask over the rows)."""
+        return Landmarks(self.ids[rows], self.xy_m[rows], self.cov_m2[rows], self.kind[rows],
+                         self.sightings[rows], self.confirmed[rows])
+
+
+@dataclass(frozen=True, eq=False)
+class SlamState:
+    """The EKF after one scan's features: the pose, and the landmarks that changed.
+
+    ``pose`` (3,), ``pose_cov`` (3, 3); ``landmarks``: those new or changed (beyond the
+    stage's tolerance) since the previous state, or, with ``landmarks_complete``, the whole
+    map (states of v1 recordings); ``removed_landmark_ids`` (R,) those dropped since the
+    previous state; ``n_landmarks`` and ``n_confirmed`` count the map after this update
+    (``lrfslam.msgs.landmark_map`` rebuilds the map itself). ``motion`` (3,), what moved
+    the filter to this scan (scan-matched, else odometry: dx m, dy m, dtheta rad in the
+    previous pose's frame), zero where it did not move, None in recordings made before slam
+    states carried it; ``motion_matched``, whether it was found by scan matching.
     """
 
     stamp_ns: int
@@ -215,12 +250,11 @@ class SlamState:
     scan_seq: int
     pose: np.ndarray
     pose_cov: np.ndarray
-    landmark_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    landmark_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    landmark_cov_m2: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
-    landmark_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
-    landmark_sightings: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    landmark_confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    landmarks: Landmarks = field(default_factory=Landmarks)
+    removed_landmark_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    landmarks_complete: bool = False
+    n_landmarks: int = 0
+    n_confirmed: int = 0
     associated: int = 0
     added: int = 0
     rejected: int = 0
@@ -232,12 +266,23 @@ class SlamState:
         object.__setattr__(self, "pose_cov", _array(self.pose_cov, np.float64, (3, 3)))
         if self.motion is not None:
             object.__setattr__(self, "motion", _array(self.motion, np.float64, (3,)))
-        object.__setattr__(self, "landmark_ids", _array(self.landmark_ids, np.int64))
-        object.__setattr__(self, "landmark_xy_m", _array(self.landmark_xy_m, np.float64, (-1, 2)))
-        object.__setattr__(self, "landmark_cov_m2", _array(self.landmark_cov_m2, np.float64, (-1, 2, 2)))
-        object.__setattr__(self, "landmark_kind", _array(self.landmark_kind, np.int8))
-        object.__setattr__(self, "landmark_sightings", _array(self.landmark_sightings, np.int64))
-        object.__setattr__(self, "landmark_confirmed", _array(self.landmark_confirmed, bool))
+        object.__setattr__(self, "removed_landmark_ids", _array(self.removed_landmark_ids, np.int64))
+
+
+@dataclass(frozen=True, eq=False)
+class LandmarkMap:
+    """The whole landmark map as it stands after the slam state numbered ``state_seq``.
+
+    ``tolerance_m``: how far a landmark may move, or its standard deviations change, before
+    a slam state carries it again (so a map rebuilt from this one and the states after it
+    is within it of the filter's).
+    """
+
+    stamp_ns: int
+    seq: int
+    state_seq: int
+    landmarks: Landmarks = field(default_factory=Landmarks)
+    tolerance_m: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)

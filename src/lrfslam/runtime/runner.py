@@ -247,11 +247,14 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             for name, queryable in latest_qs.items():
                 while (query := queryable.try_recv()) is not None:
                     with query:
+                        topic = topics.by_name(name)
+                        if (value := step.latest(topic)) is not None:
+                            newest[name] = (topic.codec.encode(value), value.seq, value.stamp_ns)
                         if name in newest:
                             payload, seq, stamp = newest[name]
                             query.reply(topics.latest(robot, name), payload,
                                         attachment=attachment(seq, stamp, bus.producer),
-                                        encoding=zenoh.Encoding(topics.by_name(name).codec.encoding))
+                                        encoding=zenoh.Encoding(topic.codec.encoding))
 
         def publish_health() -> None:
             counts["health"] += 1   # numbered from 1 like every stream

@@ -76,6 +76,11 @@ class StepBase:
         """(HEALTH_* level, message) for the status reply."""
         return 0, "ok"
 
+    def latest(self, topic: Topic) -> Any | None:
+        """The value to answer a late joiner's query on ``topic`` (one of the spec's ``latest``), built now;
+        None: the newest published one."""
+        return None
+
 
 @dataclass(frozen=True)
 class ServiceSpec:

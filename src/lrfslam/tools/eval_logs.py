@@ -143,7 +143,7 @@ def _final_landmarks(path: Path) -> int:
         last = rec
     if last is None:
         return 0
-    return int(np.count_nonzero(topics.SLAM_STATE.codec.decode(last.data, last.schema).landmark_confirmed))
+    return topics.SLAM_STATE.codec.decode(last.data, last.schema).n_confirmed
 
 
 def markdown(results: Iterable[LogResult]) -> str:

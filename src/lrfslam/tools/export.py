@@ -44,6 +44,7 @@ from lrfslam.evaluation.map_trajectory import FinalTrajectoryBuilder
 from lrfslam.extras import require
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import RecordingSource, describe_source, read_recording
 
@@ -64,7 +65,8 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
     """Trajectory, odometry, truth, scans, the last SLAM state and the mapper's final trajectory
     (``"final"``, None without ``map/keyframes``) of a recording (file, folder or files), in one pass.
 
-    Undecodable messages are skipped and counted (``"undecodable"``). ``"seen_ns"`` maps each
+    ``"landmarks"`` is the landmark map rebuilt from ``slam/map`` and the states' changes (at
+    the last state). Undecodable messages are skipped and counted (``"undecodable"``). ``"seen_ns"`` maps each
     landmark id to the stamp of the last state whose sightings of it grew. ``scans`` False:
     the ``scan`` messages are not read (``"scans"`` is empty).
 
@@ -76,10 +78,11 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
     states, odom, truth, scan_of = [], {}, {}, {}
     last = None
     undecodable = 0
-    seen_ids, seen_sightings = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    landmarks = LandmarkMapReplica()
     seen_ns: dict[int, int] = {}
     final = FinalTrajectoryBuilder()
-    wanted = [*FinalTrajectoryBuilder.TOPICS, topics.ODOM.name, topics.TRUTH.name] + ([topics.SCAN.name] if scans else [])
+    wanted = [*FinalTrajectoryBuilder.TOPICS, topics.SLAM_MAP.name, topics.ODOM.name, topics.TRUTH.name] \
+        + ([topics.SCAN.name] if scans else [])
     for m in read_recording(path, wanted):
         try:
             value = topics.by_name(m.topic).codec.decode(m.data, m.schema)
@@ -89,14 +92,15 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
         final.add(m.topic, value)
         if m.topic in (topics.MAP_POSE.name, topics.MAP_KEYFRAMES.name):
             continue
-        if m.topic == topics.SLAM_STATE.name:
+        if m.topic == topics.SLAM_MAP.name:
+            landmarks.apply_map(value)
+        elif m.topic == topics.SLAM_STATE.name:
             last = value
             states.append((last.stamp_ns, last.pose))
-            ids, sightings = last.landmark_ids, last.landmark_sightings
-            if not np.array_equal(ids, seen_ids) or not np.array_equal(sightings, seen_sightings):
-                for i in ids[_grown(ids, sightings, seen_ids, seen_sightings)]:
-                    seen_ns[int(i)] = last.stamp_ns
-                seen_ids, seen_sightings = ids, sightings
+            held = landmarks.landmarks
+            changed = landmarks.apply_state(last)
+            for i in changed.ids[_grown(changed.ids, changed.sightings, held.ids, held.sightings)]:
+                seen_ns[int(i)] = last.stamp_ns
         elif m.topic == topics.ODOM.name:
             odom[value.stamp_ns] = value.pose
         elif m.topic == topics.TRUTH.name:
@@ -105,7 +109,8 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
             scan_of[value.stamp_ns] = _ranges(value)
     if last is None:
         raise RecordingError(f"{describe_source(path)} has no decodable {topics.SLAM_STATE.name} messages")
-    return {"states": states, "odom": odom, "truth": truth, "last": last, "undecodable": undecodable,
+    return {"states": states, "odom": odom, "truth": truth, "last": last, "landmarks": landmarks.landmarks,
+            "undecodable": undecodable,
             "scans": scan_of, "scans_read": scans, "seen_ns": seen_ns, "final": final.result()}
 
 
@@ -204,21 +209,21 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None) -> 
     ``grid_params`` None: no grid.
     """
     stamps, poses, label = best_trajectory(data)
-    last = data["last"]
+    last, lms = data["last"], data["landmarks"]
     # Each landmark moves with the correction of the pose of the scan that saw it last.
     slam_at = dict(data["states"])
     corrections = []
-    for i in last.landmark_ids:
+    for i in lms.ids:
         s = data["seen_ns"].get(int(i), last.stamp_ns)
         k = max(int(np.searchsorted(stamps, s, side="right")) - 1, 0)
         slam = slam_at.get(int(stamps[k]), slam_at[last.stamp_ns])
         corrections.append(compose(poses[k], relative(slam, np.zeros(3))))
-    xy = np.array([compose(c, (*m, 0.0))[:2] for c, m in zip(corrections, last.landmark_xy_m)]).reshape(-1, 2)
+    xy = np.array([compose(c, (*m, 0.0))[:2] for c, m in zip(corrections, lms.xy_m)]).reshape(-1, 2)
     rots = [np.array([[np.cos(c[2]), -np.sin(c[2])], [np.sin(c[2]), np.cos(c[2])]]) for c in corrections]
-    cov = np.array([r @ c @ r.T for r, c in zip(rots, last.landmark_cov_m2)]).reshape(-1, 2, 2)
+    cov = np.array([r @ c @ r.T for r, c in zip(rots, lms.cov_m2)]).reshape(-1, 2, 2)
     truth_poses = {s: g.pose for s, g in data["truth"].items()}
     sc = Scene(name=describe_source(path), trajectory_label=label, stamps_ns=stamps, estimate=poses,
-               landmark_xy=xy, landmark_cov=cov, landmark_confirmed=np.asarray(last.landmark_confirmed, bool),
+               landmark_xy=xy, landmark_cov=cov, landmark_confirmed=np.asarray(lms.confirmed, bool),
                truth=_in_frame(stamps, poses, truth_poses), odometry=_in_frame(stamps, poses, data["odom"]))
     if sc.truth is not None:
         corners = {}
@@ -321,17 +326,16 @@ def write_grid(grid: OccupancyGrid, pgm: Path, yaml: Path, comment: str = "") ->
 
 
 def to_json(data: dict, sc: Scene | None = None) -> dict:
-    last = data["last"]
-    xy_map = sc.landmark_xy if sc is not None else last.landmark_xy_m
+    last, lms = data["last"], data["landmarks"]
+    xy_map = sc.landmark_xy if sc is not None else lms.xy_m
     doc = {
         "frame": "map (the first SLAM pose); landmarks' x_m, y_m in the EKF's frame, map_xy_m on map_trajectory",
         "landmarks": [
             {"id": int(i), "x_m": float(xy[0]), "y_m": float(xy[1]), "covariance_m2": c.tolist(),
              "kind": "forward" if k == 1 else "backward", "sightings": int(n), "confirmed": bool(ok),
              "map_xy_m": [float(v) for v in m]}
-            for i, xy, c, k, n, ok, m in zip(last.landmark_ids, last.landmark_xy_m, last.landmark_cov_m2,
-                                             last.landmark_kind, last.landmark_sightings, last.landmark_confirmed,
-                                             xy_map)
+            for i, xy, c, k, n, ok, m in zip(lms.ids, lms.xy_m, lms.cov_m2, lms.kind, lms.sightings,
+                                             lms.confirmed, xy_map)
         ],
         "trajectory": [{"stamp_ns": int(s), "x_m": float(p[0]), "y_m": float(p[1]), "theta_rad": float(p[2])}
                        for s, p in data["states"]],

@@ -1,4 +1,4 @@
-"""Regenerate ``src/lrfslam/msgs/v1/*_pb2.py`` from ``schemas/`` (needs grpcio-tools).
+"""Regenerate ``src/lrfslam/msgs/v*/*_pb2.py`` from ``schemas/`` (needs grpcio-tools).
 
     python -m lrfslam.tools.gen_schemas           # rewrite the generated modules
     python -m lrfslam.tools.gen_schemas --check   # exit 1 if they are out of date
@@ -44,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"out of date: src/{f}")
             return 1 if stale else 0
         for f in stale:
+            (OUT / f).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(Path(tmp) / f, OUT / f)
             print(f"wrote src/{f}")
     return 0

@@ -142,7 +142,7 @@ def query_latest_states(session: zenoh.Session, robot: str, timeout_s: float) ->
 def slam_lines(states: dict[str, t.SlamState]) -> list[str]:
     """A line per robot: the SLAM's pose and landmarks."""
     return [f"slam {robot}: pose x {s.pose[0]:.2f} m, y {s.pose[1]:.2f} m, heading {math.degrees(s.pose[2]):.1f} deg; "
-            f"{s.landmark_ids.size} landmarks ({int(s.landmark_confirmed.sum())} confirmed); state {s.seq}"
+            f"{s.n_landmarks} landmarks ({s.n_confirmed} confirmed); state {s.seq}"
             for robot, s in sorted(states.items())]
 
 

@@ -555,7 +555,7 @@ class LiveLine:
         if observer.last_state is not None:
             try:
                 state = codec.SLAM_STATE.decode(observer.last_state)
-                parts.append(f"landmarks {state.landmark_ids.size} ({int(state.landmark_confirmed.sum())} confirmed)")
+                parts.append(f"landmarks {state.n_landmarks} ({state.n_confirmed} confirmed)")
             except DecodeError:
                 pass
         if observer.matched:
@@ -643,8 +643,8 @@ def pose_errors(observer: Observer) -> dict[str, float] | None:
         "final_xy_m": observer.final[0],
         "final_heading_deg": float(np.degrees(observer.final[1])),
         "ate_rmse_m": float(np.sqrt(observer.sum_sq_m2 / observer.matched)),
-        "landmarks": float(last.landmark_ids.size),
-        "confirmed": float(last.landmark_confirmed.sum()),
+        "landmarks": float(last.n_landmarks),
+        "confirmed": float(last.n_confirmed),
     }
 
 

@@ -24,6 +24,7 @@ from lrfslam.algo.geometry import compose, polar_to_xy, relative
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.viz.foxglove import ellipse_axes
 
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
@@ -121,6 +122,7 @@ class DashboardModel:
         self.states = 0                    # SLAM states received
         self.version = 0                   # bumped on every change the page would show
         self.state: t.SlamState | None = None
+        self.map = LandmarkMapReplica()
         self._waiting: dict[str, OrderedDict[int, Any]] = {
             name: OrderedDict() for name in (topics.SCAN.name, topics.SCAN_FILTERED.name, topics.FEATURES.name)}
         self.scan_xy: np.ndarray = np.zeros((0, 2))      # laser frame, of the newest state's scan
@@ -164,6 +166,8 @@ class DashboardModel:
             self._wait(name, value.stamp_ns, value)
         elif name == topics.SLAM_STATE.name:
             self._slam(value)
+        elif name == topics.SLAM_MAP.name:
+            self.map.apply_map(value)
         elif name == topics.TRUTH.name:
             self._truth[value.stamp_ns] = np.asarray(value.pose, float)
             while len(self._truth) > _TRUTH_BY_STAMP:
@@ -199,6 +203,7 @@ class DashboardModel:
     def _slam(self, state: t.SlamState) -> None:
         self.states += 1
         self.state = state
+        self.map.apply_state(state)
         stamp = state.stamp_ns
         scan = self._waiting[topics.SCAN.name].get(stamp)
         filtered = self._waiting[topics.SCAN_FILTERED.name].get(stamp)
@@ -261,11 +266,11 @@ class DashboardModel:
         if st is None:
             return snap | {"pose": None, "landmarks": [], "scan": [], "kept": [], "corners": []}
         landmarks = []
-        for i, lid in enumerate(st.landmark_ids):
-            major, minor, yaw = ellipse_axes(st.landmark_cov_m2[i])
-            landmarks.append([round(float(st.landmark_xy_m[i, 0]), 3), round(float(st.landmark_xy_m[i, 1]), 3),
-                              round(major, 4), round(minor, 4), round(yaw, 4), int(lid),
-                              bool(st.landmark_confirmed[i])])
+        lms = self.map.landmarks
+        for i, lid in enumerate(lms.ids):
+            major, minor, yaw = ellipse_axes(lms.cov_m2[i])
+            landmarks.append([round(float(lms.xy_m[i, 0]), 3), round(float(lms.xy_m[i, 1]), 3),
+                              round(major, 4), round(minor, 4), round(yaw, 4), int(lid), bool(lms.confirmed[i])])
         corners = _moved(st.pose, self.corners[:, :2]) if self.corners.size else []
         kinds = self.corners[:, 2].astype(int).tolist() if self.corners.size else []
         return snap | {

@@ -13,7 +13,7 @@ lrfslam topic              view channel                    schema               
 scan                       /foxglove/scan                  foxglove.LaserScan        laser
 scan/filtered              /foxglove/scan/filtered         foxglove.LaserScan        laser
 features                   /foxglove/features              foxglove.SceneUpdate      laser
-slam/state                 /foxglove/landmarks             foxglove.SceneUpdate      slam
+slam/state, slam/map       /foxglove/landmarks             foxglove.SceneUpdate      slam
 slam/state                 /foxglove/trajectory/slam       foxglove.PosesInFrame     slam
 map/pose, map/keyframes    /foxglove/trajectory/map        foxglove.PosesInFrame     map
 odom                       /foxglove/trajectory/odom       foxglove.PosesInFrame     odom
@@ -55,6 +55,7 @@ from lrfslam.algo.stream_alignment import interpolate_pose
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 
 P = topics.FOXGLOVE_PREFIX
 SCAN = P + "scan"
@@ -259,19 +260,20 @@ def features_scene(features: t.Features) -> fm.SceneUpdate:
     return replace_all(features.stamp_ns, entities)
 
 
-def landmarks_scene(state: t.SlamState) -> fm.SceneUpdate:
-    """The EKF's landmarks with 95 % ellipses and ids, and the robot's position ellipse, in the slam frame."""
+def landmarks_scene(state: t.SlamState, landmarks: t.Landmarks) -> fm.SceneUpdate:
+    """The EKF's ``landmarks`` (its map at ``state``) with 95 % ellipses and ids, and the robot's position
+    ellipse, in the slam frame."""
     ts = timestamp(state.stamp_ns)
     entities = []
-    for i, lid in enumerate(state.landmark_ids):
-        rgba = LANDMARK_RGBA if state.landmark_confirmed[i] else TENTATIVE_RGBA
-        x, y = state.landmark_xy_m[i]
-        meta = [fm.KeyValuePair(key="sightings", value=str(int(state.landmark_sightings[i]))),
-                fm.KeyValuePair(key="confirmed", value=str(bool(state.landmark_confirmed[i])).lower()),
-                fm.KeyValuePair(key="kind", value="corner" if state.landmark_kind[i] == t.FEATURE_FORWARD
+    for i, lid in enumerate(landmarks.ids):
+        rgba = LANDMARK_RGBA if landmarks.confirmed[i] else TENTATIVE_RGBA
+        x, y = landmarks.xy_m[i]
+        meta = [fm.KeyValuePair(key="sightings", value=str(int(landmarks.sightings[i]))),
+                fm.KeyValuePair(key="confirmed", value=str(bool(landmarks.confirmed[i])).lower()),
+                fm.KeyValuePair(key="kind", value="corner" if landmarks.kind[i] == t.FEATURE_FORWARD
                                 else "jump_edge")]
         entities.append(fm.SceneEntity(timestamp=ts, frame_id=SLAM, id=f"landmark/{int(lid)}", metadata=meta,
-                                       spheres=[marker(x, y, rgba), ellipse(x, y, state.landmark_cov_m2[i], rgba)],
+                                       spheres=[marker(x, y, rgba), ellipse(x, y, landmarks.cov_m2[i], rgba)],
                                        texts=[label(x, y, str(int(lid)), rgba)]))
     x, y, _ = state.pose
     entities.append(fm.SceneEntity(timestamp=ts, frame_id=SLAM, id="pose",
@@ -359,10 +361,11 @@ class FoxgloveViews:
         self._map_from_slam = np.zeros(3)
         self._world_from_map: np.ndarray | None = None
         self._landmarks_sent_ns: int | None = None
+        self._map = LandmarkMapReplica()
         self._health: dict[str, tuple[int, str]] = {}
         self._handlers: dict[str, Callable[[Any, int], list[View]]] = {
             topics.SCAN.name: self._scan, topics.SCAN_FILTERED.name: self._filtered,
-            topics.FEATURES.name: self._features, topics.SLAM_STATE.name: self._slam,
+            topics.FEATURES.name: self._features, topics.SLAM_STATE.name: self._slam, topics.SLAM_MAP.name: self._map_of,
             topics.ODOM.name: self._odometry, topics.TRUTH.name: self._ground_truth,
             topics.MAP_POSE.name: self._map_pose, topics.MAP_KEYFRAMES.name: self._keyframes,
         }
@@ -411,7 +414,12 @@ class FoxgloveViews:
         self._truth.append((truth.stamp_ns, truth.pose))
         return self._path(TRAJECTORY_TRUTH, truth.stamp_ns, truth.pose, at)
 
+    def _map_of(self, landmarks: t.LandmarkMap, at: int) -> list[View]:
+        self._map.apply_map(landmarks)   # drawn with the next state
+        return []
+
     def _slam(self, state: t.SlamState, at: int) -> list[View]:
+        self._map.apply_state(state)
         stamp = state.stamp_ns
         map_pose = compose(self._map_from_slam, state.pose)
         tfs = [transform(stamp, MAP, SLAM, self._map_from_slam)]
@@ -432,7 +440,7 @@ class FoxgloveViews:
         sent = self._landmarks_sent_ns
         if sent is None or not 0 <= stamp - sent < self.cfg.landmark_period_s * 1e9:
             self._landmarks_sent_ns = stamp
-            views.append(View(LANDMARKS, landmarks_scene(state), at))
+            views.append(View(LANDMARKS, landmarks_scene(state, self._map.landmarks), at))
         return views + self._path(TRAJECTORY_SLAM, stamp, state.pose, at)
 
     def _map_pose(self, mp: t.MapPose, at: int) -> list[View]:

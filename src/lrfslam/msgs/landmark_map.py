@@ -1,0 +1,122 @@
+"""The slam stage's landmark map as its subscribers hold it: the changes it sends, and the map rebuilt.
+
+A slam state carries only the landmarks that changed since the previous state; ``slam/map``
+carries the whole map at a low rate, at the first and the last state, and on request. The
+stage decides what to send with :func:`changes` and keeps what it has sent with :func:`apply`,
+the function every subscriber's :class:`LandmarkMapReplica` applies too, so the stage knows
+exactly the map its subscribers rebuild: within the tolerance of the filter's, and exactly
+the filter's at each whole map.
+
+A landmark is sent again when it moved more than the tolerance, when its standard deviation
+along x, y or either diagonal changed more than it (those four fix a 2x2 covariance), or when
+its kind, sightings or confirmation changed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lrfslam.msgs import types as t
+
+
+def _sigmas(cov_m2: np.ndarray) -> np.ndarray:
+    """Standard deviations (L, 4) along x, y and the two diagonals of covariances (L, 2, 2), m."""
+    xx, yy, xy = cov_m2[:, 0, 0], cov_m2[:, 1, 1], 0.5 * (cov_m2[:, 0, 1] + cov_m2[:, 1, 0])
+    var = np.column_stack((xx, yy, 0.5 * (xx + yy) + xy, 0.5 * (xx + yy) - xy))
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def by_id(landmarks: t.Landmarks) -> t.Landmarks:
+    """``landmarks`` sorted by id."""
+    order = np.argsort(landmarks.ids, kind="stable")
+    return landmarks if np.array_equal(order, np.arange(len(landmarks))) else landmarks.take(order)
+
+
+def changes(sent: t.Landmarks, current: t.Landmarks, tolerance_m: float) -> tuple[t.Landmarks, np.ndarray]:
+    """What a state must carry so that a map equal to ``sent`` follows ``current``.
+
+    Parameters
+    ----------
+    sent : the map the subscribers hold, sorted by id.
+    current : the filter's map, any order.
+    tolerance_m : how far a landmark may move, or a standard deviation change, unsent (m).
+
+    Returns
+    -------
+    (the rows of ``current`` to send, sorted by id; the ids (R,) to remove)
+    """
+    current = by_id(current)
+    send = np.ones(len(current), bool)
+    if len(sent):
+        pos = np.minimum(np.searchsorted(sent.ids, current.ids), len(sent) - 1)
+        known = sent.ids[pos] == current.ids
+        old, new = sent.take(pos[known]), current.take(known)
+        moved = np.hypot(*(new.xy_m - old.xy_m).T) > tolerance_m
+        spread = np.any(np.abs(_sigmas(new.cov_m2) - _sigmas(old.cov_m2)) > tolerance_m, axis=1)
+        relabelled = (new.kind != old.kind) | (new.sightings != old.sightings) | (new.confirmed != old.confirmed)
+        send[known] = moved | spread | relabelled
+    return current.take(send), np.setdiff1d(sent.ids, current.ids)
+
+
+def apply(held: t.Landmarks, changed: t.Landmarks, removed_ids: np.ndarray) -> t.Landmarks:
+    """The map ``held`` (sorted by id) after one state's ``changed`` rows and ``removed_ids``; sorted by id."""
+    if not len(changed) and not np.size(removed_ids):
+        return held
+    keep = ~np.isin(held.ids, removed_ids) & ~np.isin(held.ids, changed.ids)
+    kept = held.take(keep)
+    return by_id(t.Landmarks(
+        np.concatenate((kept.ids, changed.ids)), np.concatenate((kept.xy_m, changed.xy_m)),
+        np.concatenate((kept.cov_m2, changed.cov_m2)), np.concatenate((kept.kind, changed.kind)),
+        np.concatenate((kept.sightings, changed.sightings)), np.concatenate((kept.confirmed, changed.confirmed))))
+
+
+class LandmarkMapReplica:
+    """The landmark map rebuilt from ``slam/map`` and ``slam/state`` messages, fed in the order they came.
+
+    ``complete`` says whether the map is the slam stage's (within its tolerance): it becomes
+    true at a whole map (a ``slam/map``, or a v1 state, which held the whole map) or at the
+    stage's first state (the map before it was empty), and false when a state is missing
+    (its number skipped, or numbers going back: a restarted stage, until its whole map
+    comes). ``missed`` counts the states found missing.
+    """
+
+    def __init__(self) -> None:
+        self.landmarks = t.Landmarks()
+        self.state_seq: int | None = None   # the state the map follows
+        self.complete = False
+        self.missed = 0
+        self._map_seq: int | None = None    # the state of the last whole map
+
+    def apply_map(self, m: t.LandmarkMap) -> None:
+        """Take a whole map: it replaces what is held."""
+        self.landmarks = by_id(m.landmarks)
+        self.state_seq = self._map_seq = m.state_seq
+        self.complete = True
+
+    def apply_state(self, state: t.SlamState) -> t.Landmarks:
+        """Apply one state's changes; the landmarks it changed (all of them for a v1 state; none if skipped)."""
+        if state.landmarks_complete:
+            self.landmarks = by_id(state.landmarks)
+            self.state_seq, self.complete = state.seq, True
+            return self.landmarks
+        if self.state_seq is not None and state.seq <= self.state_seq:
+            # The state of the whole map just taken is in it; any other was reordered or restarted.
+            if state.seq != self._map_seq:
+                self.complete = False
+                self.missed += 1
+            return t.Landmarks()
+        if self.state_seq is None:
+            self.complete = state.seq == 1
+        elif state.seq != self.state_seq + 1:
+            self.complete = False
+            self.missed += state.seq - self.state_seq - 1
+        self.landmarks = apply(self.landmarks, state.landmarks, state.removed_landmark_ids)
+        self.state_seq = state.seq
+        return by_id(state.landmarks)
+
+    def apply_message(self, value: t.SlamState | t.LandmarkMap) -> None:
+        """Apply a decoded ``slam/state`` or ``slam/map`` message."""
+        if isinstance(value, t.LandmarkMap):
+            self.apply_map(value)
+        else:
+            self.apply_state(value)

@@ -1,0 +1,125 @@
+"""The landmark map sent as changes: what a subscriber rebuilds is the filter's map within the
+tolerance after every state, exactly the filter's at every whole map, and it knows when it is not."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lrfslam.msgs import types as t
+from lrfslam.msgs.landmark_map import LandmarkMapReplica, _sigmas, apply, by_id, changes
+
+TOL = 0.005
+
+
+def random_map(rng: np.random.Generator, ids) -> t.Landmarks:
+    n = len(ids)
+    a = rng.normal(size=(n, 2, 2)) * 0.05
+    return t.Landmarks(ids, rng.uniform(-20, 20, (n, 2)), a @ a.transpose(0, 2, 1) + 1e-4 * np.eye(2),
+                       rng.choice([1, 2], n), rng.integers(1, 5, n), rng.random(n) < 0.5)
+
+
+def evolve(rng: np.random.Generator, m: t.Landmarks, next_id: int) -> tuple[t.Landmarks, int]:
+    """One filter update's worth of change: most landmarks drift by less than the tolerance, some
+    jump, some spread changes, a few are seen again, born or removed; the filter's order is shuffled."""
+    n = len(m)
+    scale = np.where(rng.random(n) < 0.2, 0.05, 0.001)
+    xy = m.xy_m + rng.normal(size=(n, 2)) * scale[:, None]
+    cov = m.cov_m2 * np.where(rng.random(n) < 0.1, 0.7, 1.0)[:, None, None]
+    sightings = m.sightings + (rng.random(n) < 0.1)
+    confirmed = m.confirmed | (sightings > 3)
+    moved = t.Landmarks(m.ids, xy, cov, m.kind, sightings, confirmed)
+    kept = moved.take(rng.random(n) > 0.05)
+    born = rng.integers(0, 3)
+    new = random_map(rng, np.arange(next_id, next_id + born))
+    both = t.Landmarks(*(np.concatenate((getattr(kept, f), getattr(new, f)))
+                         for f in ("ids", "xy_m", "cov_m2", "kind", "sightings", "confirmed")))
+    return both.take(rng.permutation(len(both))), next_id + born
+
+
+def assert_within(held: t.Landmarks, exact: t.Landmarks, tol: float) -> None:
+    exact = by_id(exact)
+    np.testing.assert_array_equal(held.ids, exact.ids)
+    for name in ("kind", "sightings", "confirmed"):
+        np.testing.assert_array_equal(getattr(held, name), getattr(exact, name))
+    assert np.all(np.hypot(*(held.xy_m - exact.xy_m).T) <= tol)
+    assert np.all(np.abs(_sigmas(held.cov_m2) - _sigmas(exact.cov_m2)) <= tol)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), steps=st.integers(1, 60), every=st.integers(1, 25),
+       tol=st.sampled_from([0.0, TOL, 0.05]))
+def test_the_rebuilt_map_follows_the_filter_within_the_tolerance(seed, steps, every, tol):
+    rng = np.random.default_rng(seed)
+    exact, next_id = random_map(rng, np.arange(rng.integers(0, 8))), 100
+    sent, replica = t.Landmarks(), LandmarkMapReplica()
+    sizes = []
+    for seq in range(1, steps + 1):
+        if seq > 1:
+            exact, next_id = evolve(rng, exact, next_id)
+        changed, removed = changes(sent, exact, tol)
+        sent = apply(sent, changed, removed)
+        replica.apply_state(t.SlamState(seq, seq, seq, np.zeros(3), np.eye(3), changed, removed))
+        assert replica.complete and replica.state_seq == seq
+        assert_within(replica.landmarks, exact, tol)
+        sizes.append(len(changed))
+        if seq % every == 0:   # a whole map: exact again, and the sender holds it too
+            sent = by_id(exact)
+            replica.apply_map(t.LandmarkMap(seq, seq // every, seq, exact, tol))
+            assert_within(replica.landmarks, exact, 0.0)
+    if tol == 0.0:
+        return
+    # Only what changed travels: untouched landmarks stay home.
+    assert sum(sizes[1:]) < sum(len(exact) for _ in sizes[1:]) or steps == 1
+
+
+def test_an_unchanged_map_sends_nothing_and_a_removed_landmark_is_named():
+    rng = np.random.default_rng(3)
+    m = random_map(rng, [5, 2, 9])
+    changed, removed = changes(by_id(m), m, TOL)
+    assert len(changed) == 0 and removed.size == 0
+    changed, removed = changes(by_id(m), m.take([0, 2]), TOL)
+    assert len(changed) == 0 and removed.tolist() == [2]
+    # A spread change along a diagonal alone (same x and y variances) is a change too.
+    cov = m.cov_m2.copy()
+    cov[0, 0, 1] = cov[0, 1, 0] = cov[0, 0, 1] + 0.5 * np.sqrt(cov[0, 0, 0] * cov[0, 1, 1])
+    tilted = t.Landmarks(m.ids, m.xy_m, cov, m.kind, m.sightings, m.confirmed)
+    changed, _ = changes(by_id(m), tilted, 1e-4)
+    assert changed.ids.tolist() == [5]
+
+
+def state(seq: int, changed: t.Landmarks | None = None, removed=()) -> t.SlamState:
+    return t.SlamState(seq, seq, seq, np.zeros(3), np.eye(3), changed or t.Landmarks(), removed)
+
+
+def test_the_replica_knows_when_it_missed_a_state():
+    rng = np.random.default_rng(4)
+    m = random_map(rng, [1, 2, 3])
+    joined = LandmarkMapReplica()
+    joined.apply_state(state(7, m))
+    assert not joined.complete             # joined mid-stream: the map before state 7 is unknown
+    joined.apply_map(t.LandmarkMap(7, 1, 7, m, TOL))
+    assert joined.complete
+    joined.apply_state(state(7, m))        # the map's own state, after it: already in it
+    assert joined.complete and joined.missed == 0
+    joined.apply_state(state(9))           # state 8 lost
+    assert not joined.complete and joined.missed == 1
+    joined.apply_map(t.LandmarkMap(9, 2, 9, m.take([0]), TOL))
+    assert joined.complete and joined.landmarks.ids.tolist() == [1]
+    joined.apply_state(state(5))           # numbers going back: a restarted stage, until its map
+    assert not joined.complete and joined.missed == 2
+    joined.apply_map(t.LandmarkMap(5, 1, 5, m, TOL))
+    joined.apply_state(state(6, t.Landmarks(), [2]))
+    assert joined.complete and joined.landmarks.ids.tolist() == [1, 3]
+
+
+def test_a_first_state_and_a_v1_state_are_whole_maps():
+    m = random_map(np.random.default_rng(5), [4, 8])
+    first = LandmarkMapReplica()
+    first.apply_state(state(1, m))
+    assert first.complete and first.landmarks.ids.tolist() == [4, 8]
+    old = LandmarkMapReplica()
+    v1 = t.SlamState(30, 30, 30, np.zeros(3), np.eye(3), m.take([1]), (), True, 1, 0)
+    assert old.apply_state(v1).ids.tolist() == [8]
+    assert old.complete and old.landmarks.ids.tolist() == [8]
