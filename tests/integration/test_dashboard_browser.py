@@ -29,6 +29,7 @@ import websockets
 from conftest import free_port
 
 from lrfslam import services
+from lrfslam.tools.status import query_latest_states
 
 pytestmark = [pytest.mark.slow, pytest.mark.integration]
 
@@ -155,6 +156,9 @@ def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_
         url = f"http://127.0.0.1:{http}/state.json"
         snap = wait_state(url, lambda s: s["states"] >= 1, 30, "the slam's latest state")
         assert snap["scans"] == 0 and snap["landmarks"] and snap["pose"] and snap["map_trajectory"]
+        # The whole map, from the slam's latest/slam/map: every landmark its newest state counts.
+        (newest,) = query_latest_states(session, cluster.robot, 5.0).values()
+        assert len(snap["landmarks"]) == newest.n_landmarks
         assert {r["service"] for r in snap["services"]} >= set(STAGES)
 
         cluster.start("sensor", *SENSOR)
