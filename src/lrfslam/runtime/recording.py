@@ -35,7 +35,7 @@ import re
 import struct
 import tempfile
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -585,6 +585,33 @@ def read_recording(source: RecordingSource, topics: Iterable[str] | None = None,
         streams.append(_read_file(path, topic_list, seg, report))
     merged = streams[0] if len(streams) == 1 else heapq.merge(*streams, key=lambda m: m.log_time_ns)
     yield from _by_stamp(merged)
+
+
+def count_messages(source: RecordingSource, report: ReadReport | None = None) -> Counter[str]:
+    """Messages per topic in every file of ``source``, from each file's summary statistics.
+
+    Nothing is decompressed where a file has its summary, so counting an hour's recording
+    costs what its index does; a file without one (its writer was killed) is read through,
+    as :func:`read_recording` reads it, and its :class:`SegmentReport` says so.
+    """
+    report = report if report is not None else ReadReport()
+    counts: Counter[str] = Counter()
+    for path in recording_files(source):
+        seg = SegmentReport(path)
+        report.segments.append(seg)
+        with open(path, "rb") as f:
+            try:
+                summary = make_reader(f).get_summary()
+            except _PARSE_ERRORS:
+                summary = None
+        if summary is not None and summary.statistics is not None:
+            for channel_id, n in summary.statistics.channel_message_counts.items():
+                counts[summary.channels[channel_id].topic] += n
+                seg.messages += n
+            continue
+        for m in _read_file(path, None, seg, report):
+            counts[m.topic] += 1
+    return counts
 
 
 def _by_stamp(messages: Iterable[RecordedMessage]) -> Iterator[RecordedMessage]:

@@ -50,7 +50,7 @@ from lrfslam.errors import (
 from lrfslam.msgs import codec, topics
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import parse_attachment
-from lrfslam.runtime.recording import ReadReport, read_recording
+from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
 from lrfslam.tools.info import segment_lines
 from lrfslam.tools.status import client_config
@@ -344,7 +344,7 @@ def remove_if_empty(recording: Path) -> None:
     if not recording.is_dir():
         return
     try:
-        empty = all(topics.is_health(m.topic) or topics.is_foxglove(m.topic) for m in read_recording(recording))
+        empty = all(topics.is_health(name) or topics.is_foxglove(name) for name in count_messages(recording))
     except LrfSlamError:
         empty = True
     if empty:
@@ -714,7 +714,7 @@ def recording_lines(recording: Path, published_scans: int | None) -> list[str]:
         return (f"scans published by the sensor {published_scans} / scans in the recording {recorded} / "
                 f"lost {published_scans - recorded}")
     try:
-        per_topic = Counter(m.topic for m in read_recording(recording, report=report))
+        per_topic = count_messages(recording, report)
     except RecordingError as exc:
         return [lost(0), f"recording: {recording} was not written ({exc})"]
     size = sum(seg.path.stat().st_size for seg in report.segments)
