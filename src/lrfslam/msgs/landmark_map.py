@@ -22,14 +22,23 @@ from lrfslam.msgs import types as t
 def _sigmas(cov_m2: np.ndarray) -> np.ndarray:
     """Standard deviations (L, 4) along x, y and the two diagonals of covariances (L, 2, 2), m."""
     xx, yy, xy = cov_m2[:, 0, 0], cov_m2[:, 1, 1], 0.5 * (cov_m2[:, 0, 1] + cov_m2[:, 1, 0])
-    var = np.column_stack((xx, yy, 0.5 * (xx + yy) + xy, 0.5 * (xx + yy) - xy))
-    return np.sqrt(np.maximum(var, 0.0))
+    mid = 0.5 * (xx + yy)
+    return np.sqrt(np.maximum(np.stack((xx, yy, mid + xy, mid - xy), axis=1), 0.0))
+
+
+def _rows(held_ids: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each of ``ids`` sits in the sorted ``held_ids`` (N,), and whether it is there (N,) bool."""
+    if not held_ids.size:
+        return np.zeros(ids.size, np.intp), np.zeros(ids.size, bool)
+    pos = np.minimum(np.searchsorted(held_ids, ids), held_ids.size - 1)
+    return pos, held_ids[pos] == ids
 
 
 def by_id(landmarks: t.Landmarks) -> t.Landmarks:
     """``landmarks`` sorted by id."""
-    order = np.argsort(landmarks.ids, kind="stable")
-    return landmarks if np.array_equal(order, np.arange(len(landmarks))) else landmarks.take(order)
+    if np.all(landmarks.ids[1:] > landmarks.ids[:-1]):
+        return landmarks
+    return landmarks.take(np.argsort(landmarks.ids, kind="stable"))
 
 
 def changes(sent: t.Landmarks, current: t.Landmarks, tolerance_m: float) -> tuple[t.Landmarks, np.ndarray]:
@@ -46,28 +55,43 @@ def changes(sent: t.Landmarks, current: t.Landmarks, tolerance_m: float) -> tupl
     (the rows of ``current`` to send, sorted by id; the ids (R,) to remove)
     """
     current = by_id(current)
-    send = np.ones(len(current), bool)
-    if len(sent):
-        pos = np.minimum(np.searchsorted(sent.ids, current.ids), len(sent) - 1)
-        known = sent.ids[pos] == current.ids
-        old, new = sent.take(pos[known]), current.take(known)
-        moved = np.hypot(*(new.xy_m - old.xy_m).T) > tolerance_m
-        spread = np.any(np.abs(_sigmas(new.cov_m2) - _sigmas(old.cov_m2)) > tolerance_m, axis=1)
-        relabelled = (new.kind != old.kind) | (new.sightings != old.sightings) | (new.confirmed != old.confirmed)
-        send[known] = moved | spread | relabelled
-    return current.take(send), np.setdiff1d(sent.ids, current.ids)
+    pos, known = _rows(sent.ids, current.ids)
+    send = ~known
+    if known.any():
+        # Rows not held are sent anyway; what they are compared with does not matter.
+        step = current.xy_m - sent.xy_m[pos]
+        send |= np.hypot(step[:, 0], step[:, 1]) > tolerance_m
+        send |= (np.abs(_sigmas(current.cov_m2) - _sigmas(sent.cov_m2[pos])) > tolerance_m).any(axis=1)
+        send |= (current.kind != sent.kind[pos]) | (current.sightings != sent.sightings[pos]) \
+            | (current.confirmed != sent.confirmed[pos])
+    _, kept = _rows(current.ids, sent.ids)
+    return current.take(send), sent.ids[~kept]
+
+
+_FIELDS = ("xy_m", "cov_m2", "kind", "sightings", "confirmed")
 
 
 def apply(held: t.Landmarks, changed: t.Landmarks, removed_ids: np.ndarray) -> t.Landmarks:
     """The map ``held`` (sorted by id) after one state's ``changed`` rows and ``removed_ids``; sorted by id."""
-    if not len(changed) and not np.size(removed_ids):
+    removed_ids = np.asarray(removed_ids, np.int64)
+    if not len(changed) and not removed_ids.size:
         return held
-    keep = ~np.isin(held.ids, removed_ids) & ~np.isin(held.ids, changed.ids)
-    kept = held.take(keep)
-    return by_id(t.Landmarks(
-        np.concatenate((kept.ids, changed.ids)), np.concatenate((kept.xy_m, changed.xy_m)),
-        np.concatenate((kept.cov_m2, changed.cov_m2)), np.concatenate((kept.kind, changed.kind)),
-        np.concatenate((kept.sightings, changed.sightings)), np.concatenate((kept.confirmed, changed.confirmed))))
+    pos, known = _rows(held.ids, changed.ids)
+    if known.all() and not removed_ids.size:
+        # The usual state: landmarks seen again, none born or dropped; rows replaced in place.
+        columns = {}
+        for name in _FIELDS:
+            column = getattr(held, name).copy()
+            column[pos] = getattr(changed, name)
+            columns[name] = column
+        return t.Landmarks(held.ids, **columns)
+    drop = np.zeros(len(held), bool)
+    drop[pos[known]] = True
+    at, there = _rows(held.ids, removed_ids)
+    drop[at[there]] = True
+    kept = held.take(~drop)
+    return by_id(t.Landmarks(np.concatenate((kept.ids, changed.ids)),
+                             **{name: np.concatenate((getattr(kept, name), getattr(changed, name))) for name in _FIELDS}))
 
 
 class LandmarkMapReplica:
