@@ -27,6 +27,7 @@ import zenoh
 from lrfslam.services.sensor import SensorConfig, SimSource
 
 from lrfslam.msgs import codec, topics
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime.recording import read_recording
 from lrfslam.tools.status import client_config, query_status
 
@@ -190,6 +191,12 @@ def test_a_killed_stage_is_restarted_and_the_run_holds(stage, baseline, tmp_path
         assert seqs[restart] > KILL_AFTER_STATES - 50
         health = [codec.SERVICE_STATUS.decode(m.data) for m in read_recording(run.recording, ["health/slam"])]
         assert health[-1].counters.get("step.restored") == 1
+        # The restarted filter's map replaces the killed one's in every reader (its whole map follows
+        # its first state): the recording rebuilds the map its last state counts.
+        replica = LandmarkMapReplica()
+        for m in read_recording(run.recording, [topics.SLAM_STATE.name, topics.SLAM_MAP.name]):
+            replica.apply_message(topics.by_name(m.topic).codec.decode(m.data, m.schema))
+        assert replica.complete and len(replica.landmarks) == states[-1].n_landmarks > 0
     if stage == "mapper":
         poses = [codec.MAP_POSE.decode(m.data) for m in read_recording(run.recording, [topics.MAP_POSE.name])]
         (restart,) = [i for i in range(1, len(poses)) if poses[i].seq != poses[i - 1].seq + 1]
