@@ -291,8 +291,8 @@ def test_pipeline_across_hosts_with_a_moved_slam_and_a_second_robot(hosts):
     assert slam_health[-1].counters.get("step.restored") == 1
     rec_health = [codec.SERVICE_STATUS.decode(m.data) for m in read_recording(rec1, ["health/recorder"])]
     restarts = {k: v for k, v in rec_health[-1].counters.items() if k.startswith("restart.")}
-    # The slam process published both its outputs anew: the state and its health.
-    assert restarts == {"restart.slam/state": 1, "restart.health/slam": 1}, restarts
+    # The slam process published all its outputs anew: the state, the whole map and its health.
+    assert restarts == {"restart.slam/state": 1, "restart.slam/map": 1, "restart.health/slam": 1}, restarts
 
     # -- no crosstalk: each recording holds its own robot's streams, each once, and nothing else
     for robot, rec in (("r1", rec1), ("r2", rec2)):
