@@ -231,6 +231,7 @@ def test_up_without_a_sensor_runs_on_a_recording_played_in(tmp_path):
     assert set(rows) == {"denoise", "features", "slam", "mapper", "recorder"} and "sensor" not in out.split("SLAM:")[0]
     for name, row in rows.items():
         assert row[3:5] == ["0", "0"], (name, row)   # dropped, gaps
-    assert rows["denoise"][1] == "80" and rows["slam"][2] == "80"
+    # The slam's outputs: 80 states and its whole map at the first, at 5 s of data time and at the last.
+    assert rows["denoise"][1] == "80" and rows["slam"][2] == "83"
     assert "SLAM: 80 scans" in out
     assert "scans in the recording 80 (no sensor: played in or published by another process)" in out
