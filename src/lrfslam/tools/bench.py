@@ -175,9 +175,10 @@ def rate_rows(runs: Sequence[live.LiveRun]) -> list[cost.Row]:
     rows = []
     for run in sorted(runs, key=lambda r: r.rate_hz):
         p99 = run.age_us.get("slam", (0, float("nan")))[1] / 1e3
-        backlog = max((max(s) for s in run.pending.values() if s), default=0)
+        backlog, where = max(((max(s), name) for name, s in run.pending.items() if s), default=(0, ""))
         rows.append(cost.Row("max rate", f"{run.rate_hz:g} scans/s for {run.duration_s:g} s", p99, "ms",
-                             note=f"slam age p99; largest queue.pending {backlog}; {run.verdict()}"))
+                             note=f"slam age p99; largest queue.pending {backlog}" + (f" ({where})" if where else "")
+                                  + f"; {run.verdict()}"))
     held = [r.rate_hz for r in runs if r.held]
     rows.append(cost.Row("max rate", "highest rate held", max(held) if held else float("nan"), "scans/s",
                          note=f"tried {', '.join(f'{r.rate_hz:g}' for r in runs)}"))

@@ -3,9 +3,9 @@
 * :func:`run_up`: ``lrfslam up`` (router, sensor, denoise, features, slam, mapper, recorder, each its
   own process) on the simulator at a given scan rate for a given time. The sensor runs at speedup 1
   with ``sensor.rate_hz`` set to the rate and the robot's speed scaled with it (``SCAN_SPACING_M``
-  per scan, the default 0.5 m/s at 10 Hz), so every rate gives the same scans as ``lrfslam up
-  --speedup X`` would, stamped on the wall clock: the stages report their ``age`` (sensor stamp to
-  output, src/lrfslam/runtime/latency.py), which they do not under a speedup. While it runs, a
+  per scan, the default 0.5 m/s at 10 Hz), so every rate gives the path and scan spacing of
+  ``lrfslam up --speedup X``, stamped on the wall clock: the stages report their ``age`` (sensor
+  stamp to output, src/lrfslam/runtime/latency.py), which they do not under a speedup. While it runs, a
   :class:`Sampler` asks every service's status once a second (``queue.pending``, the ``age``
   percentiles) and reads every process's peak resident memory; up's summary gives drops and gaps.
 * :func:`run_play`: ``lrfslam up --skip sensor`` and ``lrfslam play RECORDING --rate max`` into it
@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from lrfslam.errors import StartupError
 from lrfslam.msgs import types as t
 from lrfslam.runtime.runner import BACKLOG
 from lrfslam.tools.status import client_config, query_status
@@ -161,15 +162,15 @@ class Sampler:
 
         Raises
         ------
-        RuntimeError
+        StartupError
             ``proc`` (up) exited meanwhile, or ``timeout_s`` passed.
         """
         deadline = time.monotonic() + timeout_s
         while not set(names) <= self.alive:
             if proc.poll() is not None:
-                raise RuntimeError(f"lrfslam up exited with {proc.returncode} while starting")
+                raise StartupError(f"lrfslam up exited with {proc.returncode} while starting")
             if time.monotonic() > deadline:
-                raise RuntimeError(f"not alive after {timeout_s:.0f} s: {sorted(set(names) - self.alive)}")
+                raise StartupError(f"not alive after {timeout_s:.0f} s: {', '.join(sorted(set(names) - self.alive))}")
             time.sleep(0.2)
 
     def stop(self) -> None:
@@ -246,6 +247,8 @@ def run_up(rate_hz: float, duration_s: float, workdir: Path, seed: int = 1) -> L
     sampler = Sampler(endpoint, ROBOT, up.pid, while_alive="sensor")
     try:
         stdout, _ = up.communicate(timeout=duration_s + 180)
+    except subprocess.TimeoutExpired:   # stopped below: the run did not hold, its verdict says why
+        stdout = ""
     finally:
         _stop(up, 30)
         sampler.stop()
