@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -23,15 +22,10 @@ import time
 
 import zenoh
 
+from lrfslam.tools.bench_live import free_port
 from lrfslam.tools.status import client_config, format_table, query_status
 
 ROBOT = "bench"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def snapshot(session: zenoh.Session) -> dict:

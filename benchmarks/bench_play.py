@@ -14,7 +14,6 @@ sequence, payload bytes). docs/delivery.md holds the figures. Timing lives here,
 from __future__ import annotations
 
 import argparse
-import socket
 import subprocess
 import sys
 import tempfile
@@ -25,15 +24,10 @@ import zenoh
 
 from lrfslam import services
 from lrfslam.runtime.recording import read_recording
+from lrfslam.tools.bench_live import free_port
 from lrfslam.tools.status import client_config, query_status
 
 ROBOT = "bench"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def cli(*args: str, cwd: Path) -> subprocess.Popen:

@@ -15,7 +15,8 @@ Run single-threaded for stable numbers::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_scan_match.py [--intel intel.mcap]
 
-(``lrfslam import carmen intel.clf.bz2 -o intel.mcap`` makes the recording.)
+(``lrfslam import carmen intel.clf.bz2 -o intel.mcap`` makes the recording.) ``lrfslam bench
+--only stages`` gives the tracker step on the simulated scans in its one table.
 """
 
 from __future__ import annotations
@@ -30,8 +31,7 @@ from lrfslam.algo.scan_match import ReferenceScan, ScanMatchParams, ScanTracker,
 from lrfslam.msgs import topics
 from lrfslam.runtime.recording import read_recording
 from lrfslam.sim.simulator import SimConfig, Simulator
-
-ODOM_COV = np.diag([1e-4, 1e-4, 1e-4])
+from lrfslam.tools.bench_cost import ODOM_COV
 
 
 def sim_scans(n: int):

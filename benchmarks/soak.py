@@ -18,8 +18,6 @@ or any process restarted. docs/operations.md holds the figures. Timing lives her
 from __future__ import annotations
 
 import argparse
-import re
-import socket
 import subprocess
 import sys
 import tempfile
@@ -29,43 +27,17 @@ from pathlib import Path
 
 import numpy as np
 
+from lrfslam.tools.bench_live import (
+    StageRow,
+    children_of,
+    free_port,
+    memory_kb,
+    parse_summary,
+)
+
 ROBOT = "soak"
 #: Wall seconds given to ``up`` beyond the producing span: starting every stage, then draining.
 START_MARGIN_S = 25.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def rss_kb(pid: int) -> int | None:
-    """Resident memory of ``pid`` (kB, /proc/<pid>/status VmRSS), or None if it is gone."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    except (OSError, ValueError):
-        return None
-    return None
-
-
-def children_of(pid: int) -> dict[str, int]:
-    """``{lrfslam command: pid}`` of the processes ``pid`` started (up's router and services)."""
-    found = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        # The parent pid is the second field after the command name, which may hold spaces.
-        if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"lrfslam.cli" in argv:
-            found[argv[argv.index(b"lrfslam.cli") + 1].decode()] = int(entry.name)
-    return found
 
 
 @dataclass
@@ -82,18 +54,6 @@ class Series:
 
     def pids(self) -> set[int]:
         return {pid for _, _, pid in self.samples}
-
-
-@dataclass
-class StageRow:
-    name: str
-    ins: int
-    outs: int
-    dropped: int
-    gaps: int
-    errors: int
-    restarts: int
-    exit: str
 
 
 @dataclass
@@ -158,17 +118,6 @@ class SoakResult:
         return found
 
 
-def parse_summary(stdout: str) -> tuple[dict[str, StageRow], tuple[int, int, int]]:
-    """up's stage table and its ``scans published … / … in the recording … / lost …`` line."""
-    stages = {}
-    for m in re.finditer(r"^(\w+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\S+)$", stdout, re.MULTILINE):
-        name, *nums, code = m.groups()
-        stages[name] = StageRow(name, *map(int, nums), code)
-    m = re.search(r"scans published by the sensor (\d+) / scans in the recording (\d+) / lost (-?\d+)", stdout)
-    counts = tuple(map(int, m.groups())) if m else (0, 0, 0)
-    return stages, counts
-
-
 def run_soak(scans: int, rate_hz: float, speedup: float, interval_s: float, workdir: Path,
              seed: int = 1, extra: tuple[str, ...] = ()) -> SoakResult:
     """Run ``lrfslam up`` until the sensor has published ``scans``, sampling every process's RSS."""
@@ -189,7 +138,7 @@ def run_soak(scans: int, rate_hz: float, speedup: float, interval_s: float, work
             if sensor_at is None and "sensor" in procs:
                 sensor_at = now
             for name, pid in procs.items():
-                kb = rss_kb(pid)
+                kb = memory_kb(pid)
                 if kb is not None:
                     series.setdefault(name, Series(name)).samples.append((now, kb, pid))
             # Sample densely while starting (to find the sensor's start), then every interval.

@@ -12,6 +12,7 @@
     lrfslam export RECORDING [-o DIR | --foxglove OUT.mcap]   map.json/map.png, or a copy for Foxglove
     lrfslam monitor --connect tcp/HOST:7447 [--port 8765]     live Foxglove WebSocket server
     lrfslam play RECORDING [--rate X | --rate max] [--topics T ...] [--loop]   a recording onto the live bus
+    lrfslam bench [--only SECTIONS] [--quick] [--json] | --check ekf   one table of costs, latency, rates, logs
     lrfslam emulate-lms200             an LMS200 on a pseudo-terminal
 
 Exit codes: 0 done; 1 the command ran and reports a problem (``status``: a service
@@ -47,6 +48,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "monitor": ("lrfslam.tools.monitor", "main", "serve a robot's live streams to Foxglove (WebSocket)"),
     "play": ("lrfslam.tools.play", "main",
              "play a recording onto the live bus (--rate X, or --rate max: as fast as the stages answer)"),
+    "bench": ("lrfslam.tools.bench", "main",
+              "one table: stage costs, EKF against a dense update, codecs, live latency, max rate, logs, memory"),
 }
 
 #: Commands that run to an end and write files (and any service with ``--replay``): SIGTERM
