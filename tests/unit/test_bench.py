@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 
-from lrfslam import cli, services
+from lrfslam import cli
 from lrfslam.msgs import topics
 from lrfslam.runtime.pacing import CreditWindow
+from lrfslam.runtime.recording import read_recording
 from lrfslam.tools import bench, bench_cost, bench_live
 from lrfslam.tools.importers import import_carmen
 from lrfslam.tools.play import Summary, summary_line
@@ -104,9 +105,20 @@ def test_quick_sections_give_a_positive_figure_for_every_measure():
     codecs = by_section["encode/decode"]
     for tp in (topics.SCAN, topics.ODOM, topics.SCAN_FILTERED, topics.FEATURES, topics.SLAM_STATE):
         assert tp.name in codecs
-    for n in bench_cost.STATE_MAP_SIZES:   # whatever the slam stage publishes, at every map size
-        for tp in services.spec("slam").outputs:
-            assert f"{tp.name}, {n}-landmark map" in codecs
+    for n in bench_cost.STATE_MAP_SIZES:   # the slam stage's whole map, at every map size
+        assert f"{topics.SLAM_MAP.name}, {n}-landmark map" in codecs
+
+
+def test_state_rows_hold_the_start_and_the_end_of_a_recorded_run():
+    golden = Path(__file__).resolve().parents[1] / "data" / "golden" / "intel_150.pipeline.mcap"
+    first, last = bench_cost.state_rows("intel_150", golden, 50, 1)
+    assert first.measure == "intel_150, first 50 states (2 landmarks)" and first.value > 0
+    assert last.measure.startswith("intel_150, last 50 states") and last.ratio > 0
+    # The v1 state it compares with is the one the slam stage published before (same filter, the
+    # whole map): its mean size is that of the v1 golden's last 50 states.
+    v1 = [len(m.data) for m in read_recording(golden.with_name("intel_150.slam_v1.mcap"), [topics.SLAM_STATE.name])]
+    sizes = [float(x.replace(",", "")) for x in re.findall(r"([\d,]+) B", last.note)]
+    assert len(sizes) == 2 and sizes[1] == pytest.approx(np.mean(v1[-50:]), abs=0.5)
 
 
 def test_a_queue_grows_when_its_end_stands_well_above_its_start():

@@ -68,6 +68,8 @@ CHECKS = ("ekf",)
 #: Measurements of a check before it fails.
 CHECK_ATTEMPTS = 3
 LIVE_RATE_HZ = 75.0
+#: States at each end of a played log over which the slam's per-scan message is measured (flat in the map).
+STATE_WINDOW = 1000
 DEFAULT_RATES = (75.0, 150.0, 225.0, 300.0, 400.0)
 #: Processes in the order of the memory rows.
 PROCESSES = ("up", "router", "sensor", "denoise", "features", "slam", "mapper", "recorder")
@@ -283,15 +285,18 @@ def run(sections: Sequence[str], s: Settings, datasets: Path, progress: Callable
             logs = find_logs(datasets)[:s.max_logs] if datasets.is_dir() else []
             if not logs:
                 rows.append(cost.Row("logs, play --rate max", f"no CARMEN logs under {datasets}", float("nan"), ""))
-            played = []
+            played, states = [], []
             for path in logs:
                 name = log_name(path)
                 progress(f"log {name}: import, then play --rate max")
                 source = head_of_log(path, s.log_scans, work / f"{name}.clf") if s.log_scans else path
                 mcap = work / f"{name}.mcap"
                 import_carmen(source, mcap, robot=live.ROBOT)
+                before = set(work.iterdir())
                 played.append(live.run_play(mcap, name, work))
-            rows += play_rows(played)
+                for recording in sorted(p for p in set(work.iterdir()) - before if p.is_dir()):
+                    states += cost.state_rows(name, recording, STATE_WINDOW, s.repeat)
+            rows += play_rows(played) + states
             memory += [(f"play {r.name}", r.peak_rss_kb) for r in played]
     return rows + memory_rows(memory)
 

@@ -13,8 +13,10 @@ many cores BLAS grabs.
   ``ExtendedKalmanFilter.update`` (Joseph form, O(n³)) on the same random filter, and the
   log-log slope of each against the landmark count; :func:`check_ekf` holds the shape;
 * :func:`codec_rows`: protobuf encode and decode of every message the pipeline's stages make
-  (run in one :class:`~lrfslam.runtime.chain.Chain`), and of what the slam stage publishes per
-  scan once its map holds 50, 200 or 1,000 landmarks (the filter restored from a checkpoint).
+  (run in one :class:`~lrfslam.runtime.chain.Chain`), and of the slam stage's whole map
+  (``slam/map``) once it holds 50, 200 or 1,000 landmarks (the filter restored from a checkpoint);
+* :func:`state_rows`: the slam stage's per-scan message in a recorded run, at its start and at
+  its end, beside the v1 message that held the whole map: its cost must not grow with the map.
 """
 
 from __future__ import annotations
@@ -40,8 +42,11 @@ from lrfslam.algo.scan_match import ScanTracker
 from lrfslam.algo.wall_direction import wall_direction
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
+from lrfslam.msgs.v1 import slam_state_pb2 as slam_state_v1
 from lrfslam.runtime import npz_file
 from lrfslam.runtime.chain import Chain
+from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.step import Message, Output
 from lrfslam.sim.simulator import SimConfig, Simulator
 
@@ -336,9 +341,53 @@ def codec_rows(n_scans: int, seed: int, repeat: int) -> list[Row]:
         for n_lm in STATE_MAP_SIZES:
             path = Path(tmp) / f"slam_{n_lm}.npz"
             npz_file.write_atomic(path, checkpoint.encode(random_filter(n_lm, rng), 0, None))
-            # A slam stage resumed from a filter of n_lm landmarks: whatever it publishes per scan.
+            # A slam stage resumed from a filter of n_lm landmarks: its whole map. (Its states are
+            # measured on real runs, state_rows: this random filter's landmarks are all correlated
+            # with the pose, so each update moves every one of them, as no building does.)
             outs = run_chain(frames, ["denoise", "features", "slam"], replay=False,
                              sets={"slam": [f"checkpoint_path={path}", "checkpoint_every_scans=1000000"]})
-            rows += [_codec_row(f"{name}, {n_lm}-landmark map", found, repeat, f"{len(found)} scans")
-                     for name, found in outs.items() if name in slam_out]
+            rows += [_codec_row(f"{name}, {n_lm}-landmark map", found, repeat, f"{len(found)} messages")
+                     for name, found in outs.items() if name in slam_out and name != topics.SLAM_STATE.name]
+    return rows
+
+
+def _as_v1(state: t.SlamState, lms: t.Landmarks) -> bytes:
+    """``state`` as the v1 message that carried the whole map ``lms`` with every state."""
+    p = slam_state_v1.SlamState(scan_seq=state.scan_seq, associated=state.associated, added=state.added,
+                                rejected=state.rejected)
+    p.header.stamp_ns, p.header.seq, p.header.frame_id = state.stamp_ns, state.seq, "map"
+    p.pose.x_m, p.pose.y_m, p.pose.theta_rad = (float(v) for v in state.pose)
+    p.pose_covariance.extend(state.pose_cov.ravel().tolist())
+    if state.motion is not None:
+        p.motion.x_m, p.motion.y_m, p.motion.theta_rad = (float(v) for v in state.motion)
+    p.motion_matched = bool(state.motion_matched)
+    for i in range(len(lms)):
+        p.landmarks.add(id=int(lms.ids[i]), x_m=float(lms.xy_m[i, 0]), y_m=float(lms.xy_m[i, 1]),
+                        covariance_m2=lms.cov_m2[i].ravel().tolist(), kind=int(lms.kind[i]),
+                        sightings=int(lms.sightings[i]), confirmed=bool(lms.confirmed[i]))
+    return p.SerializeToString()
+
+
+def state_rows(name: str, recording: Path, window: int, repeat: int) -> list[Row]:
+    """The slam stage's per-scan message in ``recording``: mean size and decode + encode over its first
+    and its last ``window`` states, against the v1 state that held the whole map (decode; v1 is
+    decoded through the upgrade path, as an old recording is)."""
+    replica, rows, kept = LandmarkMapReplica(), [], []
+    codec = topics.SLAM_STATE.codec
+    v1_schema = slam_state_v1.SlamState.DESCRIPTOR.full_name
+    for m in read_recording(recording, [topics.SLAM_STATE.name, topics.SLAM_MAP.name]):
+        value = topics.by_name(m.topic).codec.decode(m.data, m.schema)
+        replica.apply_message(value)
+        if m.topic == topics.SLAM_STATE.name:
+            kept.append((value.n_landmarks, m.data, _as_v1(value, replica.landmarks)))
+    if not kept:
+        return [Row("slam/state per scan", f"{name}: no slam/state recorded", float("nan"), "")]
+    for part, states in (("first", kept[:window]), ("last", kept[-window:])):
+        cost = [fastest_s(lambda d=d: codec.encode(codec.decode(d)), repeat) for _, d, _ in states]
+        cost_v1 = [fastest_s(lambda d=d: codec.decode(d, v1_schema), repeat) for _, _, d in states]
+        n, size = np.mean([k for k, _, _ in states]), np.mean([len(d) for _, d, _ in states])
+        size_v1 = np.mean([len(d) for _, _, d in states])
+        rows.append(Row("slam/state per scan", f"{name}, {part} {len(states):,} states ({n:.0f} landmarks)",
+                        1e6 * np.mean(cost), "µs/msg", f"v1 whole-map state decode {1e6 * np.mean(cost_v1):.0f} µs",
+                        np.mean(cost_v1) / np.mean(cost), f"decode + encode; {size:,.0f} B (v1 {size_v1:,.0f} B)"))
     return rows
