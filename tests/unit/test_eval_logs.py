@@ -63,3 +63,16 @@ def test_the_command_prints_one_table(datasets, tmp_path, capsys):
                           "--set", "features.mode=paper"]) == 0
     out = capsys.readouterr().out
     assert out.count("| scored |") == 5 and "map" in out
+
+
+def test_the_closure_nis_band_holds_the_mean_of_consistent_closures_95_percent_of_the_time():
+    # Oracle: means of N chi-squared(3) draws; the band must hold about 95 % of them and be
+    # centred near 3, narrowing as N grows.
+    rng = np.random.default_rng(3)
+    for n in (20, 200):
+        lo, hi = eval_logs.nis_mean_band(3, n)
+        means = rng.chisquare(3, size=(4000, n)).mean(axis=1)
+        inside = np.mean((means >= lo) & (means <= hi))
+        assert 0.93 < inside < 0.97 and lo < 3.0 < hi
+    assert np.diff(eval_logs.nis_mean_band(3, 1000)) < np.diff(eval_logs.nis_mean_band(3, 100))
+    assert all(np.isnan(eval_logs.nis_mean_band(3, 0)))

@@ -28,10 +28,16 @@ Design choices
 * **Two uncertainties.** The edges' covariance is the local one (0.2° and 1 cm
   per half metre), so loop closures do not bend what the local trajectory got right; but
   the drift over a long loop is systematic (20° of heading round ACES's loops),
-  far beyond what a random walk of local errors predicts. The search window and
-  the gate therefore use the relative covariance scaled by ``drift_scale``²;
-  the optimisation does not. (Loose edges, 2.5 cm and 0.9° per half metre,
-  with no scale: Intel 0.028 m relation error against 0.022 m, ACES 0.051 m either way.)
+  far beyond what a random walk of local errors predicts: a random walk's standard
+  deviation grows with the square root of the loop, a heading bias's error with the loop.
+  The search window and the gate therefore use the graph's relative covariance grown by
+  its own heading variance, ``× (1 + σθ² / drift_onset_rad²)``: unchanged over a short
+  loop or right after a closure, growing with the square of the loop past the onset;
+  the optimisation does not. It replaced a constant factor (``drift_scale`` 3, window
+  and gate on 9 × the covariance), which was three times too wide for short loops and
+  still overconfident for long ones (docs/slam.md, "Every log, one configuration").
+  (Loose edges, 2.5 cm and 0.9° per half metre, with no model: Intel 0.028 m relation
+  error against 0.022 m, ACES 0.051 m either way.)
 * **Search window from the graph.** A candidate is an old keyframe (at least
   ``min_travel_m`` back along the trajectory) near the predicted pose. The
   covariance of the new keyframe relative to it (:meth:`PoseGraph.relative_covariance`)
@@ -131,7 +137,12 @@ class LoopClosureParams:
     drift_scale : float
         Factor on the relative pose's standard deviations for the search window
         and the gate, not for the optimisation (dimensionless; see the module
-        notes on odometry edges).
+        notes on odometry edges). 1 with the drift model below; it was 3 without.
+    drift_onset_rad : float
+        The systematic drift model of the search window and the gate: the graph's relative
+        covariance times ``1 + σθ² / drift_onset_rad²``, σθ its heading standard deviation (rad).
+        Below the onset the drift is the edges' random walk; past it the error grows with
+        the loop, not its square root. 0: no model (the covariance as the graph gives it).
     min_window_m, max_window_m : float
         Bounds of the translation half-width (m).
     min_window_rad, max_window_rad : float
@@ -205,7 +216,8 @@ class LoopClosureParams:
     odom_rot_sigma_per_m: float = 0.006
     odom_rot_sigma_per_rad: float = 0.03
     window_sigmas: float = 3.0
-    drift_scale: float = 3.0
+    drift_scale: float = 1.0
+    drift_onset_rad: float = 0.02
     min_window_m: float = 0.5
     max_window_m: float = 12.0
     min_window_rad: float = 0.1
@@ -238,7 +250,7 @@ class LoopClosureParams:
                     "gate_chi2", "match_cov_scale", "candidate_radius_m")
         require_finite(self, positive, positive=True, what="loop closure ")
         non_negative = ("keyframe_trans_m", "max_scan_step_m", "keyframe_rot_rad", "min_travel_m", "odom_trans_sigma_per_m",
-                        "odom_rot_sigma_per_m", "odom_rot_sigma_per_rad", "min_score", "max_second_ratio",
+                        "odom_rot_sigma_per_m", "odom_rot_sigma_per_rad", "drift_onset_rad", "min_score", "max_second_ratio",
                         "min_weight", "optimise_chi2", "ekf_jump_m", "ekf_jump_rad", "wide_window_m",
                         "wide_search_spacing_m", "confirm_within_m", "confirm_m", "confirm_rad")
         require_finite(self, non_negative, positive=False, what="loop closure ")
@@ -717,6 +729,11 @@ class LoopClosingMapper:
         p = self.params
         predicted = relative(self.graph.poses[k], self.graph.poses[n])
         rel_cov = self.graph.relative_covariance(k, n)
+        if p.drift_onset_rad > 0.0:
+            # Systematic drift: a random walk's standard deviation grows with the square root of
+            # the loop, a heading bias's error with the loop itself, so past the onset the
+            # graph's relative covariance grows with its own heading variance.
+            rel_cov = rel_cov * (1.0 + rel_cov[2, 2] / p.drift_onset_rad**2)
         sigma_xy = float(np.sqrt(max(np.linalg.eigvalsh(rel_cov[:2, :2])[-1], 0.0)))
         sigma_th = float(np.sqrt(max(rel_cov[2, 2], 0.0)))
         half_m = float(np.clip(p.window_sigmas * p.drift_scale * sigma_xy, p.min_window_m, p.max_window_m))
@@ -783,8 +800,8 @@ class LoopClosingMapper:
         if not chi2 <= p.gate_chi2:
             count["gated"] += 1
             return None
-        # Its NIS without the drift factor: chi-squared with 3 dof if the graph's and the
-        # match's covariances were both right (kept for the consistency report).
+        # Its NIS without the drift factor (with the drift model): chi-squared with 3 dof if the
+        # predicted and the match's covariances were both right (kept for the consistency report).
         self._closure_nis.append(float(innovation @ np.linalg.solve(rel_cov + cov, innovation)))
         return k, n, refined.pose, cov, innovation
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
 
 from lrfslam import services
 from lrfslam.algo.scan_match import ScanMatchParams
@@ -80,6 +81,12 @@ class LogResult:
         return (self.mapper_counts.get("step.closure_nis_milli", 0) / 1000.0 / n if n else float("nan")), n
 
     @property
+    def closure_nis_band(self) -> tuple[float, float]:
+        """95 % band of :attr:`closure_nis`'s mean if the closures were consistent: the mean of
+        N chi-squared variables of 3 dof is chi-squared with 3 N dof, divided by N."""
+        return nis_mean_band(3, self.closure_nis[1])
+
+    @property
     def matched_nis(self) -> tuple[float, float, int]:
         """Mean NIS of the EKF's matched observations (2 if consistent), the share inside the
         95 % bound (0.95 if consistent), and how many there were."""
@@ -88,6 +95,15 @@ class LogResult:
             return float("nan"), float("nan"), 0
         return (self.slam_counts.get("step.nis_matched_milli", 0) / 1000.0 / n,
                 self.slam_counts.get("step.nis_matched_within_95", 0) / n, n)
+
+
+def nis_mean_band(dof: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Central ``level`` band of the mean of ``n`` independent chi-squared NIS values of ``dof``
+    degrees of freedom (NaN, NaN for none)."""
+    if n < 1:
+        return float("nan"), float("nan")
+    tail = (1.0 - level) / 2.0
+    return float(chi2.ppf(tail, dof * n) / n), float(chi2.ppf(1.0 - tail, dof * n) / n)
 
 
 def find_logs(root: Path) -> list[Log]:
@@ -184,8 +200,9 @@ def main_all(root: Path, work: Path, sets: list[str], config_file: str | None) -
         print(f"{r.log.name}: matched NIS mean {nis:.2f} (2.00 if consistent), {100 * inside:.1f} % inside "
               f"the 95 % bound, over {n} observations")
         closure_nis, closures = r.closure_nis
-        print(f"{r.log.name}: loop closure NIS mean {closure_nis:.2f} (3.00 if consistent) over {closures} "
-              "verified closures")
+        lo, hi = r.closure_nis_band
+        print(f"{r.log.name}: loop closure NIS mean {closure_nis:.2f} (3.00 if consistent; 95 % band of the mean "
+              f"[{lo:.2f}, {hi:.2f}]) over {closures} verified closures")
         print(f"{r.log.name}: {r.scans} scans in {r.pipeline_s:.1f} s; laser {facts.get('beams', '?')}, "
               f"no return {facts.get('no_return_m') or '-'} m"
               + (f"; map {r.map_png}" if r.map_png else ""))
