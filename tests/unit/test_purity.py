@@ -22,8 +22,7 @@ PURE = sorted(
 IMPURE = ("lrfslam.drivers.lms200.port", "lrfslam.drivers.lms200.emulator")
 
 ALLOWED_ROOTS = {"__future__", "collections", "dataclasses", "typing", "math", "enum", "functools",
-                 "itertools", "heapq", "operator", "struct", "decimal", "numpy", "scipy", "filterpy", "lrfslam",
-                 "numba"}  # numba: compiled NumPy kernels (scan matching), numbers in, numbers out
+                 "itertools", "heapq", "operator", "struct", "decimal", "numpy", "scipy", "filterpy", "lrfslam"}
 ALLOWED_LRFSLAM_PREFIXES = ("lrfslam.errors", "lrfslam.algo", "lrfslam.sim", "lrfslam.drivers.lms200")
 FORBIDDEN_CALLS = {"print", "open", "input", "exec", "eval", "breakpoint"}
 

@@ -29,14 +29,15 @@ Design choices
   never outliers by construction (the chain they come from is continuous).
 * **Relative covariance** (:meth:`PoseGraph.relative_covariance`): the
   covariance of node ``b`` seen from node ``a``, from the inverse of the
-  normal equations linearised at the current estimate. The loop search uses it
-  as its search window, for one or two candidates per new keyframe, so the
-  normal equations are factorised once per state of the graph (the first node
-  the gauge, cached until a node, an edge or an estimate changes) and the
-  relative pose's Jacobian carries the two nodes' joint covariance into ``a``'s
-  frame: the relative pose does not depend on the gauge, so this equals taking
-  ``a`` as the gauge (``tests/unit/test_pose_graph.py``), for half the
-  factorisations.
+  normal equations linearised at the current estimate. The loop search asks
+  for it for one or two candidates per new keyframe. The normal equations are
+  factorised with the first node as the gauge and the factorisation kept until
+  an estimate, a robust edge or a removal changes it; a node hung off the graph
+  by one plain edge (the next keyframe) adds no information to the others, so
+  its covariance follows from its parent's along the edge. The relative pose's
+  Jacobian carries the two nodes' joint covariance into ``a``'s frame: the
+  relative pose does not depend on the gauge, so this equals holding ``a``
+  fixed (``tests/unit/test_pose_graph.py``).
 
 References
 ----------

@@ -94,7 +94,6 @@ import enum
 from dataclasses import dataclass
 from functools import cached_property
 
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -375,65 +374,25 @@ def _linearise(reference: ReferenceScan, current: ReferenceScan, u: np.ndarray, 
     rot_t = np.array([[c, s], [-s, c]])  # row vectors: p @ R^T = (R p)^T
     moved = current.points_xy_m @ rot_t + u[:2]
     dist, j = reference.tree.query(moved, distance_upper_bound=gate_m)
-    # One compiled pass over the points for what was ~20 small NumPy calls per iteration
-    # (their overhead was most of the time); tests/unit/test_scan_match_kernel.py holds the
-    # NumPy form as the oracle.
-    pairs, r, w, info, gradient, sum_sq = _pair_and_accumulate(
-        reference.points_xy_m, reference.normals, current.points_xy_m, current.normals, moved, c, s, dist, j,
-        np.cos(params.max_normal_angle_rad), params.robust_scale_m)
+    paired = np.isfinite(dist)
+    # A point pairs only with a line of about its own direction: near a corner the
+    # nearest reference point may lie on the other wall.
+    cos_angle = np.einsum("ij,ij->i", reference.normals[np.where(paired, j, 0)], current.normals @ rot_t)
+    paired &= np.abs(cos_angle) >= np.cos(params.max_normal_angle_rad)
+    pairs = np.where(paired, j, -1)
+    q, nrm = reference.points_xy_m[j[paired]], reference.normals[j[paired]]
+    p, m = current.points_xy_m[paired], moved[paired]
+    r = np.einsum("ij,ij->i", nrm, m - q)
+    w = 1.0 / (1.0 + (r / params.robust_scale_m) ** 2)
+    d_theta = nrm[:, 0] * (-s * p[:, 0] - c * p[:, 1]) + nrm[:, 1] * (c * p[:, 0] - s * p[:, 1])
+    jac = np.column_stack((nrm, d_theta))
+    info = jac.T @ (w[:, None] * jac)
     # Rotation in metres of arc at the rms range, information per unit weight:
     # the eigenvalues are then comparable between scans and directions.
-    lever = float(np.sqrt(sum_sq / r.size)) if r.size else 1.0
+    lever = float(np.sqrt(np.mean(np.sum(p * p, axis=1)))) if p.size else 1.0
     scale = np.array([1.0, 1.0, 1.0 / max(lever, 1e-9)])
     eigvals, eigvecs = np.linalg.eigh(info * np.outer(scale, scale) / max(float(w.sum()), 1e-300))
-    return _Linearisation(pairs, r, w, info, gradient, scale, eigvals, eigvecs)
-
-
-@numba.njit(cache=True, nogil=True)
-def _pair_and_accumulate(ref_xy, ref_normals, cur_xy, cur_normals, moved, c, s, dist, j, min_cos, robust_scale):
-    """Correspondences and normal equations of the current points at one pose.
-
-    ``moved`` (N, 2) are the current points ``cur_xy`` (robot frame, m) placed at the pose
-    of heading cosine/sine ``c``, ``s``; ``dist``, ``j`` (N,) their nearest reference point's
-    distance (m; inf beyond the gate) and index. A point pairs when it has one and the
-    normals agree (``|cos| >= min_cos``). Returns ``pairs`` (N,) (reference index, -1 if
-    none), the paired points' residuals ``r`` (K,) (m) and Cauchy weights ``w`` (K,), the
-    information ``Jᵀ W J`` (3, 3), the gradient ``Jᵀ W r`` (3,), and ``Σ |p|²`` of the
-    paired points (m²).
-    """
-    n = cur_xy.shape[0]
-    pairs = np.full(n, -1, dtype=np.int64)
-    r = np.empty(n)
-    w = np.empty(n)
-    info = np.zeros((3, 3))
-    gradient = np.zeros(3)
-    jac = np.empty(3)
-    sum_sq = 0.0
-    k = 0
-    for i in range(n):
-        if not np.isfinite(dist[i]):
-            continue
-        q = j[i]
-        nx, ny = ref_normals[q, 0], ref_normals[q, 1]
-        # A point pairs only with a line of about its own direction: near a corner the
-        # nearest reference point may lie on the other wall.
-        if abs(nx * (cur_normals[i, 0] * c - cur_normals[i, 1] * s)
-               + ny * (cur_normals[i, 0] * s + cur_normals[i, 1] * c)) < min_cos:
-            continue
-        pairs[i] = q
-        px, py = cur_xy[i, 0], cur_xy[i, 1]
-        ri = nx * (moved[i, 0] - ref_xy[q, 0]) + ny * (moved[i, 1] - ref_xy[q, 1])
-        wi = 1.0 / (1.0 + (ri / robust_scale) ** 2)
-        jac[0], jac[1] = nx, ny
-        jac[2] = nx * (-s * px - c * py) + ny * (c * px - s * py)
-        for a in range(3):
-            gradient[a] += jac[a] * wi * ri
-            for b in range(3):
-                info[a, b] += jac[a] * wi * jac[b]
-        sum_sq += px * px + py * py
-        r[k], w[k] = ri, wi
-        k += 1
-    return pairs, r[:k], w[:k], info, gradient, sum_sq
+    return _Linearisation(pairs, r, w, info, jac.T @ (w * r), scale, eigvals, eigvecs)
 
 
 def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatchParams,
