@@ -122,6 +122,62 @@ def test_relative_covariance_of_a_chain_adds_up():
     assert rel[1, 1] == pytest.approx(3 * 0.02 + 0.001 * (1 + 4))
 
 
+def gauge_a_covariance(graph: PoseGraph, a: int, b: int) -> np.ndarray:
+    """The oracle: node ``a`` held fixed (dropped from the dense normal equations), ``b``'s covariance in its frame."""
+    _, i, j, z, info, robust = graph._arrays()
+    h, _, reduced = graph._normal_equations(graph.poses, i, j, z, info, robust, gauge=a)
+    rb = 3 * reduced[b]
+    cov_world = np.linalg.inv(h.toarray())[rb: rb + 3, rb: rb + 3]
+    c, s = np.cos(graph.poses[a, 2]), np.sin(graph.poses[a, 2])
+    rot_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rot_t @ cov_world @ rot_t.T
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_relative_covariance_equals_holding_the_first_node_fixed(seed, optimised):
+    # Computed with the first node as the gauge (one factorisation per graph state), it must
+    # equal the covariance with node a held fixed, for any pair, loops and robust weights included.
+    rng = np.random.default_rng(seed)
+    truth = square_loop(laps=2, side=5)
+    graph = noisy_graph(truth, rng, [(0, 20), (3, 24), (7, 38)])
+    if optimised:
+        graph.optimize()
+    for a, b in rng.integers(0, len(truth), size=(4, 2)).tolist() + [[0, 40], [40, 0], [17, 3]]:
+        got = graph.relative_covariance(a, b)
+        if a == b:
+            assert np.all(got == 0.0)
+            continue
+        want = gauge_a_covariance(graph, a, b)
+        assert np.allclose(got, want, rtol=1e-7, atol=1e-12 * np.abs(want).max())
+
+
+def test_relative_covariance_follows_the_graph_as_it_changes():
+    # The factorisation is cached per state of the graph: a new edge, node or estimate must not
+    # be answered from the old one.
+    rng = np.random.default_rng(3)
+    truth = square_loop(side=5)
+    graph = noisy_graph(truth, rng, [])
+    before = graph.relative_covariance(2, 19)
+    graph.add_edge(0, 19, relative(truth[0], truth[19]), np.diag(4.0 / SIGMA**2))
+    after = graph.relative_covariance(2, 19)
+    assert np.trace(after) < 0.5 * np.trace(before)
+    assert np.allclose(after, gauge_a_covariance(graph, 2, 19), rtol=1e-7)
+    # New nodes hung off the graph one edge each (the loop search's new keyframes) are carried
+    # from the factorisation along their edges: they must equal a fresh solve, in either order.
+    for step in ((0.5, 0.0, 0.1), (0.4, 0.1, -0.3), (0.5, -0.2, 0.2)):
+        graph.add_node(compose(graph.poses[-1], np.add(step, 0.01)))
+        graph.add_edge(len(graph) - 2, len(graph) - 1, step, np.diag(1.0 / SIGMA**2))
+        last = len(graph) - 1
+        for a, b in ((2, last), (last, 7), (0, last), (last - 1, last)):
+            assert np.allclose(graph.relative_covariance(a, b), gauge_a_covariance(graph, a, b), rtol=1e-7)
+    graph.add_edge(3, len(graph) - 1, relative(graph.poses[3], graph.poses[-1]), np.eye(3), robust=True)
+    assert np.allclose(graph.relative_covariance(2, len(graph) - 1),
+                       gauge_a_covariance(graph, 2, len(graph) - 1), rtol=1e-7)
+    graph.set_pose(10, graph.poses[10] + (0.3, -0.2, 0.1))
+    assert np.allclose(graph.relative_covariance(2, 19), gauge_a_covariance(graph, 2, 19), rtol=1e-7)
+
+
 def test_bad_input_is_refused():
     with pytest.raises(ConfigError):
         PoseGraphParams(cauchy_scale=0.0)

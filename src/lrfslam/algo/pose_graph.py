@@ -29,8 +29,15 @@ Design choices
   never outliers by construction (the chain they come from is continuous).
 * **Relative covariance** (:meth:`PoseGraph.relative_covariance`): the
   covariance of node ``b`` seen from node ``a``, from the inverse of the
-  normal equations linearised at the current estimate, with node ``a`` as the
-  gauge. The loop search uses it as its search window.
+  normal equations linearised at the current estimate. The loop search asks
+  for it for one or two candidates per new keyframe. The normal equations are
+  factorised with the first node as the gauge and the factorisation kept until
+  an estimate, a robust edge or a removal changes it; a node hung off the graph
+  by one plain edge (the next keyframe) adds no information to the others, so
+  its covariance follows from its parent's along the edge. The relative pose's
+  Jacobian carries the two nodes' joint covariance into ``a``'s frame: the
+  relative pose does not depend on the gauge, so this equals holding ``a``
+  fixed (``tests/unit/test_pose_graph.py``).
 
 References
 ----------
@@ -129,6 +136,10 @@ class PoseGraph:
         self._info = np.zeros((0, 3, 3))
         self._robust = np.zeros(0, dtype=bool)
         self._alive = np.zeros(0, dtype=bool)
+        # LU of the normal equations with node 0 as the gauge and the nodes it covers, for
+        # relative_covariance; dropped by any change but a leaf appended (see _leaf_edge).
+        self._factor: tuple[object, int] | None = None
+        self._leaves: dict[int, int] = {}  # node added since the factorisation -> its one edge
 
     # -- building -------------------------------------------------------------------------------
 
@@ -155,6 +166,7 @@ class PoseGraph:
     def set_pose(self, node: int, pose) -> None:
         """Overwrite the estimate of ``node`` (3,), e.g. to re-seed a freshly added node."""
         self._poses[self._check_node(node)] = np.asarray(pose, dtype=float)
+        self._factor = None
 
     def add_edge(self, i: int, j: int, measurement, information, robust: bool = False) -> int:
         """Add an edge measuring node ``j`` in node ``i``'s frame; returns its index.
@@ -188,11 +200,28 @@ class PoseGraph:
         self._robust[m] = bool(robust)
         self._alive[m] = True
         self._m += 1
+        self._leaf_edge(i, j, m)
         return m
+
+    def _leaf_edge(self, i: int, j: int, edge: int) -> None:
+        """Keep the factorisation if ``edge`` only hangs node ``j`` off an earlier node, else drop it.
+
+        A node joined to the rest by one plain edge adds no information to the others: their
+        covariance stays what the factorisation gives, and the leaf's follows from the edge.
+        """
+        if self._factor is None:
+            return
+        covered = self._factor[1]
+        if not self._robust[edge] and covered <= j and j not in self._leaves and i < j \
+                and (i < covered or i in self._leaves):
+            self._leaves[j] = edge
+        else:
+            self._factor = None
 
     def remove_edge(self, edge: int) -> None:
         """Take an edge out of the problem (a closure found wrong); indices of the others stay."""
         self._alive[self._check_edge(edge)] = False
+        self._factor = None
 
     def edge_nodes(self, edge: int) -> tuple[int, int]:
         """The nodes ``(i, j)`` an edge joins."""
@@ -412,29 +441,86 @@ class PoseGraph:
                     or previous - cost <= self.params.converged_cost * previous:
                 break
         self._poses[: self._n] = poses
+        self._factor = None
         return OptimizeReport(it, initial, cost)
 
     def relative_covariance(self, a: int, b: int) -> np.ndarray:
         """Covariance (3, 3) of node ``b``'s pose in node ``a``'s frame, at the current estimate.
 
-        Node ``a`` is taken as the gauge, so this is the uncertainty the graph
-        leaves between the two (m², m·rad, rad²), loop-edge weights included.
+        The uncertainty the graph leaves between the two (m², m·rad, rad²), loop-edge
+        weights included: as if node ``a`` were held fixed.
         """
         self._check_node(a)
         self._check_node(b)
         if a == b:
             return np.zeros((3, 3))
-        _, i, j, z, info, robust = self._arrays()
-        h, _, reduced = self._normal_equations(self.poses, i, j, z, info, robust, gauge=a)
-        rb = reduced[b]
-        rhs = np.zeros((h.shape[0], 3))
-        rhs[3 * rb: 3 * rb + 3] = np.eye(3)
-        cov_world = _factorise(h).solve(rhs)[3 * rb: 3 * rb + 3]
-        # With x_a fixed, the world-frame covariance of x_b rotated into a's frame.
-        c, s = np.cos(self.poses[a, 2]), np.sin(self.poses[a, 2])
-        rot_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        cov = rot_t @ cov_world @ rot_t.T
+        joint = self._joint_covariance(a, b)
+        # Jacobian of relative(x_a, x_b) = (R_aᵀ (t_b − t_a), θ_b − θ_a) with respect to (x_a, x_b).
+        xa, xb = self.poses[a], self.poses[b]
+        c, s = np.cos(xa[2]), np.sin(xa[2])
+        dx, dy = xb[0] - xa[0], xb[1] - xa[1]
+        d0, d1 = c * dx + s * dy, -s * dx + c * dy
+        jac = np.array([[-c, -s, d1, c, s, 0.0],
+                        [s, -c, -d0, -s, c, 0.0],
+                        [0.0, 0.0, -1.0, 0.0, 0.0, 1.0]])
+        cov = jac @ joint @ jac.T
         return 0.5 * (cov + cov.T)
+
+    def _joint_covariance(self, a: int, b: int) -> np.ndarray:
+        """Covariance (6, 6) of nodes ``a`` and ``b`` (world frame) with the first node held fixed.
+
+        From the cached factorisation; a node appended since as a leaf chain (``_leaf_edge``)
+        is carried from its ancestor there along the chain's edges. Each new keyframe of the
+        loop search is such a leaf, so the normal equations are factorised again only after a
+        closure, a removal or an optimisation.
+        """
+        if self._factor is None or not (a < self._factor[1] or b < self._factor[1]) \
+                or any(k >= self._factor[1] and k not in self._leaves for k in (a, b)):
+            _, i, j, z, info, robust = self._arrays()
+            h, _, _ = self._normal_equations(self.poses, i, j, z, info, robust, gauge=0)
+            self._factor, self._leaves = (_factorise(h), self._n), {}
+        lu, covered = self._factor
+        # Each node as (node in the factorisation, linear map from it, added covariance).
+        ends = [self._from_covered(k, covered) for k in (a, b)]
+        roots = [r for r, _, _ in ends]
+        nodes = [k for k in dict.fromkeys(roots) if k > 0]   # node 0, the gauge, has no variance
+        rhs = np.zeros((3 * (covered - 1), 3 * len(nodes)))
+        for col, k in enumerate(nodes):
+            rhs[3 * (k - 1): 3 * k, 3 * col: 3 * col + 3] = np.eye(3)
+        solved = lu.solve(rhs)
+
+        def block(r1: int, r2: int) -> np.ndarray:
+            if r1 == 0 or r2 == 0:
+                return np.zeros((3, 3))
+            c = 3 * nodes.index(r2)
+            return solved[3 * (r1 - 1): 3 * r1, c: c + 3]
+
+        joint = np.zeros((6, 6))
+        for x, (rx, tx, qx) in enumerate(ends):
+            for y, (ry, ty, _) in enumerate(ends):
+                joint[3 * x: 3 * x + 3, 3 * y: 3 * y + 3] = tx @ block(rx, ry) @ ty.T
+            joint[3 * x: 3 * x + 3, 3 * x: 3 * x + 3] += qx
+        return joint
+
+    def _from_covered(self, k: int, covered: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """Node ``k`` as ``(root, T, Q)``: ``δx_k = T δx_root + noise of covariance Q``, root factorised.
+
+        A leaf ``c`` on edge ``p -> c`` with Jacobians ``J_p``, ``J_c`` and information ``Ω``
+        has ``δx_c = −J_c⁻¹ J_p δx_p`` plus noise of covariance ``J_c⁻¹ Ω⁻¹ J_c⁻ᵀ``.
+        """
+        chain = []
+        while k >= covered:
+            chain.append(self._leaves[k])
+            k = int(self._nodes[chain[-1], 0])
+        t, q = np.eye(3), np.zeros((3, 3))
+        for edge in reversed(chain):
+            i, j = self._nodes[edge]
+            _, jac_i, jac_j = self._residuals(self.poses, i[None], j[None], self._z[edge][None], with_jacobians=True)
+            inv_j = np.linalg.inv(jac_j[0])
+            step = -inv_j @ jac_i[0]
+            t = step @ t
+            q = step @ q @ step.T + inv_j @ np.linalg.inv(self._info[edge]) @ inv_j.T
+        return k, t, q
 
 
 def _grown(a: np.ndarray, rows: int) -> np.ndarray:
