@@ -39,7 +39,11 @@ def test_quick_bench_gives_every_section(tmp_path):
     for row in report["rows"]:
         rows.setdefault(row["section"], []).append(row)
     assert set(rows) == {"stage cost", "EKF update", "encode/decode", "live 75 Hz", "max rate",
-                         "logs, play --rate max", "peak RSS"}
+                         "logs, play --rate max", "slam/state per scan", "peak RSS"}
+    # The played log's recording: its slam states at the start and the end, beside v1's whole-map state.
+    states = rows["slam/state per scan"]
+    assert [r["measure"].split(" states")[0] for r in states] == ["intel_head, first 10", "intel_head, last 10"]
+    assert all(r["value"] > 0 and r["compared"].startswith("v1 whole-map state") for r in states), states
     for section in ("stage cost", "EKF update", "encode/decode", "peak RSS"):
         assert all(r["value"] is not None and r["value"] > 0 for r in rows[section]), rows[section]
     ages = {r["measure"]: r["value"] for r in rows["live 75 Hz"] if "age" in r["measure"]}
