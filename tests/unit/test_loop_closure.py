@@ -245,7 +245,8 @@ def test_a_bad_snapshot_is_refused(hallway_run):
     for broken in ({**snap, "mapper_format": 99},
                    {k: v for k, v in snap.items() if k != "keyframe_points"},
                    {**snap, "keyframe_point_counts": snap["keyframe_point_counts"][:-1]},
-                   {**snap, "loop_edges": snap["loop_edges"] + 10**6}):
+                   {**snap, "loop_edges": snap["loop_edges"] + 10**6},
+                   {**snap, "graph_factor_extent": np.array([10**6, 1])}):
         with pytest.raises(InputError, match="snapshot"):
             LoopClosingMapper.restore(None, broken)
 

@@ -222,3 +222,25 @@ def test_a_bad_snapshot_is_refused():
                    {**snap, "graph_poses": np.full_like(snap["graph_poses"], np.nan)}):
         with pytest.raises(InputError, match="pose graph snapshot"):
             PoseGraph.restore(None, broken)
+
+
+def test_what_was_added_since_the_factorisation_enters_exactly():
+    # A robot on its second round: every new node closes into the first lap. The graph is
+    # factorised once; the new nodes and closures must give what factorising again gives.
+    rng = np.random.default_rng(5)
+    truth = square_loop(laps=2, side=5)
+    lap = len(truth) // 2
+    graph = noisy_graph(truth[: lap + 5], rng, [(0, lap)])
+    graph.relative_covariance(2, lap)   # factorised here
+    for k in range(lap + 5, len(truth)):
+        graph.add_node(truth[k] + rng.normal(scale=0.02, size=3))
+        graph.add_edge(k - 1, k, relative(truth[k - 1], truth[k]), np.diag(1.0 / SIGMA**2))
+        graph.add_edge(k - lap, k, relative(truth[k - lap], truth[k]), np.diag(4.0 / SIGMA**2), robust=True)
+        for a, b in ((k - lap, k), (2, k), (k, 7), (0, k)):
+            assert np.allclose(graph.relative_covariance(a, b), gauge_a_covariance(graph, a, b), rtol=1e-7)
+    assert graph._factor.covered == lap + 5   # not factorised again
+    # A restored graph computes from the same factorisation: the same covariance to the last bit,
+    # so a restarted mapper searches exactly the windows the one it continues would have.
+    restored = PoseGraph.restore(None, graph.snapshot())
+    last = len(graph) - 1
+    np.testing.assert_array_equal(restored.relative_covariance(3, last), graph.relative_covariance(3, last))
