@@ -72,20 +72,26 @@ def test_a_split_recording_replays_as_the_single_file(as_files, tmp_path):
     assert (tmp_path / "a" / "map.json").read_text() == (tmp_path / "b" / "map.json").read_text()
 
 
-def test_a_v1_recording_holds_the_map_its_v2_rerun_sends_as_changes():
+def test_a_v1_recording_holds_the_map_its_v2_rerun_sends_as_changes(tmp_path):
     """``intel_150.slam_v1.mcap`` is the slam stage's output while every state held the whole map
-    (lrfslam.msgs.v1.SlamState); ``intel_150.slam.mcap`` the same command's since states carry
-    changes (v2). Read with the same code, they are the same filter: poses equal, maps equal
-    within the stage's tolerance at every state, and exactly at each whole map."""
-    def states_and_maps(name: str) -> list[tuple]:
+    (lrfslam.msgs.v1.SlamState); the same command today, with the filter of then (the tracker's
+    free-space check, which came later, off), sends states as changes (v2). Read with the same
+    code, they are the same filter: poses equal, maps equal within the stage's tolerance at every
+    state, and exactly at each whole map."""
+    shutil.copy(GOLDEN / "intel_150.pipeline.mcap", tmp_path / "intel_150.pipeline.mcap")
+    argv = ["slam", "--replay", str(tmp_path / "intel_150.pipeline.mcap"), "--out", str(tmp_path / "intel_150.slam.mcap"),
+            "--set", "scan_match.free_space_check=false"]
+    assert cli.main(argv) == 0
+
+    def states_and_maps(path: Path) -> list[tuple]:
         replica, out = LandmarkMapReplica(), []
-        for m in read_recording(GOLDEN / name, [topics.SLAM_STATE.name, topics.SLAM_MAP.name]):
+        for m in read_recording(path, [topics.SLAM_STATE.name, topics.SLAM_MAP.name]):
             value = topics.by_name(m.topic).codec.decode(m.data, m.schema)
             replica.apply_message(value)
             out.append((m.topic, m.schema, value, replica.landmarks, replica.complete))
         return out
 
-    old, new = states_and_maps("intel_150.slam_v1.mcap"), states_and_maps("intel_150.slam.mcap")
+    old, new = states_and_maps(GOLDEN / "intel_150.slam_v1.mcap"), states_and_maps(tmp_path / "intel_150.slam.mcap")
     assert {s for _, s, *_ in old} == {"lrfslam.msgs.v1.SlamState"}
     assert {s for _, s, *_ in new} == {"lrfslam.msgs.v2.SlamState", "lrfslam.msgs.v2.LandmarkMap"}
     old_states = {v.seq: (v, lms) for _, _, v, lms, _ in old}

@@ -48,7 +48,7 @@ class Motion:
         Its covariance; None: the filter's own odometry model applies.
     events : tuple of str
         What happened, as counter names: ``no_odometry``, ``scan_missing``,
-        ``match_<status>``.
+        ``match_<status>``, ``scan_moved_points`` (some of the scan's points left out as moved).
     matched : bool
         The increment was found by scan matching (else it is odometry's, or None).
     """
@@ -115,6 +115,8 @@ class MotionSource:
             return Motion(increment if started else None, None, tuple(events))
         step = self._tracker.step(scan_xy_m, guess, guess_cov)
         events.append(f"match_{step.match.status.name.lower()}")
+        if step.moved_points:
+            events.append("scan_moved_points")
         if started and (step.matched or increment is not None):
             return Motion(step.increment, step.cov, tuple(events), step.matched)
         return Motion(None, None, tuple(events))

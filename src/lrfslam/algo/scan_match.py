@@ -91,13 +91,15 @@ of optimization-based state estimation problems", ICRA 2016.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from lrfslam.algo.checks import require_finite
+from lrfslam.algo.free_space import FreeSpace
 from lrfslam.algo.geometry import compose, relative, wrap_angle
 from lrfslam.errors import ConfigError, InputError
 
@@ -185,6 +187,25 @@ class ScanMatchParams:
         :class:`ScanTracker` adds a random walk of this much position (m) and
         heading (rad) error per metre travelled to every matched increment's
         covariance: real-world drift the per-match covariance does not show.
+    free_space_check : bool
+        :class:`ScanTracker` leaves out of the match, and out of its keyframes, the
+        points that lie where one of the last keyframes' beams passed on to farther
+        returns (or to none: ``free_space_silent_m``), and drops
+        from the recent keyframes the points the current scan sees through:
+        things that moved (:mod:`lrfslam.algo.free_space`).
+    free_space_margin_m, free_space_margin_per_m : float
+        A point must be nearer than those returns by ``margin_m + margin_per_m * r``
+        (m, and m per m of its range ``r``)...
+    free_space_lateral_m, free_space_bearing_rad : float
+        ...and so must every return within this distance across the beam (m) plus
+        this angle (rad) of its bearing.
+    free_space_bin_rad : float
+        Width of the bearing bins the free space is kept in (rad).
+    free_space_silent_m : float
+        A bin without a return inside a scan's field of view saw empty space to this
+        range (m; 0: unknown).
+    free_space_keyframes : int
+        The free space of this many last keyframes is kept and checked (>= 1).
     """
 
     # Intel log, scan matching alone (lrfslam eval relations --scan-matching): 4 m (the
@@ -219,15 +240,25 @@ class ScanMatchParams:
     max_keyframes: int = 20_000
     drift_trans_sigma_per_m: float = 0.0
     drift_rot_sigma_per_m: float = 0.0
+    free_space_check: bool = True
+    free_space_margin_m: float = 0.5
+    free_space_margin_per_m: float = 0.1
+    free_space_lateral_m: float = 0.05
+    free_space_bearing_rad: float = 0.0175
+    free_space_bin_rad: float = 0.0175
+    free_space_silent_m: float = 8.0
+    free_space_keyframes: int = 10
 
     def __post_init__(self) -> None:
         positive = ("max_point_range_m", "normal_radius_m", "wide_gate_m", "narrow_gate_m", "robust_scale_m",
                     "max_correction_trans_m", "max_correction_rot_rad", "min_residual_sigma_m", "cov_scale",
-                    "max_normal_angle_rad", "map_cell_m")
+                    "max_normal_angle_rad", "map_cell_m", "free_space_bin_rad")
         require_finite(self, positive, positive=True, what="scan matching ")
         non_negative = ("normal_max_thickness", "converged_trans_m", "converged_rot_rad", "min_inlier_ratio",
                         "min_information_ratio", "keyframe_trans_m", "keyframe_rot_rad", "map_radius_m",
-                        "drift_trans_sigma_per_m", "drift_rot_sigma_per_m")
+                        "drift_trans_sigma_per_m", "drift_rot_sigma_per_m", "free_space_margin_m",
+                        "free_space_margin_per_m", "free_space_lateral_m", "free_space_bearing_rad",
+                        "free_space_silent_m")
         require_finite(self, non_negative, positive=False, what="scan matching ")
         if not 3 <= self.normal_min_neighbours <= self.normal_neighbours:
             raise ConfigError("need 3 <= normal_min_neighbours <= normal_neighbours")
@@ -235,6 +266,8 @@ class ScanMatchParams:
             raise ConfigError("need max_iterations >= 1 and min_points >= 3")
         if self.wide_gate_iterations < 0 or self.map_max_keyframes < 0:
             raise ConfigError("wide_gate_iterations and map_max_keyframes must be >= 0")
+        if self.free_space_keyframes < 1:
+            raise ConfigError("need free_space_keyframes >= 1")
         if self.recent_keyframes < 1 or self.max_keyframes < self.recent_keyframes:
             raise ConfigError("need 1 <= recent_keyframes <= max_keyframes")
 
@@ -512,11 +545,14 @@ class TrackStep:
         Its covariance: from the match, or the odometry's.
     match : MatchResult
         The match (its status says whether the increment is matched).
+    moved_points : int
+        The scan's points left out as moved (``free_space_check``).
     """
 
     increment: np.ndarray
     cov: np.ndarray
     match: MatchResult
+    moved_points: int = 0
 
     @property
     def matched(self) -> bool:
@@ -562,6 +598,9 @@ class ScanTracker:
         # Covariance of ``pose`` as the sum of the increments handed out (tracker's frame):
         # what the caller's filter has been told, so the uncertainty a loop closure resolves.
         self.chain_cov = np.zeros((3, 3))
+        # What the last keyframes saw empty (tracker's frame), kept past the recent ones: someone
+        # overtaking the robot walks on into space that keyframes from before saw empty.
+        self._free: deque[FreeSpace] = deque(maxlen=params.free_space_keyframes)
 
     def step(self, points_xy_m, odom_increment, odom_cov) -> TrackStep:
         """Match one scan; returns the increment from the previous scan.
@@ -579,16 +618,21 @@ class ScanTracker:
         q0 = np.asarray(odom_cov, dtype=float)
         if u0.shape != (3,) or q0.shape != (3, 3) or not (np.all(np.isfinite(u0)) and np.all(np.isfinite(q0))):
             raise InputError("odom_increment must be (3,) and odom_cov (3, 3), finite")
-        pts = _usable(points_xy_m, self.params.max_point_range_m)
+        returns = _usable(points_xy_m, np.inf)
+        pts = _usable(returns, self.params.max_point_range_m)
+        p = self.params
         if self.pose is None:
             self.pose = np.zeros(3)
-            self._add_keyframe(pts)
+            self._add_keyframe(pts, FreeSpace.of_scan(self.pose, returns, p.free_space_bin_rad, p.free_space_silent_m))
             return TrackStep(u0.copy(), q0.copy(), MatchResult(MatchStatus.NO_REFERENCE, u0.copy(),
                                                                np.full((3, 3), np.nan)))
         guess = compose(self.pose, u0)
         # The odometry covariance rotated from the previous robot frame into the tracker's frame.
         rot = _rotation3(self.pose[2])
         before = frozenset(self._active)
+        free = FreeSpace.of_scan(guess, returns, p.free_space_bin_rad, p.free_space_silent_m)
+        moved = self._moved(pts, free)
+        pts = pts[~moved]
         result = match(self._local_map(guess), pts, guess, self.params, rot @ q0 @ rot.T)
         increment = relative(self.pose, result.pose) if result.ok else u0.copy()
         g = _pose_jacobian(self.pose, increment)
@@ -614,12 +658,35 @@ class ScanTracker:
             self._budget = None
             self.chain_cov = chain + rot @ cov @ rot.T
         self.pose = compose(self.pose, increment)
-        moved = relative(self.keyframes[-1].pose, self.pose)
+        since = relative(self.keyframes[-1].pose, self.pose)
         # After a failure the recent keyframes no longer fit this pose: start afresh from this scan.
-        if not result.ok or np.hypot(moved[0], moved[1]) >= self.params.keyframe_trans_m \
-                or abs(moved[2]) >= self.params.keyframe_rot_rad:
-            self._add_keyframe(pts)
-        return TrackStep(increment, 0.5 * (cov + cov.T), result)
+        if not result.ok or np.hypot(since[0], since[1]) >= self.params.keyframe_trans_m \
+                or abs(since[2]) >= self.params.keyframe_rot_rad:
+            self._add_keyframe(pts, replace(free, pose=self.pose.copy()))
+        return TrackStep(increment, 0.5 * (cov + cov.T), result, int(np.count_nonzero(moved)))
+
+    def _moved(self, pts: np.ndarray, free: FreeSpace) -> np.ndarray:
+        """Which of the scan's points (N, 2; robot frame at ``free.pose``) the last keyframes saw through, bool (N,).
+
+        Also drops from the recent keyframes the points this scan (``free``) sees through.
+        """
+        p = self.params
+        moved = np.zeros(pts.shape[0], dtype=bool)
+        if not p.free_space_check:
+            return moved
+        margins = (p.free_space_margin_m, p.free_space_margin_per_m, p.free_space_lateral_m, p.free_space_bearing_rad)
+        world = _to_frame(pts, free.pose)
+        for seen in self._free:
+            moved |= seen.contains(world, *margins)
+        for k in range(max(0, len(self.keyframes) - p.recent_keyframes), len(self.keyframes)):
+            kf = self.keyframes[k]
+            # Something walking away hides behind its old place from this side, and matched there
+            # it would pull the robot after it; but this scan sees through where it was.
+            gone = free.contains(kf.points_xy_m, *margins)
+            if gone.any():
+                self.keyframes[k] = replace(kf, points_xy_m=kf.points_xy_m[~gone])
+                self._reference = None
+        return moved
 
     def _fresh_cov(self, result: MatchResult) -> np.ndarray:
         """Covariance of the error this match adds to the chain, in the tracker's frame.
@@ -665,11 +732,11 @@ class ScanTracker:
         if self.pose is not None:
             self.pose = compose(self.pose, np.asarray(increment, dtype=float))
 
-    def _add_keyframe(self, pts: np.ndarray) -> None:
-        c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
-        self.keyframes.append(_Keyframe(self.pose.copy(), pts @ np.array([[c, s], [-s, c]]) + self.pose[:2],
-                                        self.chain_cov.copy()))
+    def _add_keyframe(self, pts: np.ndarray, free: FreeSpace) -> None:
+        """Keep the scan at :attr:`pose`: its points ``pts`` (N, 2; robot frame) and what it saw empty."""
         p = self.params
+        self.keyframes.append(_Keyframe(self.pose.copy(), _to_frame(pts, self.pose), self.chain_cov.copy()))
+        self._free.append(free)
         # Only a map search (map_radius_m) looks past the recent keyframes; without one, keeping
         # the rest would only grow the process by a keyframe's points per 0.3 m travelled.
         keep = p.max_keyframes if p.map_radius_m > 0 and p.map_max_keyframes > 0 else p.recent_keyframes
@@ -697,6 +764,12 @@ class ScanTracker:
             merged = np.vstack([self.keyframes[i].points_xy_m for i in sorted(chosen)])
             self._reference = ReferenceScan.build(_thin(merged, p.map_cell_m), p)
         return self._reference
+
+
+def _to_frame(points_xy_m: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Points (N, 2) of a robot frame at ``pose`` (3,) in the frame ``pose`` is given in."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return points_xy_m @ np.array([[c, s], [-s, c]]) + pose[:2]
 
 
 def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
