@@ -97,10 +97,16 @@ class FreeSpace:
         tolerance = np.maximum(np.ceil((lateral_m / np.maximum(r, 1e-9) + bearing_rad) / self.bin_rad), 1)
         spread = np.minimum(tolerance + 1, MAX_SPREAD_BINS)
         beyond = r + margin_m + margin_per_m * r
-        inside = np.ones(pts.shape[0], dtype=bool)
-        for o in range(-MAX_SPREAD_BINS, MAX_SPREAD_BINS + 1):
-            # NaN (outside the field of view) compares False: unknown space condemns nothing.
-            inside &= (np.abs(o) > spread) | (self.nearest_m[(k + o) % n_bins] > beyond)
+        # Most points end where their own bin's beam did: only the rest need their neighbours.
+        inside = self.nearest_m[k] > beyond  # NaN (outside the field of view) compares False
+        ask = np.flatnonzero(inside)
+        if ask.size:
+            k, spread, beyond = k[ask], spread[ask], beyond[ask]
+            widest = int(spread.max())
+            held = np.ones(ask.size, dtype=bool)
+            for o in range(-widest, widest + 1):
+                held &= (abs(o) > spread) | (self.nearest_m[(k + o) % n_bins] > beyond)
+            inside[ask] = held
         return inside
 
 
