@@ -34,7 +34,7 @@ from lrfslam.runtime.outputs import Interrupted, raise_on_signals
 
 # command -> (module, function, one-line help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
-    "up": ("lrfslam.tools.up", "main", "run the whole pipeline (router + five services) and summarise"),
+    "up": ("lrfslam.tools.up", "main", "run the whole pipeline (router + six services) and summarise"),
     "status": ("lrfslam.tools.status", "main", "list live services and their statistics"),
     "router": ("lrfslam.tools.router", "main", "run a Zenoh router"),
     "info": ("lrfslam.tools.info", "main", "describe an MCAP recording (a file or a recording folder)"),
