@@ -28,6 +28,13 @@ Design choices
   gate starts wide (initial-guess error) and narrows after
   ``wide_gate_iterations``. Remaining pairs get Cauchy weights
   ``1 / (1 + (r/s)²)``, so people walking by and newly seen walls count little.
+* **Things that moved** (``free_space_check``). Cauchy weights do not stop a person walking
+  towards the robot down a corridor: matched as if they stood still, they give the along-corridor
+  direction its only constraint and drag the motion at walking speed. A static world never puts a
+  return where an earlier beam went on to a farther one, so :class:`ScanTracker` leaves out the
+  points that lie where one of its last keyframes saw through, and drops from its recent
+  keyframes the points the current scan sees through (:mod:`lrfslam.algo.free_space`;
+  docs/slam.md, "People: leaving out what moved").
 * **Degenerate geometry.** In a featureless corridor the motion along it leaves
   every residual unchanged: the information matrix (rotation scaled to metres of
   arc at the rms range, divided by the total weight) has a near-zero eigenvalue.
