@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lrfslam.algo.free_space import MAX_SPREAD_BINS, FreeSpace
+from lrfslam.algo.free_space import MAX_SPREAD_BINS, FreeSpace, seen_through
 from lrfslam.algo.geometry import compose, polar_to_xy
 from lrfslam.algo.scan_match import ScanMatchParams, ScanTracker
 from lrfslam.errors import InputError
@@ -137,3 +137,22 @@ def test_contains_is_its_definition(seed, n, pose):
     free = FreeSpace.of_scan(np.array(pose), polar_to_xy(ranges[ok], angles[ok]), BIN, 8.0)
     points = rng.uniform(-8.0, 8.0, (n, 2)) + np.array(pose[:2])
     np.testing.assert_array_equal(free.contains(points, *MARGINS), contains_by_hand(free, points, *MARGINS))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**16), n=st.integers(0, 60), k=st.integers(0, 4))
+def test_seen_through_is_any_of_its_spaces(seed, n, k):
+    rng = np.random.default_rng(seed)
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    spaces = []
+    for _ in range(k):
+        ranges = rng.uniform(0.3, 9.0, angles.size)
+        ranges[rng.random(angles.size) < 0.2] = np.nan
+        ok = np.isfinite(ranges)
+        pose = np.array([*rng.uniform(-2.0, 2.0, 2), rng.uniform(-3.1, 3.1)])
+        spaces.append(FreeSpace.of_scan(pose, polar_to_xy(ranges[ok], angles[ok]), BIN, 8.0))
+    points = rng.uniform(-8.0, 8.0, (n, 2))
+    expected = np.zeros(n, dtype=bool)
+    for free in spaces:
+        expected |= contains_by_hand(free, points, *MARGINS)
+    np.testing.assert_array_equal(seen_through(spaces, points, *MARGINS), expected)

@@ -22,6 +22,7 @@ that side; the tracker checks both ways (:class:`~lrfslam.algo.scan_match.ScanTr
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +66,7 @@ class FreeSpace:
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         n_bins = int(np.ceil(2.0 * np.pi / bin_rad))
         nearest = np.full(n_bins, np.inf)
-        bins = _bins(pts, bin_rad, n_bins)
+        bins = _bins(pts[:, 0], pts[:, 1], bin_rad, n_bins)
         np.minimum.at(nearest, bins, np.hypot(pts[:, 0], pts[:, 1]))
         silent = np.isinf(nearest)
         nearest[silent] = np.nan
@@ -86,30 +87,48 @@ class FreeSpace:
         seen edge-on or at a grazing angle (whose range changes by metres a degree),
         from being condemned by a few centimetres or a degree or two of pose error.
         """
-        pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
-        c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
-        d = pts - self.pose[:2]
-        local = np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]))
-        r = np.hypot(local[:, 0], local[:, 1])
-        n_bins = self.nearest_m.size
-        k = _bins(local, self.bin_rad, n_bins)
-        # One bin more than the margin: a point anywhere in its bin has a whole bin of beams each side.
-        tolerance = np.maximum(np.ceil((lateral_m / np.maximum(r, 1e-9) + bearing_rad) / self.bin_rad), 1)
-        spread = np.minimum(tolerance + 1, MAX_SPREAD_BINS)
-        beyond = r + margin_m + margin_per_m * r
-        # Most points end where their own bin's beam did: only the rest need their neighbours.
-        inside = self.nearest_m[k] > beyond  # NaN (outside the field of view) compares False
-        ask = np.flatnonzero(inside)
-        if ask.size:
-            k, spread, beyond = k[ask], spread[ask], beyond[ask]
-            widest = int(spread.max())
-            held = np.ones(ask.size, dtype=bool)
-            for o in range(-widest, widest + 1):
-                held &= (abs(o) > spread) | (self.nearest_m[(k + o) % n_bins] > beyond)
-            inside[ask] = held
-        return inside
+        return seen_through((self,), points_xy_m, margin_m, margin_per_m, lateral_m, bearing_rad)
 
 
-def _bins(xy: np.ndarray, bin_rad: float, n_bins: int) -> np.ndarray:
-    """Bearing bin (N,) of each point (N, 2) seen from its frame's origin."""
-    return np.minimum(((np.arctan2(xy[:, 1], xy[:, 0]) + np.pi) / bin_rad).astype(np.int64), n_bins - 1)
+def seen_through(spaces: Sequence[FreeSpace], points_xy_m, margin_m: float, margin_per_m: float,
+                 lateral_m: float, bearing_rad: float) -> np.ndarray:
+    """Which points (N, 2; the common frame, m) any of ``spaces`` contains, bool (N,).
+
+    The same as OR-ing :meth:`FreeSpace.contains` over ``spaces`` (K of them, one bin width), in
+    one pass over a (K, N) array: the tracker asks ten keyframes about every scan.
+    """
+    pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
+    if not spaces:
+        return np.zeros(pts.shape[0], dtype=bool)
+    bin_rad = spaces[0].bin_rad
+    if any(space.bin_rad != bin_rad for space in spaces):
+        raise InputError("free spaces of different bin widths cannot be asked together")
+    nearest = np.stack([space.nearest_m for space in spaces])  # (K, B)
+    n_bins = nearest.shape[1]
+    origin = np.stack([space.pose[:2] for space in spaces])[:, None, :]  # (K, 1, 2)
+    # Each heading's cosine and sine one at a time, as a single scan's would be taken: a
+    # vectorised cosine may differ in the last bit, and a point on a margin's edge with it.
+    c = np.array([np.cos(space.pose[2]) for space in spaces])[:, None]
+    s = np.array([np.sin(space.pose[2]) for space in spaces])[:, None]
+    d = pts[None, :, :] - origin  # (K, N, 2)
+    x, y = c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]  # (K, N) each, in the scans' frames
+    r = np.hypot(x, y)
+    k = _bins(x, y, bin_rad, n_bins)
+    # One bin more than the margin: a point anywhere in its bin has a whole bin of beams each side.
+    tolerance = np.maximum(np.ceil((lateral_m / np.maximum(r, 1e-9) + bearing_rad) / bin_rad), 1)
+    spread = np.minimum(tolerance + 1, MAX_SPREAD_BINS)
+    beyond = r + margin_m + margin_per_m * r
+    # Most points end where their own bin's beam did: only the rest need their neighbours.
+    inside = nearest[np.arange(len(spaces))[:, None], k] > beyond  # NaN (outside the field of view) compares False
+    row, col = np.nonzero(inside)
+    if row.size:
+        spread, beyond = spread[row, col][:, None], beyond[row, col][:, None]  # (A, 1) each
+        offsets = np.arange(-int(spread.max()), int(spread.max()) + 1)
+        window = nearest[row[:, None], (k[row, col][:, None] + offsets) % n_bins]  # (A, offsets)
+        inside[row, col] = np.all((np.abs(offsets) > spread) | (window > beyond), axis=1)
+    return inside.any(axis=0)
+
+
+def _bins(x: np.ndarray, y: np.ndarray, bin_rad: float, n_bins: int) -> np.ndarray:
+    """Bearing bin of each point ``(x, y)`` (arrays of one shape, m) seen from its frame's origin."""
+    return np.minimum(((np.arctan2(y, x) + np.pi) / bin_rad).astype(np.int64), n_bins - 1)

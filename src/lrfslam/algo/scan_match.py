@@ -106,7 +106,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from lrfslam.algo.checks import require_finite
-from lrfslam.algo.free_space import FreeSpace
+from lrfslam.algo.free_space import FreeSpace, seen_through
 from lrfslam.algo.geometry import compose, relative, wrap_angle
 from lrfslam.errors import ConfigError, InputError
 
@@ -678,20 +678,18 @@ class ScanTracker:
         Also drops from the recent keyframes the points this scan (``free``) sees through.
         """
         p = self.params
-        moved = np.zeros(pts.shape[0], dtype=bool)
         if not p.free_space_check:
-            return moved
+            return np.zeros(pts.shape[0], dtype=bool)
         margins = (p.free_space_margin_m, p.free_space_margin_per_m, p.free_space_lateral_m, p.free_space_bearing_rad)
-        world = _to_frame(pts, free.pose)
-        for seen in self._free:
-            moved |= seen.contains(world, *margins)
-        for k in range(max(0, len(self.keyframes) - p.recent_keyframes), len(self.keyframes)):
-            kf = self.keyframes[k]
-            # Something walking away hides behind its old place from this side, and matched there
-            # it would pull the robot after it; but this scan sees through where it was.
-            gone = free.contains(kf.points_xy_m, *margins)
-            if gone.any():
-                self.keyframes[k] = replace(kf, points_xy_m=kf.points_xy_m[~gone])
+        moved = seen_through(self._free, _to_frame(pts, free.pose), *margins)
+        # Something walking away hides behind its old place from this side, and matched there
+        # it would pull the robot after it; but this scan sees through where it was.
+        recent = range(max(0, len(self.keyframes) - p.recent_keyframes), len(self.keyframes))
+        kept = [self.keyframes[k].points_xy_m for k in recent]
+        gone = np.split(free.contains(np.concatenate(kept), *margins), np.cumsum([len(x) for x in kept])[:-1])
+        for k, points, out in zip(recent, kept, gone):
+            if out.any():
+                self.keyframes[k] = replace(self.keyframes[k], points_xy_m=points[~out])
                 self._reference = None
         return moved
 
