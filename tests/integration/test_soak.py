@@ -1,10 +1,12 @@
-"""A short soak: ``lrfslam up`` for 30,000 scans of 75 Hz data, every process's memory sampled.
+"""A short soak: ``lrfslam up`` for 24,000 scans of 75 Hz data at 75 Hz, every process's memory sampled.
 
 The run of benchmarks/soak.py, shortened: the whole pipeline (router, six services, ``up``
 itself) must lose nothing (no drop, no gap, no restart, every published scan in the recording)
-and no process's resident memory may grow by 10 % or more after warm-up. Warm-up ends at 40 %
+and no process's resident memory may grow by 10 % or more after warm-up. Warm-up ends at 45 %
 of the run, past the mapper's first loop closure (one lap of the simulator's 62 m loop, ~9,300
 scans): its first wide search is the run's one-time high-water mark (docs/operations.md, Soak).
+It runs in real time: the whole pipeline needs about 1.2 of the two cores at 75 scans/s, and
+1.5 times faster sits at what two cores sustain, where a slower machine drops (a CI run did).
 The long run's figures and command are in docs/operations.md.
 """
 
@@ -14,10 +16,10 @@ import pytest
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
-SCANS = 30_000        # 400 s of 75 Hz data: 3.2 laps of the loop
+SCANS = 24_000        # 320 s of 75 Hz data: 2.6 laps of the loop
 RATE_HZ = 75.0
-SPEEDUP = 1.5         # 112 scans per wall second: 267 s, below what the pipeline sustains (docs/operations.md)
-FROM = 0.4            # memory compared from here (fraction of the producing span) to the end
+SPEEDUP = 1.0         # real time: 75 scans per wall second
+FROM = 0.45           # memory compared from here (fraction of the producing span; scan 10,800) to the end
 MAX_GROWTH_PCT = 10.0
 
 
