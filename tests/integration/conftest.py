@@ -34,7 +34,20 @@ class Cluster:
         return [sys.executable, "-m", "lrfslam.cli", *args]
 
     def start_router(self) -> None:
-        self.procs["router"] = subprocess.Popen(self.cmd("router", "--listen", self.endpoint, "--log-level", "WARNING"))
+        """Start the router and return once its port accepts connections: a client started
+        before that (``lrfslam play``, which tries once) would find no router."""
+        router = subprocess.Popen(self.cmd("router", "--listen", self.endpoint, "--log-level", "WARNING"))
+        self.procs["router"] = router
+        port = int(self.endpoint.rsplit(":", 1)[1])
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+                return
+            except OSError:
+                assert router.poll() is None, f"the router exited with {router.returncode}"
+                assert time.monotonic() < deadline, f"the router never listened on {self.endpoint}"
+                time.sleep(0.1)
 
     def start(self, name: str, *sets: str) -> subprocess.Popen:
         argv = self.cmd(name, "--robot", self.robot, "--mode", "client", "--connect", self.endpoint,

@@ -123,7 +123,8 @@ def seen_through(spaces: Sequence[FreeSpace], points_xy_m, margin_m: float, marg
     row, col = np.nonzero(inside)
     if row.size:
         spread, beyond = spread[row, col][:, None], beyond[row, col][:, None]  # (A, 1) each
-        offsets = np.arange(-int(spread.max()), int(spread.max()) + 1)
+        widest = int(spread.max())
+        offsets = np.arange(-widest, widest + 1)
         window = nearest[row[:, None], (k[row, col][:, None] + offsets) % n_bins]  # (A, offsets)
         inside[row, col] = np.all((np.abs(offsets) > spread) | (window > beyond), axis=1)
     return inside.any(axis=0)
