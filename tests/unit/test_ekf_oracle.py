@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus, WallStatus
 from lrfslam.algo.geometry import compose, wrap_angle
@@ -171,10 +173,15 @@ def test_predict_matches_dense_linearisation(seed):
     x, P = f.state_mean, f.state_cov
     u = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.2), rng.uniform(-0.5, 0.5)])
     d = np.hypot(u[0], u[1])
-    # Random-walk noise: wheel-scale error along the motion, isotropic floor.
+    # Random-walk noise: wheel-scale error along the motion, the heading walk and the sideways
+    # drift it integrates to (variance v d²/3, covariance v d/2 with the heading), isotropic floor.
+    along, left = u[:2] / d, np.array([-u[1], u[0]]) / d
+    v = params.odom_rot_sigma_per_rad**2 * abs(u[2]) + params.odom_rot_sigma_per_m**2 * d
     q_u = np.zeros((3, 3))
-    q_u[:2, :2] = params.odom_trans_sigma_per_m**2 * np.outer(u[:2], u[:2]) / d + 0.01**2 * np.eye(2)
-    q_u[2, 2] = 0.02**2 + params.odom_rot_sigma_per_rad**2 * abs(u[2]) + params.odom_rot_sigma_per_m**2 * d
+    q_u[:2, :2] = (params.odom_trans_sigma_per_m**2 * d * np.outer(along, along) + v * d**2 / 3 * np.outer(left, left)
+                   + 0.01**2 * np.eye(2))
+    q_u[:2, 2] = q_u[2, :2] = v * d / 2 * left
+    q_u[2, 2] = 0.02**2 + v
 
     def motion(v):  # full state and increment → new full state, heading unwrapped
         out = v[:-3].copy()
@@ -276,12 +283,18 @@ def test_first_wall_direction_initialises_psi_with_theta_cross_covariances(seed)
     assert f.building_orientation == pytest.approx((expected[PSI], P[2, 2] + sigma**2 + 0.004**2))
 
 
-def test_predict_noise_does_not_depend_on_the_step_size():
-    """Random-walk odometry noise: one 0.4 m step and four 0.1 m steps agree."""
-    params = EkfParams(odom_trans_sigma_floor_m=0.0, odom_rot_sigma_floor_rad=0.0, odom_rot_sigma_per_m=0.0)
-    one, four = EkfSlam(params), EkfSlam(params)
-    one.predict([0.4, 0.0, 0.0])
-    for _ in range(4):
-        four.predict([0.1, 0.0, 0.0])
-    np.testing.assert_allclose(four.pose_cov, one.pose_cov, atol=1e-15)
-    assert one.pose_cov[0, 0] == pytest.approx(params.odom_trans_sigma_per_m**2 * 0.4)
+@settings(max_examples=50, deadline=None)
+@given(st.floats(0.05, 20.0), st.integers(2, 40), st.floats(0.0, 0.05), st.floats(0.0, 0.05), st.floats(0.0, 0.05))
+def test_predict_noise_does_not_depend_on_the_step_size(length_m, n, trans_per_m, rot_per_m, rot_per_rad):
+    """Random-walk odometry noise along a straight line: one step and n steps over the same
+    length agree, sideways drift included (what lets a resumed filter bridge many scans at once)."""
+    params = EkfParams(odom_trans_sigma_per_m=trans_per_m, odom_rot_sigma_per_m=rot_per_m,
+                       odom_rot_sigma_per_rad=rot_per_rad, odom_trans_sigma_floor_m=0.0, odom_rot_sigma_floor_rad=0.0)
+    one, many = EkfSlam(params), EkfSlam(params)
+    one.predict([length_m, 0.0, 0.0])
+    for _ in range(n):
+        many.predict([length_m / n, 0.0, 0.0])
+    np.testing.assert_allclose(many.pose_cov, one.pose_cov, rtol=1e-9, atol=1e-15)
+    # The integral of a heading random walk of variance v per metre: sideways v L³/3.
+    assert one.pose_cov[1, 1] == pytest.approx(rot_per_m**2 * length_m**3 / 3, rel=1e-9, abs=1e-18)
+    assert one.pose_cov[0, 0] == pytest.approx(trans_per_m**2 * length_m, rel=1e-9, abs=1e-18)

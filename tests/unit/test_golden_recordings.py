@@ -77,7 +77,9 @@ def test_a_v1_recording_holds_the_map_its_v2_rerun_sends_as_changes(tmp_path):
     (lrfslam.msgs.v1.SlamState); the same command today, with the filter of then (the tracker's
     free-space check, which came later, off), sends states as changes (v2). Read with the same
     code, they are the same filter: poses equal, maps equal within the stage's tolerance at every
-    state, and exactly at each whole map."""
+    state, and exactly at each whole map. Equal to a micrometre, not a bit: the odometry model
+    gained sideways drift later, which moves the states where scan matching fell back to odometry
+    by under a micrometre."""
     shutil.copy(GOLDEN / "intel_150.pipeline.mcap", tmp_path / "intel_150.pipeline.mcap")
     argv = ["slam", "--replay", str(tmp_path / "intel_150.pipeline.mcap"), "--out", str(tmp_path / "intel_150.slam.mcap"),
             "--set", "scan_match.free_space_check=false"]
@@ -100,15 +102,15 @@ def test_a_v1_recording_holds_the_map_its_v2_rerun_sends_as_changes(tmp_path):
     for v, lms in whole:
         expected = old_states[v.state_seq][1]
         np.testing.assert_array_equal(lms.ids, expected.ids)
-        np.testing.assert_array_equal(lms.xy_m, expected.xy_m)
-        np.testing.assert_array_equal(lms.cov_m2, expected.cov_m2)
+        np.testing.assert_allclose(lms.xy_m, expected.xy_m, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(lms.cov_m2, expected.cov_m2, rtol=0, atol=1e-9)
     checked = 0
     for topic, _, v, lms, complete in new:
         if topic != topics.SLAM_STATE.name:
             continue
         was, expected = old_states[v.seq]
         assert complete and v.n_landmarks == len(expected)
-        np.testing.assert_array_equal(v.pose, was.pose)
+        np.testing.assert_allclose(v.pose, was.pose, rtol=0, atol=1e-6)
         np.testing.assert_array_equal(lms.ids, expected.ids)
         np.testing.assert_array_equal(lms.sightings, expected.sightings)
         assert np.all(np.hypot(*(lms.xy_m - expected.xy_m).T) <= 0.005)

@@ -111,7 +111,9 @@ class EkfParams:
     Odometry errors are random walks (as in ``lrfslam.sim.odometry``): their
     variance grows linearly with the distance travelled and the angle turned,
     so a sigma "per metre" is the standard deviation accumulated over one metre
-    and the filter's uncertainty does not depend on how often ``predict`` runs.
+    and the filter's uncertainty does not depend on how often ``predict`` runs
+    (the sideways drift a heading walk causes within a step included; see
+    :meth:`EkfSlam.odometry_cov`).
 
     Attributes
     ----------
@@ -120,7 +122,8 @@ class EkfParams:
     odom_rot_sigma_per_rad : float
         Heading error accumulated over 1 rad turned (rad).
     odom_rot_sigma_per_m : float
-        Heading error accumulated over 1 m travelled (rad).
+        Heading error accumulated over 1 m travelled (rad); integrated along the
+        way, it also drifts the position sideways.
     odom_trans_sigma_floor_m, odom_rot_sigma_floor_rad : float
         Isotropic translation and heading noise added at every
         :meth:`EkfSlam.predict` call, even without motion (m, rad).
@@ -406,22 +409,33 @@ class EkfSlam:
         """Covariance (3, 3) the odometry model gives increment ``delta`` (3,), in its own frame.
 
         A wheel-scale error along the direction of travel, heading random
-        walks, and the isotropic floor (m², m·rad, rad²).
+        walks, the sideways drift those walks cause on the way, and the
+        isotropic floor (m², m·rad, rad²).
+
+        The heading error grows along the step, so the position ends up beside
+        where odometry puts it: with a heading variance ``v`` accumulated evenly
+        over ``d`` metres, the sideways error has variance ``v d²/3`` and
+        covariance ``v d/2`` with the heading (the integral of a random walk).
+        Per scan this is nothing (millimetres travelled); for one increment
+        bridging many scans (a slam resumed from its checkpoint) it is most of
+        the error, and leaving it out made the filter sure of a wrong pose.
+        With it, one increment has the covariance of the many small ones it
+        replaces along a straight line.
         """
         u = np.asarray(delta, dtype=float)
         if u.shape != (3,) or not np.all(np.isfinite(u)):
             raise InputError(f"delta must be 3 finite numbers, got {delta!r}")
         p = self.params
         dist = float(np.hypot(u[0], u[1]))
-        q_u = np.diag([p.odom_trans_sigma_floor_m**2, p.odom_trans_sigma_floor_m**2, 0.0])
+        heading_walk = p.odom_rot_sigma_per_rad**2 * abs(u[2]) + p.odom_rot_sigma_per_m**2 * dist
+        q_u = np.diag([p.odom_trans_sigma_floor_m**2, p.odom_trans_sigma_floor_m**2,
+                       p.odom_rot_sigma_floor_rad**2 + heading_walk])
         if dist > 0:
             along = u[:2] / dist
-            q_u[:2, :2] += p.odom_trans_sigma_per_m**2 * dist * np.outer(along, along)
-        q_u[2, 2] = (
-            p.odom_rot_sigma_floor_rad**2
-            + p.odom_rot_sigma_per_rad**2 * abs(u[2])
-            + p.odom_rot_sigma_per_m**2 * dist
-        )
+            left = np.array([-along[1], along[0]])
+            q_u[:2, :2] += (p.odom_trans_sigma_per_m**2 * dist * np.outer(along, along)
+                            + heading_walk * dist**2 / 3.0 * np.outer(left, left))
+            q_u[:2, 2] = q_u[2, :2] = heading_walk * dist / 2.0 * left
         return q_u
 
     def predict_with_cov(self, delta, delta_cov) -> None:
