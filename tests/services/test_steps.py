@@ -9,6 +9,7 @@ from lrfslam.services import stage
 from lrfslam.algo.geometry import compose, relative
 from lrfslam.algo.wall_direction import wrap_quarter
 from lrfslam.errors import InputError
+from lrfslam.evaluation import slam_resume
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
@@ -146,7 +147,6 @@ def test_pipeline_tracks_ground_truth_over_a_corridor():
     outs = sim_outputs(150)
     truth = {o.value.stamp_ns: o.value.pose for o in outs if o.topic is topics.TRUTH}
     states, _ = run("slam", chain(outs))
-    from lrfslam.algo.geometry import compose, relative
     anchor = compose(truth[states[0].stamp_ns], relative(states[0].pose, np.zeros(3)))
     err = [np.linalg.norm(compose(anchor, s.pose)[:2] - truth[s.stamp_ns][:2]) for s in states]
     assert states[-1].n_landmarks >= 2
@@ -192,33 +192,9 @@ def test_a_killed_slam_bridges_what_it_missed_within_its_own_uncertainty(tmp_pat
     13 s of driving later: one odometry step bridges 150 scans, and the resumed filter's position
     error stays inside its own 99.9 % bound at every state after, because the step's covariance holds
     the sideways drift of its heading walk (without it, 50 to 230 where the bound is 13.8)."""
-    kill_after, down_scans = 420, 130
-    outs = sim_outputs(kill_after + down_scans + 100, seed=5)
-    front = Chain([stage("denoise"), stage("features")], robot=ROBOT)
-    stream = []
-    for o in outs:
-        stream.append(msg(o))
-        if o.topic is not topics.TRUTH:
-            stream += [m for m in front.push(msg(o)) if m.topic is topics.FEATURES]
-    truth = {m.value.stamp_ns: m.value.pose for m in stream if m.topic is topics.TRUTH}
-    live = [stage("slam", sets=[f"checkpoint_path={tmp_path / 'slam.npz'}", "checkpoint_every_scans=50"])]
-    first, states, i = Chain(live, robot=ROBOT, replay=False), [], 0
-    while len(states) < kill_after:   # SIGKILL: never closed, so never saved on exit
-        states += [m.value for m in first.push(stream[i]) if m.topic is topics.SLAM_STATE]
-        i += 1
-    back_ns = states[-1].stamp_ns + round(down_scans * 0.1e9)
-    with Chain(live, robot=ROBOT, replay=False) as second:
-        assert second.step("slam").slam.scans == 400
-        resumed = [m.value for m in second.feed(m for m in stream[i:] if m.stamp_ns >= back_ns)
-                   if m.topic is topics.SLAM_STATE]
-    assert resumed[0].seq == 401 and len(resumed) >= 90
-    # SLAM's map frame is its first pose: the truth in it.
-    anchor = compose(truth[states[0].stamp_ns], relative(states[0].pose, np.zeros(3)))
-    nees = []
-    for s in resumed:
-        err = compose(anchor, s.pose)[:2] - truth[s.stamp_ns][:2]
-        nees.append(float(err @ np.linalg.solve(s.pose_cov[:2, :2], err)))
-    assert max(nees) < 13.8, np.round(nees, 1)
+    stream = slam_resume.sim_stream(seed=5, scans=650)
+    r = slam_resume.resume_once(stream, kill=420, down_scans=130, folder=tmp_path)
+    assert r.nees_max < 13.8 and r.final_cm < 3 * r.sigma_cm, r
 
 
 def test_bad_input_is_counted_and_skipped():
