@@ -90,15 +90,32 @@ class BusConfig:
         return float(ms) / 1000.0 if self.debug_slow and name == service else 0.0
 
 
-def zenoh_config(cfg: BusConfig) -> zenoh.Config:
-    """The Zenoh session configuration for ``cfg``."""
-    conf = zenoh.Config.from_file(cfg.zenoh_config) if cfg.zenoh_config else zenoh.Config()
-    conf.insert_json5("mode", json.dumps(cfg.mode))
-    conf.insert_json5("connect/endpoints", json.dumps(list(cfg.connect)))
-    if cfg.mode != "client":
-        conf.insert_json5("listen/endpoints", json.dumps(list(cfg.listen)))
+def base_config(mode: str, connect: list[str], zenoh_config: str | None = None) -> zenoh.Config:
+    """Every Zenoh session's configuration (services, router, tools): ``mode``, dialling ``connect``.
+
+    ``zenoh_config`` (a JSON5 file: TLS, ACL, ...) is applied first and otherwise as it is.
+    Without one, shared memory is off, as in rmw_zenoh's default: Zenoh 1.x otherwise gives
+    every process that publishes a message over 3 KB a 16 MiB pool in /dev/shm, which every
+    receiver on the host maps. Our messages are 0.1–10 KB, which loopback TCP carries as fast;
+    the pools showed as one-time steps of 16–35 MB in router, slam and recorder an hour into a
+    run (docs/delivery.md), and a container's /dev/shm is 64 MB by default. A config file that
+    wants them sets ``transport/shared_memory/enabled``.
+    """
+    conf = zenoh.Config.from_file(zenoh_config) if zenoh_config else zenoh.Config()
+    if not zenoh_config:
+        conf.insert_json5("transport/shared_memory/enabled", "false")
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     # Multicast does not cross container networks and must not leave loopback in CI.
     conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def zenoh_config(cfg: BusConfig) -> zenoh.Config:
+    """The Zenoh session configuration for ``cfg``."""
+    conf = base_config(cfg.mode, list(cfg.connect), cfg.zenoh_config)
+    if cfg.mode != "client":
+        conf.insert_json5("listen/endpoints", json.dumps(list(cfg.listen)))
     return conf
 
 

@@ -13,7 +13,7 @@ import threading
 
 import zenoh
 
-from lrfslam.runtime.bus import listen_error
+from lrfslam.runtime.bus import base_config, listen_error
 from lrfslam.runtime.runner import install_signal_handlers, setup_logging
 
 log = logging.getLogger("lrfslam.router")
@@ -31,11 +31,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--log-level", default=None)
     args = parser.parse_args(argv)
     setup_logging("router", args.log_level)
-    conf = zenoh.Config.from_file(args.zenoh_config) if args.zenoh_config else zenoh.Config()
-    conf.insert_json5("mode", '"router"')
+    conf = base_config("router", args.connect, args.zenoh_config)
     conf.insert_json5("listen/endpoints", json.dumps(args.listen or ["tcp/127.0.0.1:7447"]))
-    conf.insert_json5("connect/endpoints", json.dumps(args.connect))
-    conf.insert_json5("scouting/multicast/enabled", "false")
     if args.id:
         conf.insert_json5("id", json.dumps(args.id))
     stop = threading.Event()

@@ -22,6 +22,7 @@ from lrfslam.errors import DecodeError
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import health_file
+from lrfslam.runtime.bus import base_config
 from lrfslam.viz.dashboard import rates as status_rates
 from lrfslam.viz.dashboard import total
 
@@ -30,11 +31,7 @@ LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.H
 
 def client_config(connect: list[str], zenoh_config: str | None = None) -> zenoh.Config:
     """A client of ``connect``; ``zenoh_config`` (JSON5, e.g. TLS certificates) is applied first."""
-    conf = zenoh.Config.from_file(zenoh_config) if zenoh_config else zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("connect/endpoints", json.dumps(connect))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return conf
+    return base_config("client", connect, zenoh_config)
 
 
 def query_status(session: zenoh.Session, robot: str, timeout_s: float) -> tuple[set[tuple[str, str]],
