@@ -50,10 +50,12 @@ def sim_stream(seed: int, scans: int) -> list[Message]:
     sensor = build_step("sensor", sets=["source=sim", "speedup=0", f"seed={seed}"])
     front = Chain([stage("denoise"), stage("features")])
     stream: list[Message] = []
-    while sum(m.topic is topics.SCAN for m in stream) < scans:
+    n_scans = 0
+    while n_scans < scans:
         for out in sensor.poll(1.0):
             stream.append(Message.of(out))
             if out.topic is topics.SCAN:
+                n_scans += 1
                 stream += [m for m in front.push(stream[-1]) if m.topic is topics.FEATURES]
     return stream
 
@@ -63,8 +65,9 @@ def _states(outs: list[Message]) -> list[t.SlamState]:
 
 
 def resume_once(stream: list[Message], kill: int, down_scans: int, folder: Path) -> Resumed:
-    """Kill the slam at its state ``kill``, restart it ``down_scans`` scans (0.1 s each) later."""
+    """Kill the slam at its state ``kill``, restart it ``down_scans`` scans later."""
     truth = {m.stamp_ns: m.value.pose for m in stream if m.topic is topics.TRUTH}
+    scan_period_ns = int(np.diff([m.stamp_ns for m in stream if m.topic is topics.SCAN][:2])[0])
     slam = [stage("slam", sets=[f"checkpoint_path={folder / f'slam_{kill}_{down_scans}.npz'}",
                                 f"checkpoint_every_scans={CHECKPOINT_EVERY}"])]
     inputs = [m for m in stream if m.topic is not topics.TRUTH]
@@ -72,7 +75,7 @@ def resume_once(stream: list[Message], kill: int, down_scans: int, folder: Path)
     while len(before) < kill:
         before += _states(first.push(inputs[i]))
         i += 1
-    back_ns = before[-1].stamp_ns + round(down_scans * 0.1e9)
+    back_ns = before[-1].stamp_ns + down_scans * scan_period_ns
     with Chain(slam, replay=False) as second:
         after = _states(list(second.feed(m for m in inputs[i:] if m.stamp_ns >= back_ns)))
     # SLAM's map frame is its first pose: the truth in it, as lrfslam up scores a run.

@@ -22,6 +22,7 @@ import struct
 import threading
 import time
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -90,7 +91,7 @@ class BusConfig:
         return float(ms) / 1000.0 if self.debug_slow and name == service else 0.0
 
 
-def base_config(mode: str, connect: list[str], zenoh_config: str | None = None) -> zenoh.Config:
+def base_config(mode: str, connect: Sequence[str], zenoh_config: str | None = None) -> zenoh.Config:
     """Every Zenoh session's configuration (services, router, tools): ``mode``, dialling ``connect``.
 
     ``zenoh_config`` (a JSON5 file: TLS, ACL, ...) is applied first and otherwise as it is.
@@ -113,7 +114,7 @@ def base_config(mode: str, connect: list[str], zenoh_config: str | None = None) 
 
 def zenoh_config(cfg: BusConfig) -> zenoh.Config:
     """The Zenoh session configuration for ``cfg``."""
-    conf = base_config(cfg.mode, list(cfg.connect), cfg.zenoh_config)
+    conf = base_config(cfg.mode, cfg.connect, cfg.zenoh_config)
     if cfg.mode != "client":
         conf.insert_json5("listen/endpoints", json.dumps(list(cfg.listen)))
     return conf
