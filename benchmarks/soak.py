@@ -8,9 +8,10 @@ than real time, until the sensor has published ``--scans`` scans (``sensor.max_s
 ``--interval`` seconds it reads each process's resident memory (``VmRSS`` of /proc/<pid>/status;
 the processes are ``up`` itself, which holds the ground truth, and its children). The run's
 producing span is from the sensor's start to its last scan (scans / rate / speedup, wall s);
-warm-up ends at ``--warmup`` of it. The table: per process, RSS at the end of warm-up, at the
-end of the span, the growth between them (%), and the slope fitted after warm-up (bytes per
-scan); then up's summary and the verdict. Exit 1 if any process grew by ``--max-growth`` % or
+warm-up ends at ``--warmup`` of it. The table: per process, RSS at the end of warm-up and at the
+end of the span (each the median of the samples in the ``--window`` seconds before it, so a
+transient is not read as growth), the growth between them (%), the peak after warm-up, and the
+slope fitted after warm-up (bytes per scan); then up's summary and the verdict. Exit 1 if any process grew by ``--max-growth`` % or
 more after warm-up, or any stage dropped or missed (gap) an input, or the recording lost a scan,
 or any process restarted. docs/operations.md holds the figures. Timing lives here, not in the tests.
 """
@@ -47,10 +48,20 @@ class Series:
     name: str
     samples: list[tuple[float, int, int]] = field(default_factory=list)
 
-    def at(self, t_s: float) -> int | None:
-        """RSS (kB) of the last sample at or before ``t_s``."""
+    def level(self, t_s: float, window_s: float) -> int | None:
+        """Median RSS (kB) of the samples in the ``window_s`` seconds up to ``t_s``; the last
+        sample before ``t_s`` if none falls in it. A median, so that one sample taken during a
+        transient (a graph optimisation's working memory) is not read as growth."""
+        inside = [kb for t, kb, _ in self.samples if t_s - window_s <= t <= t_s]
+        if inside:
+            return int(np.median(inside))
         before = [kb for t, kb, _ in self.samples if t <= t_s]
         return before[-1] if before else None
+
+    def peak(self, t0_s: float, t1_s: float) -> int | None:
+        """Largest RSS (kB) sampled between ``t0_s`` and ``t1_s``."""
+        inside = [kb for t, kb, _ in self.samples if t0_s <= t <= t1_s]
+        return max(inside) if inside else None
 
     def pids(self) -> set[int]:
         return {pid for _, _, pid in self.samples}
@@ -70,12 +81,15 @@ class SoakResult:
     recorded: int
     lost: int
 
-    def rss_between(self, start_frac: float, end_frac: float = 1.0) -> dict[str, tuple[int, int]]:
-        """Per process: RSS (kB) at ``start_frac`` and at ``end_frac`` of the producing span."""
+    def rss_between(self, start_frac: float, end_frac: float = 1.0,
+                    window_s: float = 60.0) -> dict[str, tuple[int, int]]:
+        """Per process: RSS (kB) at ``start_frac`` and at ``end_frac`` of the producing span, each
+        the median of the samples in the ``window_s`` seconds before it (:meth:`Series.level`)."""
         a, b = self.span
         out = {}
         for name, s in self.series.items():
-            first, last = s.at(a + start_frac * (b - a)), s.at(a + end_frac * (b - a))
+            first = s.level(a + start_frac * (b - a), window_s)
+            last = s.level(a + end_frac * (b - a), window_s)
             if first and last:
                 out[name] = (first, last)
         return out
@@ -92,7 +106,7 @@ class SoakResult:
                 out[name] = slope_kb_per_s * 1024.0 / self.scans_per_s
         return out
 
-    def problems(self, warmup: float, max_growth_pct: float) -> list[str]:
+    def problems(self, warmup: float, max_growth_pct: float, window_s: float = 60.0) -> list[str]:
         """Every failed condition of the soak, one line each (empty: passed)."""
         found = []
         if self.returncode != 0:
@@ -111,7 +125,7 @@ class SoakResult:
         for name, s in self.series.items():
             if len(s.pids()) > 1:
                 found.append(f"{name}: {len(s.pids())} different processes (restarted)")
-        for name, (first, last) in self.rss_between(warmup).items():
+        for name, (first, last) in self.rss_between(warmup, window_s=window_s).items():
             growth = 100.0 * (last - first) / first
             if growth >= max_growth_pct:
                 found.append(f"{name}: RSS grew {growth:.1f} % after warm-up ({first} -> {last} kB)")
@@ -154,18 +168,21 @@ def run_soak(scans: int, rate_hz: float, speedup: float, interval_s: float, work
                       stages, published, recorded, lost)
 
 
-def table(result: SoakResult, warmup: float) -> str:
+def table(result: SoakResult, warmup: float, window_s: float = 60.0) -> str:
     """The per-process memory table (Markdown) and the summary's counts."""
-    rss = result.rss_between(warmup)
+    rss = result.rss_between(warmup, window_s=window_s)
     slopes = result.bytes_per_scan(warmup)
-    lines = [f"| process | RSS at {warmup:.0%} (MB) | RSS at end (MB) | growth | slope after warm-up (B/scan) |",
-             "|---|---|---|---|---|"]
+    a, b = result.span
+    lines = [(f"| process | RSS at {warmup:.0%} (MB) | RSS at end (MB) | growth | peak after warm-up (MB) "
+              "| slope after warm-up (B/scan) |"),
+             "|---|---|---|---|---|---|"]
     for name in ("up", "router", "sensor", "denoise", "features", "slam", "mapper", "recorder"):
         if name not in rss:
             continue
         first, last = rss[name]
+        peak = result.series[name].peak(a + warmup * (b - a), b) or last
         lines.append(f"| {name} | {first / 1024:.1f} | {last / 1024:.1f} | {100.0 * (last - first) / first:+.1f} % "
-                     f"| {slopes.get(name, float('nan')):.0f} |")
+                     f"| {peak / 1024:.1f} | {slopes.get(name, float('nan')):.0f} |")
     dropped = sum(r.dropped for r in result.stages.values())
     gaps = sum(r.gaps for r in result.stages.values())
     restarts = sum(r.restarts for r in result.stages.values())
@@ -182,6 +199,8 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--interval", type=float, default=5.0, help="seconds between RSS samples")
     parser.add_argument("--warmup", type=float, default=0.1, help="fraction of the run before the first RSS compared")
+    parser.add_argument("--window", type=float, default=60.0,
+                        help="RSS at a point is the median of the samples in this many seconds before it")
     parser.add_argument("--max-growth", type=float, default=10.0, help="RSS growth after warm-up that fails (%%)")
     parser.add_argument("--csv", metavar="FILE", help="also write every sample (process, s, kB, pid)")
     args = parser.parse_args()
@@ -195,9 +214,10 @@ def main() -> int:
             for s in result.series.values():
                 f.writelines(f"{s.name},{t:.1f},{kb},{pid}\n" for t, kb, pid in s.samples)
     print(f"{result.scans} scans at {args.rate_hz:g} Hz x {args.speedup:g} ({result.scans_per_s:g} scans per "
-          f"wall s); RSS sampled every {args.interval:g} s; warm-up {args.warmup:.0%} of the producing span\n")
-    print(table(result, args.warmup))
-    problems = result.problems(args.warmup, args.max_growth)
+          f"wall s); RSS sampled every {args.interval:g} s, read as the median of the last {args.window:g} s; "
+          f"warm-up {args.warmup:.0%} of the producing span\n")
+    print(table(result, args.warmup, args.window))
+    problems = result.problems(args.warmup, args.max_growth, args.window)
     print("\n" + ("\n".join(f"FAIL {p}" for p in problems) if problems else "PASS"))
     return 1 if problems else 0
 

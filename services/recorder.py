@@ -45,10 +45,11 @@ class RecorderConfig:
     directory: str = "recordings"   # parent of the recording folder; created if missing
     name: str = ""                  # recording folder and segment stem; default <YYYYmmdd-HHMMSS>_<robot> (UTC)
     flush_period_s: float = 1.0     # a killed recorder loses at most this much
-    chunk_size_kb: int = 256
-    # Start the next segment past this size (MB); 0: no limit. MCAP's writer keeps an index entry
-    # per chunk until the file closes (~10 MB of memory per GB written, +12 MB in a one-hour soak):
-    # the limit bounds it.
+    # MCAP's own default. The flush closes a chunk every second anyway; a smaller limit only adds
+    # chunks, and MCAP's writer keeps an index entry (~1.5 KB) per chunk until the segment closes.
+    chunk_size_kb: int = 1024
+    # Start the next segment past this size (MB); 0: no limit. It bounds the chunk index above in
+    # memory (docs/operations.md, "Soak").
     max_segment_mb: float = 512.0
     max_segment_s: float = 0.0      # start the next segment at this age (s); 0: no limit
     retry_period_s: float = 10.0    # after a write error (full disk), try a new segment this often

@@ -264,7 +264,7 @@ def test_revisits_keep_no_points_and_are_never_candidates(hallway_run, hallway_f
     assert not any(revisit[k] for k, _, _ in mapper.closures())
     assert counts[second_lap].sum() < 0.2 * counts[~second_lap].sum()
     # Without trimming every keyframe keeps its points.
-    untrimmed = LoopClosingMapper(LoopClosureParams(trim_revisits=False))
+    untrimmed = LoopClosingMapper(LoopClosureParams(trim_revisits=False, fold_revisits=False))
     for f in hallway_frames[0]:
         untrimmed.add_scan(*f)
     kept = untrimmed.snapshot()
@@ -275,7 +275,7 @@ def test_revisits_keep_no_points_and_are_never_candidates(hallway_run, hallway_f
 def test_a_stretch_of_lost_scans_is_never_a_candidate(trim):
     # 16 m of the first lap came without scans: a keyframe there has no points and neither
     # have its neighbours, so its submap would be empty. The later laps search past it.
-    mapper = LoopClosingMapper(LoopClosureParams(trim_revisits=trim))
+    mapper = LoopClosingMapper(LoopClosureParams(trim_revisits=trim, fold_revisits=trim))
     rng = np.random.default_rng(4)
     clutter = rng.uniform(-4, 4, (120, 2))
     k = 0
@@ -314,3 +314,45 @@ def test_the_drift_model_widens_long_loops_windows_and_leaves_short_ones_as_the_
         assert (grow > 3.0) if long_loop else (grow < 1.1)
     with pytest.raises(ConfigError):
         LoopClosureParams(drift_onset_rad=-0.01)
+
+
+def _core(mapper: LoopClosingMapper) -> tuple[int, int]:
+    """Nodes that are not leaves, and the edges between them: what the optimisation and the
+    factorisation work on (a leaf adds a block, no fill)."""
+    graph = mapper.graph
+    degree = np.array([graph.edges_of(k).size for k in range(len(graph))])
+    core = set(np.flatnonzero(degree > 1).tolist()) | {0}
+    edges = {e for k in core for e in graph.edges_of(k).tolist() if set(graph.edge_nodes(e)) <= core}
+    return len(core), len(edges)
+
+
+@pytest.mark.parametrize("fold", [True, False])
+def test_laps_of_the_same_loop_leave_the_graph_the_size_of_the_place(fold):
+    # Four laps, a keyframe a scan: folded, every lap after the first adds leaves on the first
+    # lap's keyframes and no node the optimisation works on; unfolded, a lap of nodes each time.
+    cfg = SimConfig(speed_mps=1.0, rate_hz=2.0, seed=5,
+                    odometry=OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02))
+    lap = 124
+    mapper = LoopClosingMapper(LoopClosureParams(fold_revisits=fold))
+    truth, cores = [], {}
+    for i, frame in zip(range(4 * lap), Simulator(cfg), strict=False):
+        mapper.add_scan(int(frame.t_s * 1e9), frame.odom_pose, points(frame.scan.ranges_m, frame.scan.angles_rad))
+        truth.append(frame.true_pose)
+        if i + 1 in (2 * lap, 4 * lap):
+            mapper.solve()
+            cores[i + 1] = _core(mapper)
+    errors = aligned_errors(mapper.trajectory()[1], np.array(truth))
+    assert errors.max() < 0.25 and errors.mean() < 0.1
+    assert all(closures_are_right(mapper, np.array(truth)))
+    (nodes_2, edges_2), (nodes_4, edges_4) = cores[2 * lap], cores[4 * lap]
+    if fold:
+        assert mapper.stats.folded > 1.5 * lap
+        graph = mapper.graph
+        folded = [k for k in range(len(graph)) if graph.edges_of(k).size == 1 and k > 0]
+        assert len(folded) == mapper.stats.folded
+        assert all(graph.edge_is_robust(int(graph.edges_of(k)[0])) for k in folded)   # each a leaf on its closure
+        # Two more laps: the core grows by the keyframes not folded yet (fold_after_keyframes), no more.
+        assert nodes_4 - nodes_2 < 0.2 * lap and edges_4 - edges_2 < 0.4 * lap
+    else:
+        assert mapper.stats.folded == 0
+        assert nodes_4 - nodes_2 > 1.8 * lap and edges_4 - edges_2 > 3.6 * lap

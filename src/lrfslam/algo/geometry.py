@@ -86,6 +86,39 @@ def relative(pose_a, pose_b):
     return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(tb - ta)])
 
 
+def compose_with_covariance(a, cov_a, b, cov_b) -> tuple[np.ndarray, np.ndarray]:
+    """``a ⊕ b`` of two independent uncertain relative poses, and its covariance to first order.
+
+    Parameters
+    ----------
+    a, b : array_like, shape (3,)
+        ``(x_m, y_m, theta_rad)``; ``b`` in ``a``'s frame.
+    cov_a, cov_b : array_like, shape (3, 3)
+        Their covariances (m², m·rad, rad²).
+
+    Returns
+    -------
+    pose : ndarray, shape (3,)
+    cov : ndarray, shape (3, 3)
+    """
+    t = float(a[2])
+    c, s = np.cos(t), np.sin(t)
+    bx, by = float(b[0]), float(b[1])
+    jac_a = np.array([[1.0, 0.0, -s * bx - c * by], [0.0, 1.0, c * bx - s * by], [0.0, 0.0, 1.0]])
+    jac_b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    cov = jac_a @ np.asarray(cov_a, dtype=float) @ jac_a.T + jac_b @ np.asarray(cov_b, dtype=float) @ jac_b.T
+    return compose(a, b), 0.5 * (cov + cov.T)
+
+
+def inverse_with_covariance(a, cov_a) -> tuple[np.ndarray, np.ndarray]:
+    """``⊖a`` (the origin seen from ``a``) and its covariance to first order, (3,) and (3, 3)."""
+    x, y, t = (float(v) for v in a)
+    c, s = np.cos(t), np.sin(t)
+    jac = np.array([[-c, -s, s * x - c * y], [s, -c, c * x + s * y], [0.0, 0.0, -1.0]])
+    cov = jac @ np.asarray(cov_a, dtype=float) @ jac.T
+    return relative(a, np.zeros(3)), 0.5 * (cov + cov.T)
+
+
 def to_frame(points_xy: np.ndarray, pose) -> np.ndarray:
     """Express world points in the frame of ``pose``.
 

@@ -81,7 +81,13 @@ import numpy as np
 
 from lrfslam.algo.checks import require_finite
 from lrfslam.algo.correlative_match import CorrelativeParams, LikelihoodGrid, search
-from lrfslam.algo.geometry import compose, from_frame, relative
+from lrfslam.algo.geometry import (
+    compose,
+    compose_with_covariance,
+    from_frame,
+    inverse_with_covariance,
+    relative,
+)
 from lrfslam.algo.pose_graph import PoseGraph, PoseGraphParams
 from lrfslam.algo.scan_match import ReferenceScan, ScanMatchParams, match
 from lrfslam.errors import ConfigError, InputError
@@ -197,6 +203,20 @@ class LoopClosureParams:
         ``max(query_keyframes, odometry_keyframes)``: a place's map is the visit that
         first mapped it, and a robot driving the same rounds adds a node and its edges
         per keyframe (~0.3 KB), not a scan's points (~2.4 KB).
+    fold_revisits : bool
+        Once an optimisation has kept its closure and it is no longer one of the recent keyframes,
+        a revisit keyframe is folded into the keyframe it closed the loop to: its other edges are
+        carried there (composed with the closure, whose uncertainty they take on) and merged with
+        the edges already between the same keyframes, and it stays only as a leaf on its closure,
+        placed by it. A robot driving the same rounds then adds leaves, which the factorisation
+        does not fill in, instead of a lap of nodes tied to the first lap's by their closures,
+        whose fill grows with the square of the laps (docs/operations.md, "Soak"). Needs
+        ``trim_revisits``.
+    fold_after_keyframes : int
+        A revisit is folded once this many keyframes came after it: the optimisations of the
+        closures after it still place it (Intel's relations over 30 s, m: 0.027 folding
+        after 5, 0.025 after 50, 0.032 after 100, 0.025 after 200, 0.024 unfolded: closures decided
+        differently, no trend; docs/slam.md).
     """
 
     keyframe_trans_m: float = 0.5
@@ -243,6 +263,8 @@ class LoopClosureParams:
     interpolate: bool = True
     ekf_jump_rad: float = 0.02
     trim_revisits: bool = True
+    fold_revisits: bool = True
+    fold_after_keyframes: int = 50
 
     def __post_init__(self) -> None:
         positive = ("max_range_m", "keyframe_cell_m", "query_cell_m", "odom_trans_sigma_m", "odom_rot_sigma_rad",
@@ -260,6 +282,10 @@ class LoopClosureParams:
                 or self.cached_submaps < 1 or self.max_pending_closures < 1 or self.odometry_keyframes < 1:
             raise ConfigError("loop closure needs submap_keyframes >= 0, query_keyframes >= 1, "
                               "max_candidates >= 0 cached_submaps >= 1, max_pending_closures >= 1 and odometry_keyframes >= 1")
+        if self.fold_after_keyframes < 0:
+            raise ConfigError("loop closure fold_after_keyframes must be >= 0")
+        if self.fold_revisits and not self.trim_revisits:
+            raise ConfigError("loop closure fold_revisits needs trim_revisits (only a revisit is folded)")
 
 
 @dataclass(frozen=True)
@@ -278,6 +304,8 @@ class ClosureStats:
         Loop edges added to the graph.
     removed : int
         Of those, removed after optimisation (the graph disagreed).
+    folded : int
+        Revisit keyframes folded into the keyframes they revisited (``fold_revisits``).
     optimisations : int
         Graph optimisations run.
     ekf_jumps : int
@@ -292,6 +320,7 @@ class ClosureStats:
     unconfirmed: int = 0
     accepted: int = 0
     removed: int = 0
+    folded: int = 0
     optimisations: int = 0
     ekf_jumps: int = 0
 
@@ -305,6 +334,7 @@ class _Keyframe:
     scan_index: int  # the scan that made it, in the order fed
     stamp_ns: int  # that scan's stamp
     revisit: bool = False  # it closed a loop into an older part of the map
+    folded: bool = False  # a leaf on its closure (``fold_revisits``)
 
 
 class LoopClosingMapper:
@@ -341,6 +371,7 @@ class LoopClosingMapper:
         self._last_wide_search_m = -np.inf  # travel at the last wide search
         self._tentative = None  # a closure from a wide window awaiting confirmation
         self._pending_strong = False  # one of them disagrees strongly with the estimate they were added to
+        self._fold_queue: list[int] = []  # revisit keyframes not folded yet, oldest first
 
     @property
     def stats(self) -> ClosureStats:
@@ -469,6 +500,8 @@ class LoopClosingMapper:
             "keyframe_scan_index": self.keyframe_scans(),
             "keyframe_stamp_ns": np.array([k.stamp_ns for k in kfs], dtype=np.int64),
             "keyframe_revisit": np.array([k.revisit for k in kfs], dtype=bool),
+            "keyframe_folded": np.array([k.folded for k in kfs], dtype=bool),
+            "fold_queue": np.array(self._fold_queue, dtype=np.int64),
             "scans_fed": np.int64(self._scans_fed),
             "keep_scans": np.bool_(self._keep_scans),
             "scan_keyframe": np.array(self._scan_kf, dtype=np.int64),
@@ -513,13 +546,20 @@ class LoopClosingMapper:
             stamps = np.array(arrays["keyframe_stamp_ns"], dtype=np.int64)
             revisit = np.array(arrays["keyframe_revisit"], dtype=bool)
             k = len(mapper.graph)
+            # A snapshot from before revisits were folded has none folded and none queued.
+            folded = np.array(arrays["keyframe_folded"], dtype=bool) if "keyframe_folded" in arrays \
+                else np.zeros(k, dtype=bool)
+            queue = np.array(arrays["fold_queue"], dtype=np.int64) if "fold_queue" in arrays \
+                else np.zeros(0, dtype=np.int64)
             if not (counts.shape == travel.shape == edge.shape == scan_index.shape == stamps.shape == revisit.shape
-                    == (k,)
+                    == folded.shape == (k,) and np.all((queue >= 0) & (queue < k))
                     and local.shape == (k, 3) and np.all(counts >= 0) and counts.sum() == points.shape[0]):
                 raise InputError("mapper snapshot: keyframe arrays disagree with the graph")
             for i, pts in enumerate(np.split(points, np.cumsum(counts)[:-1]) if k else []):
                 mapper._keyframes.append(_Keyframe(local[i], pts, float(travel[i]), bool(edge[i]),
-                                                   int(scan_index[i]), int(stamps[i]), bool(revisit[i])))
+                                                   int(scan_index[i]), int(stamps[i]), bool(revisit[i]),
+                                                   bool(folded[i])))
+            mapper._fold_queue = queue.tolist()
             mapper._scans_fed = int(arrays["scans_fed"])
             if mapper._keep_scans:
                 mapper._scan_kf = np.array(arrays["scan_keyframe"], dtype=np.int64).tolist()
@@ -586,6 +626,8 @@ class LoopClosingMapper:
         if self.params.trim_revisits and not self._keyframes[k].revisit:
             self._keyframes[k] = replace(self._keyframes[k], revisit=True)
             self._trim(k)
+            if self.params.fold_revisits:
+                self._fold_queue.append(k)
 
     def _trim(self, k: int) -> None:
         """Drop keyframe ``k``'s points if it is a revisit and no longer one of the recent keyframes."""
@@ -819,13 +861,89 @@ class LoopClosingMapper:
             self._counts["optimisations"] += 1
             self._submaps.clear()  # neighbours moved: the submaps are rebuilt from the new poses
             if not self._loop_edges:
-                return
+                break
             weights = self.graph.loop_weights()[self._loop_edges]
             worst = int(np.argmin(weights))
             if weights[worst] >= p.min_weight:
-                return
+                break
             self.graph.remove_edge(self._loop_edges.pop(worst))
             self._counts["removed"] += 1
+        self._fold_settled()
+
+    # -- folding revisits -----------------------------------------------------------------------
+
+    def _fold_settled(self) -> None:
+        """Fold every queued revisit keyframe that is no longer recent (``fold_revisits``).
+
+        Run right after an optimisation: every closure in the graph has been through one and
+        kept its weight, and the poses are the optimum the folded edges are linearised at.
+        """
+        last = len(self._keyframes) - max(self._recent_keyframes, self.params.fold_after_keyframes)
+        if not self._fold_queue or self._fold_queue[0] >= last:
+            return
+        weights = self.graph.loop_weights()
+        loops = {e: self.graph.edge_nodes(e) for e in self._loop_edges}
+        while self._fold_queue and self._fold_queue[0] < last:
+            n = self._fold_queue.pop(0)
+            into = [e for e, (_, j) in loops.items() if j == n]
+            if into:   # (its closure may have been removed: then it stays a node like any other)
+                self._fold(n, max(into, key=lambda e: weights[e]), weights)
+
+    def _fold(self, n: int, anchor_edge: int, weights: np.ndarray) -> None:
+        """Fold keyframe ``n`` into the keyframe its closure ``anchor_edge`` comes from.
+
+        ``n = k ⊕ z_L``: every other edge of ``n`` is re-expressed as an edge of ``k`` through
+        ``z_L``, its covariance grown by the closure's (``Σ_L / w``, its information as the
+        optimisation weighed it), and merged with an edge already between the same keyframes.
+        ``n`` keeps only its closure, so a leaf: its pose follows ``k``'s.
+        """
+        graph = self.graph
+        k = graph.edge_nodes(anchor_edge)[0]
+        # Where the optimisation put n, not where the closure alone did: the optimum weighed the
+        # closure against the odometry chain, and the folded edges are to keep that optimum.
+        z_l = relative(graph.poses[k], graph.poses[n])
+        info_l = graph.edge_information(anchor_edge)
+        graph.set_edge(anchor_edge, k, n, z_l, info_l, robust=True)
+        cov_l = np.linalg.inv(info_l) / max(float(weights[anchor_edge]), 1e-9)
+        z_l_inv, cov_l_inv = inverse_with_covariance(z_l, cov_l)
+        for e in graph.edges_of(n).tolist():
+            if e == anchor_edge:
+                continue
+            i, j = graph.edge_nodes(e)
+            cov = np.linalg.inv(graph.edge_information(e)) / max(float(weights[e]), 1e-9)
+            if j == n:   # i -> n becomes i -> k
+                a, b = i, k
+                z, cov = compose_with_covariance(graph.edge_measurement(e), cov, z_l_inv, cov_l_inv)
+            else:        # n -> j becomes k -> j
+                a, b = k, j
+                z, cov = compose_with_covariance(z_l, cov_l, graph.edge_measurement(e), cov)
+            if e in self._loop_edges:   # a second closure of n: now a plain edge between old keyframes
+                self._loop_edges.remove(e)
+            parallel = graph.find_edge(a, b) if a != b else None
+            if a == b or parallel is not None:
+                graph.remove_edge(e)
+            if parallel is not None:
+                self._merge(parallel, a, b, z, cov)
+            elif a != b:
+                graph.set_edge(e, a, b, z, np.linalg.inv(cov))
+        self._keyframes[n] = replace(self._keyframes[n], folded=True)
+        self._counts["folded"] += 1
+
+    def _merge(self, edge: int, a: int, b: int, z: np.ndarray, cov: np.ndarray) -> None:
+        """Fuse the measurement ``z`` (3,) of ``b`` in ``a``'s frame, covariance ``cov`` (3, 3), into ``edge``.
+
+        Information adds; the measurement moves from the edge's towards ``z`` by the new
+        information's share, in the edge's own frame (the two differ by a correction, not a turn).
+        """
+        graph = self.graph
+        i, _ = graph.edge_nodes(edge)
+        if i != a:   # the edge runs b -> a
+            z, cov = inverse_with_covariance(z, cov)
+        old_z, old_info = graph.edge_measurement(edge), graph.edge_information(edge)
+        info = np.linalg.inv(cov)
+        fused_info = old_info + info
+        step = np.linalg.solve(fused_info, info @ relative(old_z, z))
+        graph.set_edge(edge, *graph.edge_nodes(edge), compose(old_z, step), fused_info)
 
 
 def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:

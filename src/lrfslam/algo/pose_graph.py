@@ -188,6 +188,22 @@ class PoseGraph:
         robust : bool
             Put the Cauchy kernel on it (loop closures).
         """
+        z, info = self._checked_edge(i, j, measurement, information)
+        if self._m == self._z.shape[0]:
+            size = max(16, 2 * self._m)
+            self._nodes, self._z, self._info, self._robust, self._alive = (
+                _grown(a, size) for a in (self._nodes, self._z, self._info, self._robust, self._alive))
+        self._m += 1
+        self._write_edge(self._m - 1, i, j, z, info, robust)
+        return self._m - 1
+
+    def set_edge(self, edge: int, i: int, j: int, measurement, information, robust: bool = False) -> None:
+        """Replace edge ``edge`` (alive again if removed) by one between ``i`` and ``j``, as :meth:`add_edge`."""
+        self._check_edge(edge)
+        self._write_edge(edge, i, j, *self._checked_edge(i, j, measurement, information), robust)
+        self._factor = None
+
+    def _checked_edge(self, i: int, j: int, measurement, information) -> tuple[np.ndarray, np.ndarray]:
         self._check_node(i)
         self._check_node(j)
         z = np.asarray(measurement, dtype=float)
@@ -195,23 +211,40 @@ class PoseGraph:
         if i == j or z.shape != (3,) or info.shape != (3, 3) or not (np.all(np.isfinite(z))
                                                                        and np.all(np.isfinite(info))):
             raise InputError("an edge needs two different nodes, a finite (3,) measurement and (3, 3) information")
-        if self._m == self._z.shape[0]:
-            size = max(16, 2 * self._m)
-            self._nodes, self._z, self._info, self._robust, self._alive = (
-                _grown(a, size) for a in (self._nodes, self._z, self._info, self._robust, self._alive))
-        m = self._m
+        return z, info
+
+    def _write_edge(self, m: int, i: int, j: int, z: np.ndarray, info: np.ndarray, robust: bool) -> None:
         self._nodes[m] = (i, j)
         self._z[m] = z
         self._info[m] = 0.5 * (info + info.T)
         self._robust[m] = bool(robust)
         self._alive[m] = True
-        self._m += 1
-        return m
 
     def remove_edge(self, edge: int) -> None:
         """Take an edge out of the problem (a closure found wrong); indices of the others stay."""
         self._alive[self._check_edge(edge)] = False
         self._factor = None
+
+    def edges_of(self, node: int) -> np.ndarray:
+        """Indices of the edges in the problem that touch ``node``, ascending, (D,)."""
+        self._check_node(node)
+        nodes = self._nodes[: self._m]
+        return np.flatnonzero(self._alive[: self._m] & ((nodes[:, 0] == node) | (nodes[:, 1] == node)))
+
+    def find_edge(self, i: int, j: int, robust: bool = False) -> int | None:
+        """The first edge in the problem between ``i`` and ``j`` (either way round) of that kind, or None."""
+        nodes = self._nodes[: self._m]
+        found = np.flatnonzero(self._alive[: self._m] & (self._robust[: self._m] == robust)
+                               & (((nodes[:, 0] == i) & (nodes[:, 1] == j)) | ((nodes[:, 0] == j) & (nodes[:, 1] == i))))
+        return int(found[0]) if found.size else None
+
+    def edge_information(self, edge: int) -> np.ndarray:
+        """An edge's information (3, 3)."""
+        return self._info[self._check_edge(edge)].copy()
+
+    def edge_is_robust(self, edge: int) -> bool:
+        """Whether an edge carries the Cauchy kernel (a loop closure)."""
+        return bool(self._robust[self._check_edge(edge)])
 
     def edge_nodes(self, edge: int) -> tuple[int, int]:
         """The nodes ``(i, j)`` an edge joins."""
