@@ -9,8 +9,8 @@ than real time, until the sensor has published ``--scans`` scans (``sensor.max_s
 the processes are ``up`` itself, which holds the ground truth, and its children). The run's
 producing span is from the sensor's start to its last scan (scans / rate / speedup, wall s);
 warm-up ends at ``--warmup`` of it. The table: per process, RSS at the end of warm-up and at the
-end of the span (each the median of the samples in the ``--window`` seconds before it, so a
-transient is not read as growth), the growth between them (%), the peak after warm-up, and the
+end of the span (the medians of the samples in the ``--window`` seconds after the one and before
+the other, so a transient is not read as growth), the growth between them (%), the peak after warm-up, and the
 slope fitted after warm-up (bytes per scan); then up's summary and the verdict. Exit 1 if any process grew by ``--max-growth`` % or
 more after warm-up, or any stage dropped or missed (gap) an input, or the recording lost a scan,
 or any process restarted. docs/operations.md holds the figures. Timing lives here, not in the tests.
@@ -48,14 +48,14 @@ class Series:
     name: str
     samples: list[tuple[float, int, int]] = field(default_factory=list)
 
-    def level(self, t_s: float, window_s: float) -> int | None:
-        """Median RSS (kB) of the samples in the ``window_s`` seconds up to ``t_s``; the last
-        sample before ``t_s`` if none falls in it. A median, so that one sample taken during a
-        transient (a graph optimisation's working memory) is not read as growth."""
-        inside = [kb for t, kb, _ in self.samples if t_s - window_s <= t <= t_s]
+    def level(self, t0_s: float, t1_s: float) -> int | None:
+        """Median RSS (kB) of the samples between ``t0_s`` and ``t1_s``; the last sample before
+        ``t1_s`` if none falls between. A median, so that one sample taken during a transient (a
+        graph optimisation's working memory) is not read as growth."""
+        inside = [kb for t, kb, _ in self.samples if t0_s <= t <= t1_s]
         if inside:
             return int(np.median(inside))
-        before = [kb for t, kb, _ in self.samples if t <= t_s]
+        before = [kb for t, kb, _ in self.samples if t <= t1_s]
         return before[-1] if before else None
 
     def peak(self, t0_s: float, t1_s: float) -> int | None:
@@ -83,13 +83,15 @@ class SoakResult:
 
     def rss_between(self, start_frac: float, end_frac: float = 1.0,
                     window_s: float = 60.0) -> dict[str, tuple[int, int]]:
-        """Per process: RSS (kB) at ``start_frac`` and at ``end_frac`` of the producing span, each
-        the median of the samples in the ``window_s`` seconds before it (:meth:`Series.level`)."""
+        """Per process: RSS (kB) at ``start_frac`` and at ``end_frac`` of the producing span, each the
+        median of the samples (:meth:`Series.level`) in the ``window_s`` seconds after the start and
+        before the end, both inside the span compared (at most half of it each)."""
         a, b = self.span
+        t0, t1 = a + start_frac * (b - a), a + end_frac * (b - a)
+        w = min(window_s, 0.5 * (t1 - t0))
         out = {}
         for name, s in self.series.items():
-            first = s.level(a + start_frac * (b - a), window_s)
-            last = s.level(a + end_frac * (b - a), window_s)
+            first, last = s.level(t0, t0 + w), s.level(t1 - w, t1)
             if first and last:
                 out[name] = (first, last)
         return out
@@ -200,7 +202,8 @@ def main() -> int:
     parser.add_argument("--interval", type=float, default=5.0, help="seconds between RSS samples")
     parser.add_argument("--warmup", type=float, default=0.1, help="fraction of the run before the first RSS compared")
     parser.add_argument("--window", type=float, default=60.0,
-                        help="RSS at a point is the median of the samples in this many seconds before it")
+                        help="RSS at the end of warm-up is the median of the samples in this many seconds after it, "
+                        "and at the end the median of those in as many seconds before it")
     parser.add_argument("--max-growth", type=float, default=10.0, help="RSS growth after warm-up that fails (%%)")
     parser.add_argument("--csv", metavar="FILE", help="also write every sample (process, s, kB, pid)")
     args = parser.parse_args()
@@ -214,7 +217,7 @@ def main() -> int:
             for s in result.series.values():
                 f.writelines(f"{s.name},{t:.1f},{kb},{pid}\n" for t, kb, pid in s.samples)
     print(f"{result.scans} scans at {args.rate_hz:g} Hz x {args.speedup:g} ({result.scans_per_s:g} scans per "
-          f"wall s); RSS sampled every {args.interval:g} s, read as the median of the last {args.window:g} s; "
+          f"wall s); RSS sampled every {args.interval:g} s, read as medians over {args.window:g} s; "
           f"warm-up {args.warmup:.0%} of the producing span\n")
     print(table(result, args.warmup, args.window))
     problems = result.problems(args.warmup, args.max_growth, args.window)

@@ -224,6 +224,51 @@ def test_a_bad_snapshot_is_refused():
             PoseGraph.restore(None, broken)
 
 
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_leaves_are_left_out_of_the_factorisation_and_change_no_covariance(seed):
+    # Leaves (one edge each: the mapper's folded revisits) hang off a loop. The factorisation
+    # leaves them out; the covariance of any pair, leaves included, and after edges to a leaf and
+    # new nodes, must still be the dense oracle's.
+    rng = np.random.default_rng(seed)
+    truth = square_loop(side=5)
+    graph = noisy_graph(truth, rng, [(0, 15)])
+    hosts = rng.choice(np.arange(1, len(truth) - 1), size=6, replace=False).tolist()
+    leaves = []
+    for host in hosts:
+        offset = rng.normal(scale=(0.3, 0.3, 0.2))
+        leaves.append(graph.add_node(compose(graph.poses[host], offset)))
+        graph.add_edge(host, leaves[-1], offset + rng.normal(scale=0.01, size=3), np.diag(1.0 / SIGMA**2),
+                       robust=bool(rng.integers(2)))
+    pairs = [(int(a), int(b)) for a, b in rng.integers(0, len(truth), size=(3, 2))]
+    for a, b in pairs + [(hosts[0], leaves[0]), (leaves[1], 3), (leaves[2], leaves[3])]:
+        if a != b:
+            want = gauge_a_covariance(graph, a, b)
+            assert np.allclose(graph.relative_covariance(a, b), want, rtol=1e-7, atol=1e-12 * np.abs(want).max())
+    assert graph._factor.block.shape == (len(graph),)
+    # A new node joined to a leaf: the leaf is one no more.
+    graph.add_node(compose(graph.poses[leaves[4]], (0.5, 0.0, 0.1)))
+    graph.add_edge(leaves[4], len(graph) - 1, (0.5, 0.0, 0.1), np.diag(1.0 / SIGMA**2))
+    for a, b in ((2, len(graph) - 1), (leaves[4], 7)):
+        want = gauge_a_covariance(graph, a, b)
+        assert np.allclose(graph.relative_covariance(a, b), want, rtol=1e-7, atol=1e-12 * np.abs(want).max())
+
+
+def test_the_factorisation_leaves_the_leaves_out():
+    rng = np.random.default_rng(2)
+    truth = square_loop(side=5)
+    graph = noisy_graph(truth, rng, [(0, 15)])
+    for host in range(1, 15):
+        graph.add_node(compose(graph.poses[host], (0.1, 0.2, 0.0)))
+        graph.add_edge(host, len(graph) - 1, (0.1, 0.2, 0.0), np.diag(1.0 / SIGMA**2), robust=True)
+    graph.relative_covariance(2, 9)
+    # Left out: the gauge, the leaves but the newest node (the next one's edge will join it), and
+    # the first lap's last node, whose only edge is the one from its predecessor.
+    left_out = np.flatnonzero(graph._factor.block == -1).tolist()
+    assert left_out == [0, len(truth) - 1, *range(len(truth), len(graph) - 1)]
+    assert graph._factor.lu.shape == (3 * (len(graph) - len(left_out)),) * 2
+
+
 def test_what_was_added_since_the_factorisation_enters_exactly():
     # A robot on its second round: every new node closes into the first lap. The graph is
     # factorised once; the new nodes and closures must give what factorising again gives.

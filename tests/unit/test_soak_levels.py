@@ -43,5 +43,16 @@ def test_a_step_that_stays_is_growth(soak):
 def test_a_window_with_no_sample_takes_the_last_one_before(soak):
     sparse = [(0.0, 90_000), (40.0, 100_000), (100.0, 105_000)]
     result = _result(soak, {"slam": sparse})
-    assert result.series["slam"].level(70.0, 10.0) == 100_000
-    assert result.series["slam"].level(-1.0, 10.0) is None
+    assert result.series["slam"].level(60.0, 70.0) == 100_000
+    assert result.series["slam"].level(-11.0, -1.0) is None
+
+
+def test_warm_up_is_read_after_it_ends_and_the_end_before_it(soak):
+    # A one-time step just before warm-up ends (the mapper's first wide search) is warm-up, not growth.
+    step_then_flat = [(float(t), 100_000 if t < 8 else 130_000) for t in range(0, 101, 2)]
+    result = _result(soak, {"mapper": step_then_flat})
+    assert result.rss_between(0.1, window_s=30.0) == {"mapper": (130_000, 130_000)}
+    # The two windows never overlap: each is at most half of the span compared.
+    rising = [(float(t), 100_000 + 100 * t) for t in range(101)]
+    first, last = _result(soak, {"slam": rising}).rss_between(0.5, window_s=1000.0)["slam"]
+    assert (first, last) == (106_250, 108_750)   # medians of [50, 75] s and [75, 100] s

@@ -325,7 +325,13 @@ class ClosureStats:
     ekf_jumps: int = 0
 
 
-@dataclass(frozen=True, eq=False)
+#: The points of a keyframe that has none (trimmed), one array for all of them (read-only).
+_NO_POINTS = np.zeros((0, 2))
+_NO_POINTS.flags.writeable = False
+
+
+# Slots: a long run keeps thousands of these (~0.2 KB each without a __dict__).
+@dataclass(frozen=True, eq=False, slots=True)
 class _Keyframe:
     local_pose: np.ndarray  # (3,) its pose on the local trajectory
     points_xy_m: np.ndarray  # (N, 2) its scan, robot frame, thinned
@@ -633,7 +639,7 @@ class LoopClosingMapper:
         """Drop keyframe ``k``'s points if it is a revisit and no longer one of the recent keyframes."""
         if 0 <= k < len(self._keyframes) - self._recent_keyframes and self._keyframes[k].revisit \
                 and self._keyframes[k].points_xy_m.shape[0]:
-            self._keyframes[k] = replace(self._keyframes[k], points_xy_m=np.zeros((0, 2)))
+            self._keyframes[k] = replace(self._keyframes[k], points_xy_m=_NO_POINTS)
 
     def _step_or_jump(self, moved: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """``moved`` (3,), or ``reference`` (3,) where the two differ by more than ``ekf_jump_*``."""

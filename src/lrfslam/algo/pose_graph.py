@@ -40,7 +40,9 @@ Design choices
   it and that small dense matrix, old touched nodes plus new nodes, is inverted.
   The old graph's information about those nodes is all in their marginal, so this
   equals factorising everything again, which on a 3,000-keyframe graph with its
-  revisits' closures takes ~80 ms (benchmarks/bench_mapper_growth.py). The relative pose's
+  revisits' closures takes ~80 ms (benchmarks/bench_mapper_growth.py). The
+  factorisation leaves out the leaves (nodes with one edge: the mapper's folded
+  revisits), whose edges say nothing about the rest of the graph. The relative pose's
   Jacobian carries the two nodes' joint covariance into ``a``'s frame: the
   relative pose does not depend on the gauge, so this equals holding ``a``
   fixed (``tests/unit/test_pose_graph.py``).
@@ -391,8 +393,10 @@ class PoseGraph:
 
     # -- solving --------------------------------------------------------------------------------
 
-    def _normal_equations(self, poses, i, j, z, info, robust, gauge: int):
-        """Sparse H (3(K−1) square) and gradient b with node ``gauge`` eliminated, K = len(poses)."""
+    def _normal_equations(self, poses, i, j, z, info, robust, gauge: int, dropped: np.ndarray | None = None):
+        """Sparse H and gradient b with node ``gauge`` eliminated, and with it the nodes ``dropped``
+        ((K,) bool, None: none; their edges must not be among ``i, j``), K = len(poses); and each
+        node's block in them (K,), −1 for those left out. H is 3(K−1) square without ``dropped``."""
         e, jac_i, jac_j = self._residuals(poses, i, j, z, with_jacobians=True)
         chi2 = _mahalanobis2(e, info)
         _, w = self._robust_terms(chi2, robust)
@@ -405,8 +409,10 @@ class PoseGraph:
         grad_j = (jtj_w @ e[:, :, None])[:, :, 0]
         k = len(poses)
         # Map node -> reduced block index (the gauge node dropped, -1).
-        reduced = np.arange(k) - (np.arange(k) > gauge)
-        reduced[gauge] = -1
+        kept = np.ones(k, dtype=bool) if dropped is None else ~dropped
+        kept[gauge] = False
+        reduced = np.full(k, -1)
+        reduced[kept] = np.arange(np.count_nonzero(kept))
         ends = (reduced[i], reduced[j])
         rows, cols, vals = [], [], []
         off = np.arange(3)
@@ -418,7 +424,7 @@ class PoseGraph:
             rows.append(np.broadcast_to(r, blk[keep].shape).ravel())
             cols.append(np.broadcast_to(c, blk[keep].shape).ravel())
             vals.append(blk[keep].ravel())
-        size = 3 * (k - 1)
+        size = 3 * np.count_nonzero(kept)
         h = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                           shape=(size, size)).tocsc()
         b = np.zeros(size)
@@ -500,6 +506,29 @@ class PoseGraph:
         cov = jac @ joint @ jac.T
         return 0.5 * (cov + cov.T)
 
+    def _factorised(self, covered: int, edges: int, drop_leaves: bool) -> _Factor:
+        """The factorisation of the first ``covered`` nodes' and ``edges`` edges' normal equations.
+
+        With ``drop_leaves``, without the nodes with a single edge (a folded revisit of
+        lrfslam/algo/loop_closure.py) and their edges: a leaf's edge fixes the leaf and tells the
+        rest of the graph nothing (its Schur complement is zero), so the other nodes' covariance
+        is the same, and the factorisation is the size of the graph without its leaves.
+        """
+        alive = np.flatnonzero(self._alive[:edges])
+        i, j = self._nodes[alive, 0], self._nodes[alive, 1]
+        dropped = None
+        if drop_leaves:
+            degree = np.bincount(i, minlength=covered) + np.bincount(j, minlength=covered)
+            dropped = degree == 1
+            # The gauge is left out anyway; the newest node is the end of the chain, which the
+            # next node's edge will touch, not a leaf to stay one.
+            dropped[[0, covered - 1]] = False
+            alive = alive[~(dropped[i] | dropped[j])]
+        h, _, block = self._normal_equations(self.poses[:covered], self._nodes[alive, 0], self._nodes[alive, 1],
+                                             self._z[alive], self._info[alive], self._robust[alive], gauge=0,
+                                             dropped=dropped)
+        return _Factor(_factorise(h), covered, edges, block)
+
     def _joint_covariance(self, a: int, b: int) -> np.ndarray:
         """Covariance (6, 6) of nodes ``a`` and ``b`` (world frame) with the first node held fixed.
 
@@ -513,27 +542,24 @@ class PoseGraph:
         if factor is None or self._n - factor.covered > _MAX_NEW_NODES:
             factor = _Factor(None, self._n, self._m)
         if factor.lu is None:
-            alive = np.flatnonzero(self._alive[: factor.edges])
-            h, _, _ = self._normal_equations(self.poses[: factor.covered], self._nodes[alive, 0],
-                                             self._nodes[alive, 1], self._z[alive], self._info[alive],
-                                             self._robust[alive], gauge=0)
-            factor = _Factor(_factorise(h), factor.covered, factor.edges)
-        self._factor = factor
-        covered = factor.covered
+            factor = self._factorised(factor.covered, factor.edges, drop_leaves=True)
         new = factor.edges + np.flatnonzero(self._alive[factor.edges: self._m])
         i, j = self._nodes[new, 0], self._nodes[new, 1]
         ends = np.concatenate((i, j, [a, b]))
-        old = np.unique(ends[(ends > 0) & (ends < covered)])   # node 0, the gauge, has no variance
+        old = np.unique(ends[(ends > 0) & (ends < factor.covered)])   # node 0, the gauge, has no variance
+        if np.any(factor.block[old] < 0):   # a leaf left out is asked for, or has an edge since: all of it
+            factor = self._factorised(factor.covered, factor.edges, drop_leaves=False)
+        self._factor = factor
+        covered = factor.covered
         nodes = np.concatenate((old, np.arange(covered, self._n)))
         index = np.full(self._n, -1)
         index[nodes] = np.arange(nodes.size)
         size = 3 * nodes.size
         info = np.zeros((size, size))
         if old.size:
-            rhs = np.zeros((3 * (covered - 1), 3 * old.size))
-            for col, k in enumerate(old.tolist()):
-                rhs[3 * (k - 1): 3 * k, 3 * col: 3 * col + 3] = np.eye(3)
-            rows = (3 * (old - 1)[:, None] + np.arange(3)).ravel()
+            rows = (3 * factor.block[old][:, None] + np.arange(3)).ravel()
+            rhs = np.zeros((factor.lu.shape[0], rows.size))
+            rhs[rows, np.arange(rows.size)] = 1.0
             old_cov = factor.lu.solve(rhs)[rows]
             info[: 3 * old.size, : 3 * old.size] = np.linalg.inv(0.5 * (old_cov + old_cov.T))
         if new.size:
@@ -561,11 +587,13 @@ class PoseGraph:
 
 @dataclass(frozen=True)
 class _Factor:
-    """The LU (None: not built yet) of the normal equations of the first ``covered`` nodes and ``edges`` edges."""
+    """The LU (None: not built yet) of the normal equations of the first ``covered`` nodes and ``edges``
+    edges, and each node's block of rows in it ((covered,), −1: the gauge or a leaf left out)."""
 
     lu: object
     covered: int
     edges: int
+    block: np.ndarray | None = None
 
 
 #: Nodes added since the covariances' factorisation before it is built again: the dense
