@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import socket
 import subprocess
 import sys
@@ -96,14 +95,3 @@ def cluster(tmp_path):
     c.start_router()
     yield c
     c.close()
-
-
-@pytest.fixture(scope="session")
-def soak_module():
-    """benchmarks/soak.py as a module: its run and its process helpers, shared by the slow tests."""
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "soak.py"
-    spec = importlib.util.spec_from_file_location("soak", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["soak"] = module   # dataclasses look their module up by name
-    spec.loader.exec_module(module)
-    return module
