@@ -37,6 +37,8 @@ from lrfslam.tools.bench_live import (
 )
 
 ROBOT = "soak"
+#: Seconds of samples whose median is a process's RSS at the end of warm-up and at the end (``--window``).
+WINDOW_S = 60.0
 #: Wall seconds given to ``up`` beyond the producing span: starting every stage, then draining.
 START_MARGIN_S = 25.0
 
@@ -82,7 +84,7 @@ class SoakResult:
     lost: int
 
     def rss_between(self, start_frac: float, end_frac: float = 1.0,
-                    window_s: float = 60.0) -> dict[str, tuple[int, int]]:
+                    window_s: float = WINDOW_S) -> dict[str, tuple[int, int]]:
         """Per process: RSS (kB) at ``start_frac`` and at ``end_frac`` of the producing span, each the
         median of the samples (:meth:`Series.level`) in the ``window_s`` seconds after the start and
         before the end, both inside the span compared (at most half of it each)."""
@@ -108,7 +110,7 @@ class SoakResult:
                 out[name] = slope_kb_per_s * 1024.0 / self.scans_per_s
         return out
 
-    def problems(self, warmup: float, max_growth_pct: float, window_s: float = 60.0) -> list[str]:
+    def problems(self, warmup: float, max_growth_pct: float, window_s: float = WINDOW_S) -> list[str]:
         """Every failed condition of the soak, one line each (empty: passed)."""
         found = []
         if self.returncode != 0:
@@ -170,7 +172,7 @@ def run_soak(scans: int, rate_hz: float, speedup: float, interval_s: float, work
                       stages, published, recorded, lost)
 
 
-def table(result: SoakResult, warmup: float, window_s: float = 60.0) -> str:
+def table(result: SoakResult, warmup: float, window_s: float = WINDOW_S) -> str:
     """The per-process memory table (Markdown) and the summary's counts."""
     rss = result.rss_between(warmup, window_s=window_s)
     slopes = result.bytes_per_scan(warmup)
@@ -201,7 +203,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--interval", type=float, default=5.0, help="seconds between RSS samples")
     parser.add_argument("--warmup", type=float, default=0.1, help="fraction of the run before the first RSS compared")
-    parser.add_argument("--window", type=float, default=60.0,
+    parser.add_argument("--window", type=float, default=WINDOW_S,
                         help="RSS at the end of warm-up is the median of the samples in this many seconds after it, "
                         "and at the end the median of those in as many seconds before it")
     parser.add_argument("--max-growth", type=float, default=10.0, help="RSS growth after warm-up that fails (%%)")

@@ -340,7 +340,6 @@ class _Keyframe:
     scan_index: int  # the scan that made it, in the order fed
     stamp_ns: int  # that scan's stamp
     revisit: bool = False  # it closed a loop into an older part of the map
-    folded: bool = False  # a leaf on its closure (``fold_revisits``)
 
 
 class LoopClosingMapper:
@@ -506,7 +505,6 @@ class LoopClosingMapper:
             "keyframe_scan_index": self.keyframe_scans(),
             "keyframe_stamp_ns": np.array([k.stamp_ns for k in kfs], dtype=np.int64),
             "keyframe_revisit": np.array([k.revisit for k in kfs], dtype=bool),
-            "keyframe_folded": np.array([k.folded for k in kfs], dtype=bool),
             "fold_queue": np.array(self._fold_queue, dtype=np.int64),
             "scans_fed": np.int64(self._scans_fed),
             "keep_scans": np.bool_(self._keep_scans),
@@ -552,19 +550,16 @@ class LoopClosingMapper:
             stamps = np.array(arrays["keyframe_stamp_ns"], dtype=np.int64)
             revisit = np.array(arrays["keyframe_revisit"], dtype=bool)
             k = len(mapper.graph)
-            # A snapshot from before revisits were folded has none folded and none queued.
-            folded = np.array(arrays["keyframe_folded"], dtype=bool) if "keyframe_folded" in arrays \
-                else np.zeros(k, dtype=bool)
+            # A snapshot from before revisits were folded has none queued.
             queue = np.array(arrays["fold_queue"], dtype=np.int64) if "fold_queue" in arrays \
                 else np.zeros(0, dtype=np.int64)
             if not (counts.shape == travel.shape == edge.shape == scan_index.shape == stamps.shape == revisit.shape
-                    == folded.shape == (k,) and np.all((queue >= 0) & (queue < k))
+                    == (k,) and np.all((queue >= 0) & (queue < k))
                     and local.shape == (k, 3) and np.all(counts >= 0) and counts.sum() == points.shape[0]):
                 raise InputError("mapper snapshot: keyframe arrays disagree with the graph")
             for i, pts in enumerate(np.split(points, np.cumsum(counts)[:-1]) if k else []):
                 mapper._keyframes.append(_Keyframe(local[i], pts, float(travel[i]), bool(edge[i]),
-                                                   int(scan_index[i]), int(stamps[i]), bool(revisit[i]),
-                                                   bool(folded[i])))
+                                                   int(scan_index[i]), int(stamps[i]), bool(revisit[i])))
             mapper._fold_queue = queue.tolist()
             mapper._scans_fed = int(arrays["scans_fed"])
             if mapper._keep_scans:
@@ -932,7 +927,6 @@ class LoopClosingMapper:
                 self._merge(parallel, a, b, z, cov)
             elif a != b:
                 graph.set_edge(e, a, b, z, np.linalg.inv(cov))
-        self._keyframes[n] = replace(self._keyframes[n], folded=True)
         self._counts["folded"] += 1
 
     def _merge(self, edge: int, a: int, b: int, z: np.ndarray, cov: np.ndarray) -> None:
