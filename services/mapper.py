@@ -3,7 +3,8 @@
 in:  scan           LaserScan (the raw scan: the keyframes' points)
      slam/state     SlamState (the EKF's pose after each scan)
 out: map/pose       MapPose (per slam state: the pose corrected by every closure so far)
-     map/keyframes  MapKeyframes (after each optimisation and at the end: the optimised keyframes)
+     map/keyframes  MapKeyframes (after each optimisation and at the end: the graph's optimised
+                    keyframes, and those retired from it since the last, once)
 
 The EKF with corner landmarks stays the online estimator; this stage (``lrfslam.algo.loop_closure``)
 closes the loops it cannot, from a large prior error. A slam state waits for its scan (or for a newer
@@ -147,11 +148,14 @@ class MapperStep(StepBase):
 
     def _keyframes(self, stamp_ns: int) -> Output:
         stamps, local_poses = self.mapper.keyframe_stamped_local_poses()
+        retired = self.mapper.take_retired()   # told once: a reader of the whole run keeps them
         self.keyframes_seq += 1
         self.counts["keyframe_updates"] += 1
-        return Output(topics.MAP_KEYFRAMES, t.MapKeyframes(stamp_ns, self.keyframes_seq, stamps, local_poses,
-                                                           self.mapper.keyframe_poses(),
-                                                           self.mapper.keyframe_local_edges()))
+        self.counts["keyframes_retired"] += len(retired)
+        return Output(topics.MAP_KEYFRAMES, t.MapKeyframes(
+            stamp_ns, self.keyframes_seq, stamps, local_poses, self.mapper.keyframe_poses(),
+            self.mapper.keyframe_local_edges(), retired.stamp_ns, retired.local_pose, retired.local_edge,
+            retired.anchor_stamp_ns, retired.offset))
 
     def _save(self, path: Path) -> None:
         arrays = self.mapper.snapshot()

@@ -9,7 +9,11 @@ import numpy as np
 import pytest
 
 from lrfslam.algo.geometry import compose, from_frame, relative, wrap_angle
-from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
+from lrfslam.algo.loop_closure import (
+    LoopClosingMapper,
+    LoopClosureParams,
+    retired_poses,
+)
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.sim.simulator import OdometryNoise, SimConfig, Simulator
 
@@ -357,12 +361,28 @@ def test_laps_of_the_same_loop_leave_the_graph_the_size_of_the_place(fold):
     (nodes_2, edges_2), (nodes_4, edges_4) = cores[2 * lap], cores[4 * lap]
     if fold:
         assert mapper.stats.folded > 1.5 * lap
-        graph = mapper.graph
-        folded = [k for k in range(len(graph)) if graph.edges_of(k).size == 1 and k > 0]
-        assert len(folded) == mapper.stats.folded
-        assert all(graph.edge_is_robust(int(graph.edges_of(k)[0])) for k in folded)   # each a leaf on its closure
-        # Two more laps: the core grows by the keyframes not folded yet (fold_after_keyframes), no more.
+        # Every folded keyframe left the graph (retired), given once, each placed on an older keyframe.
+        retired = mapper.take_retired()
+        assert len(retired) == mapper.stats.folded == mapper.keyframe_count - mapper.graph_keyframes
+        assert len(mapper.take_retired()) == 0
+        assert np.all(retired.anchor_stamp_ns < retired.stamp_ns) and np.all(np.diff(retired.stamp_ns) > 0)
+        # Two more laps: the graph grows by the keyframes not folded yet (fold_after_keyframes), no more.
+        assert len(mapper.graph) == nodes_4
         assert nodes_4 - nodes_2 < 0.2 * lap and edges_4 - edges_2 < 0.4 * lap
     else:
         assert mapper.stats.folded == 0
         assert nodes_4 - nodes_2 > 1.8 * lap and edges_4 - edges_2 > 3.6 * lap
+
+
+def test_retired_keyframes_are_placed_on_their_anchors_in_order():
+    # Keyframes 10 and 20 are in the graph; 15 was retired onto 10, 30 onto 15 (an anchor
+    # retired before the keyframe it anchors), 25 onto 20.
+    live_ids, live = np.array([10, 20]), np.array([[0.0, 0.0, 0.0], [5.0, 0.0, np.pi / 2]])
+    ids, anchors = np.array([30, 15, 25]), np.array([15, 10, 20])
+    offsets = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, np.pi / 2], [1.0, 0.0, 0.0]])
+    placed = retired_poses(live_ids, live, ids, anchors, offsets)
+    np.testing.assert_allclose(placed[1], [2.0, 1.0, np.pi / 2])
+    np.testing.assert_allclose(placed[0], [2.0, 2.0, np.pi / 2], atol=1e-12)
+    np.testing.assert_allclose(placed[2], [5.0, 1.0, np.pi / 2], atol=1e-12)
+    with pytest.raises(InputError, match="anchor 99"):
+        retired_poses(live_ids, live, np.array([40]), np.array([99]), np.zeros((1, 3)))

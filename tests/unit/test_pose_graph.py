@@ -289,3 +289,42 @@ def test_what_was_added_since_the_factorisation_enters_exactly():
     restored = PoseGraph.restore(None, graph.snapshot())
     last = len(graph) - 1
     np.testing.assert_array_equal(restored.relative_covariance(3, last), graph.relative_covariance(3, last))
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_taking_leaves_out_changes_no_other_pose_or_covariance(seed):
+    # Leaves on a loop, some edges removed before: optimised with the leaves and then without
+    # them, the other nodes sit where they did, their covariances are the same, and every
+    # leaf sits on its one edge (so its pose is its host's composed with the edge, ever after).
+    rng = np.random.default_rng(seed)
+    truth = square_loop(side=5)
+    graph = noisy_graph(truth, rng, [(0, 15), (3, 17)])
+    graph.remove_edge(graph.edge_count() - 1)
+    leaves, hosts = [], rng.choice(np.arange(1, len(truth)), size=5, replace=False).tolist()
+    for host in hosts:
+        offset = rng.normal(scale=(0.3, 0.3, 0.2))
+        leaves.append(graph.add_node(compose(graph.poses[host], offset + rng.normal(scale=0.05, size=3))))
+        graph.add_edge(host, leaves[-1], offset, np.diag(1.0 / SIGMA**2), robust=bool(rng.integers(2)))
+    graph.optimize()
+    before = graph.poses.copy()
+    for host, leaf in zip(hosts, leaves, strict=True):
+        z = graph.edge_measurement(int(graph.edges_of(leaf)[0]))
+        assert np.allclose(relative(before[host], before[leaf]), z, atol=1e-6)
+    with_leaves = PoseGraph.restore(None, graph.snapshot())
+    covariance = graph.relative_covariance(2, 11)
+    edges = graph.edge_count()
+    node_map, edge_map = graph.remove_nodes(leaves)
+    assert len(graph) == len(truth) and graph.edge_count() == edges - len(leaves)
+    np.testing.assert_array_equal(node_map[: len(truth)], np.arange(len(truth)))
+    assert np.all(node_map[len(truth):] == -1) and np.count_nonzero(edge_map >= 0) == graph.edge_count()
+    np.testing.assert_array_equal(graph.poses, before[: len(truth)])
+    np.testing.assert_allclose(graph.relative_covariance(2, 11), covariance, rtol=1e-7)
+    # Optimised again, with and without them (the first optimisation stopped at its tolerance).
+    graph.optimize()
+    with_leaves.optimize()
+    np.testing.assert_allclose(graph.poses, with_leaves.poses[: len(truth)], atol=1e-7)
+    with pytest.raises(InputError):
+        graph.remove_nodes([0])
+    with pytest.raises(InputError):
+        graph.remove_nodes([len(graph)])

@@ -208,10 +208,12 @@ class LoopClosureParams:
         a revisit keyframe is folded into the keyframe it closed the loop to: its other edges are
         carried there (composed with the closure, whose uncertainty they take on) and merged with
         the edges already between the same keyframes, and it stays only as a leaf on its closure,
-        placed by it. A robot driving the same rounds then adds leaves, which the factorisation
-        does not fill in, instead of a lap of nodes tied to the first lap's by their closures,
-        whose fill grows with the square of the laps (docs/operations.md, "Soak"). Needs
-        ``trim_revisits``.
+        placed by it. A leaf's pose is then its closure's old keyframe's composed with the
+        closure, whatever the optimisations after: it is taken out of the graph (*retired*,
+        :meth:`LoopClosingMapper.take_retired`). A robot driving the same rounds then keeps a graph
+        the size of the place, instead of adding a lap of nodes tied to the first lap's by their
+        closures, whose fill grows with the square of the laps (docs/operations.md, "Soak").
+        Needs ``trim_revisits``.
     fold_after_keyframes : int
         A revisit is folded once this many keyframes came after it: the optimisations of the
         closures after it still place it (Intel's relations over 30 s, m: 0.027 folding
@@ -339,7 +341,53 @@ class _Keyframe:
     local_edge: bool  # the odometry edge into it is the local motion (no jump)
     scan_index: int  # the scan that made it, in the order fed
     stamp_ns: int  # that scan's stamp
+    ordinal: int  # keyframes made before it (its graph node, until keyframes are retired)
     revisit: bool = False  # it closed a loop into an older part of the map
+
+
+@dataclass(frozen=True, eq=False)
+class RetiredKeyframes:
+    """R keyframes folded into older ones and taken out of the graph (``fold_revisits``).
+
+    Each one's pose is, ever after, its anchor's (the old keyframe its closure came from)
+    composed with ``offset``: place it from the anchor's latest pose.
+
+    Attributes
+    ----------
+    stamp_ns : ndarray of int, shape (R,)
+        The scans that made them, ascending.
+    local_pose : ndarray, shape (R, 3)
+        Their poses on the local trajectory.
+    local_edge : ndarray of bool, shape (R,)
+        Whether the odometry edge into each was the local motion (as ``keyframe_local_edges``).
+    anchor_stamp_ns : ndarray of int, shape (R,)
+        The stamp of each one's anchor keyframe (older than it).
+    offset : ndarray, shape (R, 3)
+        Its pose in the anchor's frame ``(dx_m, dy_m, dtheta_rad)``.
+    """
+
+    stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    local_pose: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    local_edge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    anchor_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    offset: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def __len__(self) -> int:
+        return int(self.stamp_ns.size)
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class _Retired:
+    """One retired keyframe, as the mapper remembers it until it is taken (and, keeping scans, always)."""
+
+    ordinal: int
+    stamp_ns: int
+    local_pose: np.ndarray  # (3,)
+    local_edge: bool
+    scan_index: int
+    anchor_ordinal: int
+    anchor_stamp_ns: int
+    offset: np.ndarray  # (3,) its pose in the anchor's frame
 
 
 class LoopClosingMapper:
@@ -358,10 +406,13 @@ class LoopClosingMapper:
     def __init__(self, params: LoopClosureParams | None = None, keep_scans: bool = True) -> None:
         self.params = params or LoopClosureParams()
         self.graph = PoseGraph(self.params.graph)
-        self._keyframes: list[_Keyframe] = []
+        self._keyframes: list[_Keyframe] = []   # the graph's, node i the i-th
+        self._made = 0   # keyframes made, retired ones included
+        self._retired: list[_Retired] = []   # retired since the last take_retired()
+        self._retired_kept: list[_Retired] = []   # every one retired (keep_scans: the trajectory places them)
         self._keep_scans = keep_scans
         self._scans_fed = 0
-        self._scan_kf: list[int] = []  # per scan fed (keep_scans): its keyframe
+        self._scan_kf: list[int] = []  # per scan fed (keep_scans): its keyframe's ordinal
         self._scan_rel: list[np.ndarray] = []  # per scan: local pose relative to that keyframe's
         self._stamps: list[int] = []
         self._loop_edges: list[int] = []  # graph edge ids of the closures in the graph
@@ -384,6 +435,12 @@ class LoopClosingMapper:
 
     @property
     def keyframe_count(self) -> int:
+        """Keyframes made so far, retired ones included."""
+        return self._made
+
+    @property
+    def graph_keyframes(self) -> int:
+        """Keyframes in the graph (made, less the retired)."""
         return len(self._keyframes)
 
     def add_scan(self, stamp_ns: int, local_pose, points_xy_m, reference_step=None) -> np.ndarray:
@@ -427,7 +484,7 @@ class LoopClosingMapper:
         rel = relative(self._keyframes[k].local_pose, pose)
         self._scans_fed += 1
         if self._keep_scans:
-            self._scan_kf.append(k)
+            self._scan_kf.append(self._keyframes[k].ordinal)
             self._scan_rel.append(rel)
             self._stamps.append(stamp_ns)
         return compose(self.graph.poses[k], rel)
@@ -448,9 +505,20 @@ class LoopClosingMapper:
         if not self._keep_scans:
             raise ConfigError("this mapper keeps no per-scan history (keep_scans=False)")
         self.solve()
+        live, gone = self._keyframes, self._retired_kept
+        ordinals = np.array([k.ordinal for k in live] + [r.ordinal for r in gone], dtype=np.int64)
+        order = np.argsort(ordinals)   # (every ordinal below self._made is one of the two)
+        live_ordinals = ordinals[: len(live)]
+        kf_poses = np.vstack((self.graph.poses, retired_poses(
+            live_ordinals, self.graph.poses, ordinals[len(live):],
+            np.array([r.anchor_ordinal for r in gone], dtype=np.int64),
+            np.array([r.offset for r in gone], dtype=float).reshape(-1, 3))))[order]
+        kf_local = np.vstack((self.keyframe_local_poses(),
+                              np.array([r.local_pose for r in gone], dtype=float).reshape(-1, 3)))[order]
+        kf_scan = np.concatenate((self.keyframe_scans(), np.array([r.scan_index for r in gone], dtype=np.int64)))
+        kf_edge = np.concatenate((self.keyframe_local_edges(), np.array([r.local_edge for r in gone], dtype=bool)))
         poses = place_scans(np.array(self._scan_kf, dtype=np.int64), np.array(self._scan_rel, dtype=float),
-                            self.graph.poses, self.keyframe_local_poses(), self.keyframe_scans(),
-                            self.keyframe_local_edges(), self.params.interpolate)
+                            kf_poses, kf_local, kf_scan[order], kf_edge[order], self.params.interpolate)
         return np.array(self._stamps, dtype=np.int64), poses
 
     @property
@@ -459,7 +527,11 @@ class LoopClosingMapper:
         return np.array(self._closure_nis, dtype=float)
 
     def keyframe_poses(self) -> np.ndarray:
-        """The keyframes' poses in the graph as it stands (optimised at the last optimisation), (K, 3)."""
+        """The graph's K keyframes' poses as they stand (optimised at the last optimisation), (K, 3).
+
+        Every keyframe accessor gives the keyframes in the graph, oldest first; the retired
+        ones are given once, by :meth:`take_retired`.
+        """
         return self.graph.poses.copy()
 
     def keyframe_local_poses(self) -> np.ndarray:
@@ -477,6 +549,15 @@ class LoopClosingMapper:
     def keyframe_stamped_local_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """Stamps (ns, (K,)) of the scans that made the keyframes, and their local poses (K, 3)."""
         return np.array([k.stamp_ns for k in self._keyframes], dtype=np.int64), self.keyframe_local_poses()
+
+    def take_retired(self) -> RetiredKeyframes:
+        """The keyframes retired from the graph since the last call (each given once), oldest first."""
+        gone, self._retired = self._retired, []
+        return RetiredKeyframes(np.array([r.stamp_ns for r in gone], dtype=np.int64),
+                                np.array([r.local_pose for r in gone], dtype=float).reshape(-1, 3),
+                                np.array([r.local_edge for r in gone], dtype=bool),
+                                np.array([r.anchor_stamp_ns for r in gone], dtype=np.int64),
+                                np.array([r.offset for r in gone], dtype=float).reshape(-1, 3))
 
     def closures(self) -> list[tuple[int, int, np.ndarray]]:
         """The closures in the graph: (old keyframe, new keyframe, pose of the new in the old's frame (3,))."""
@@ -505,6 +586,10 @@ class LoopClosingMapper:
             "keyframe_scan_index": self.keyframe_scans(),
             "keyframe_stamp_ns": np.array([k.stamp_ns for k in kfs], dtype=np.int64),
             "keyframe_revisit": np.array([k.revisit for k in kfs], dtype=bool),
+            "keyframe_ordinal": np.array([k.ordinal for k in kfs], dtype=np.int64),
+            "keyframes_made": np.int64(self._made),
+            **_retired_arrays("retired", self._retired),
+            **_retired_arrays("retired_kept", self._retired_kept),
             "fold_queue": np.array(self._fold_queue, dtype=np.int64),
             "scans_fed": np.int64(self._scans_fed),
             "keep_scans": np.bool_(self._keep_scans),
@@ -550,16 +635,24 @@ class LoopClosingMapper:
             stamps = np.array(arrays["keyframe_stamp_ns"], dtype=np.int64)
             revisit = np.array(arrays["keyframe_revisit"], dtype=bool)
             k = len(mapper.graph)
+            # A snapshot from before keyframes were retired has every keyframe made in its graph.
+            ordinal = np.array(arrays["keyframe_ordinal"], dtype=np.int64) if "keyframe_ordinal" in arrays \
+                else np.arange(k, dtype=np.int64)
+            mapper._made = int(arrays["keyframes_made"]) if "keyframes_made" in arrays else k
+            mapper._retired = _retired_from("retired", arrays)
+            mapper._retired_kept = _retired_from("retired_kept", arrays)
             # A snapshot from before revisits were folded has none queued.
             queue = np.array(arrays["fold_queue"], dtype=np.int64) if "fold_queue" in arrays \
                 else np.zeros(0, dtype=np.int64)
             if not (counts.shape == travel.shape == edge.shape == scan_index.shape == stamps.shape == revisit.shape
-                    == (k,) and np.all((queue >= 0) & (queue < k))
+                    == ordinal.shape == (k,) and np.all((queue >= 0) & (queue < k))
+                    and np.all(np.diff(ordinal) > 0) and (k == 0 or 0 <= ordinal[0] and ordinal[-1] < mapper._made)
                     and local.shape == (k, 3) and np.all(counts >= 0) and counts.sum() == points.shape[0]):
                 raise InputError("mapper snapshot: keyframe arrays disagree with the graph")
             for i, pts in enumerate(np.split(points, np.cumsum(counts)[:-1]) if k else []):
                 mapper._keyframes.append(_Keyframe(local[i], pts, float(travel[i]), bool(edge[i]),
-                                                   int(scan_index[i]), int(stamps[i]), bool(revisit[i])))
+                                                   int(scan_index[i]), int(stamps[i]), int(ordinal[i]),
+                                                   bool(revisit[i])))
             mapper._fold_queue = queue.tolist()
             mapper._scans_fed = int(arrays["scans_fed"])
             if mapper._keep_scans:
@@ -600,9 +693,11 @@ class LoopClosingMapper:
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < p.max_range_m]
         pts = _thin(pts, p.keyframe_cell_m)
+        self._made += 1
         if moved is None:
             self.graph.add_node(local_pose)
-            self._keyframes.append(_Keyframe(local_pose.copy(), pts, 0.0, True, self._scans_fed, stamp_ns))
+            self._keyframes.append(_Keyframe(local_pose.copy(), pts, 0.0, True, self._scans_fed, stamp_ns,
+                                             self._made - 1))
             return
         prev = len(self._keyframes) - 1
         dist = float(np.hypot(moved[0], moved[1]))
@@ -614,7 +709,7 @@ class LoopClosingMapper:
         node = self.graph.add_node(compose(self.graph.poses[prev], step))
         self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
         self._keyframes.append(_Keyframe(local_pose.copy(), pts, self._keyframes[-1].travel_m + dist,
-                                         step is moved, self._scans_fed, stamp_ns))
+                                         step is moved, self._scans_fed, stamp_ns, self._made - 1))
         self._trim(len(self._keyframes) - 1 - self._recent_keyframes)
 
     @property
@@ -698,8 +793,9 @@ class LoopClosingMapper:
         order = np.argsort(dist, kind="stable")
         order = order[dist[order] <= reach]
         chosen: list[int] = []
+        ordinal = [kf.ordinal for kf in self._keyframes]
         for k in old[order].tolist():
-            if all(abs(k - c) > 2 * p.submap_keyframes for c in chosen):
+            if all(abs(ordinal[k] - ordinal[c]) > 2 * p.submap_keyframes for c in chosen):
                 chosen.append(k)
             if len(chosen) == p.max_candidates:
                 break
@@ -797,19 +893,24 @@ class LoopClosingMapper:
         if k in self._submaps:
             self._submaps.move_to_end(k)
             return self._submaps[k][1:]
-        self._cache_submap(k, min(len(self._keyframes) - 1, k + self.params.submap_keyframes))
+        self._cache_submap(k, min(self._keyframes[-1].ordinal, self._keyframes[k].ordinal + self.params.submap_keyframes))
         return self._submaps[k][1:]
 
     def _cache_submap(self, k: int, last: int) -> None:
-        """Build keyframe ``k``'s submap from its neighbours up to keyframe ``last`` and cache it.
+        """Build keyframe ``k``'s submap from its neighbours up to the keyframe made ``last`` (an
+        ordinal) and cache it.
 
-        The cache keeps ``last``: a submap built before all its later neighbours existed
-        must be rebuilt the same way when a checkpoint is restored.
+        Neighbours are counted in keyframes made, so a retired one (a revisit, without points)
+        still takes its place. The cache keeps ``last``: a submap built before all its later
+        neighbours existed must be rebuilt the same way when a checkpoint is restored.
         """
         p = self.params
         poses = self.graph.poses
+        ordinals = np.array([kf.ordinal for kf in self._keyframes], dtype=np.int64)
+        first = int(np.searchsorted(ordinals, ordinals[k] - p.submap_keyframes))
+        end = int(np.searchsorted(ordinals, last, side="right"))
         pts = np.vstack([from_frame(self._keyframes[i].points_xy_m, relative(poses[k], poses[i]))
-                         for i in range(max(0, k - p.submap_keyframes), last + 1)])
+                         for i in range(first, end)])
         pts = _thin(pts, p.keyframe_cell_m)
         self._submaps[k] = (last, LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match))
         if len(self._submaps) > p.cached_submaps:
@@ -884,11 +985,39 @@ class LoopClosingMapper:
             return
         weights = self.graph.loop_weights()
         loops = {e: self.graph.edge_nodes(e) for e in self._loop_edges}
+        folded = []
         while self._fold_queue and self._fold_queue[0] < last:
             n = self._fold_queue.pop(0)
             into = [e for e, (_, j) in loops.items() if j == n]
             if into:   # (its closure may have been removed: then it stays a node like any other)
-                self._fold(n, max(into, key=lambda e: weights[e]), weights)
+                anchor = max(into, key=lambda e: weights[e])
+                self._fold(n, anchor, weights)
+                folded.append((n, anchor))
+        if folded:
+            self._retire(folded)
+
+    def _retire(self, leaves: list[tuple[int, int]]) -> None:
+        """Take the folded keyframes ``(node, its closure's edge)`` out of the graph, remembering
+        each one's place on its anchor (:class:`RetiredKeyframes`), and renumber what refers to
+        the graph. A leaf sits exactly on its closure at every optimum, so this changes no pose."""
+        graph, kfs = self.graph, self._keyframes
+        for n, edge in leaves:
+            k = graph.edge_nodes(edge)[0]
+            kf = kfs[n]
+            retired = _Retired(kf.ordinal, kf.stamp_ns, kf.local_pose, kf.local_edge, kf.scan_index,
+                               kfs[k].ordinal, kfs[k].stamp_ns, graph.edge_measurement(edge))
+            self._retired.append(retired)
+            if self._keep_scans:
+                self._retired_kept.append(retired)
+        node_map, edge_map = graph.remove_nodes([n for n, _ in leaves])
+        self._keyframes = [kf for i, kf in enumerate(kfs) if node_map[i] >= 0]
+        self._loop_edges = [int(edge_map[e]) for e in self._loop_edges if edge_map[e] >= 0]
+        self._fold_queue = [int(node_map[n]) for n in self._fold_queue]
+        if self._tentative is not None:
+            k, n, *rest = self._tentative
+            kept = node_map[k] >= 0 and node_map[n] >= 0
+            self._tentative = (int(node_map[k]), int(node_map[n]), *rest) if kept else None
+        self._submaps.clear()
 
     def _fold(self, n: int, anchor_edge: int, weights: np.ndarray) -> None:
         """Fold keyframe ``n`` into the keyframe its closure ``anchor_edge`` comes from.
@@ -944,6 +1073,67 @@ class LoopClosingMapper:
         fused_info = old_info + info
         step = np.linalg.solve(fused_info, info @ relative(old_z, z))
         graph.set_edge(edge, *graph.edge_nodes(edge), compose(old_z, step), fused_info)
+
+
+def _retired_arrays(prefix: str, retired: list[_Retired]) -> dict[str, np.ndarray]:
+    """Retired keyframes as a snapshot's named arrays (``<prefix>_*``, R rows each)."""
+    return {
+        f"{prefix}_ordinal": np.array([r.ordinal for r in retired], dtype=np.int64),
+        f"{prefix}_stamp_ns": np.array([r.stamp_ns for r in retired], dtype=np.int64),
+        f"{prefix}_local_pose": np.array([r.local_pose for r in retired], dtype=float).reshape(-1, 3),
+        f"{prefix}_local_edge": np.array([r.local_edge for r in retired], dtype=bool),
+        f"{prefix}_scan_index": np.array([r.scan_index for r in retired], dtype=np.int64),
+        f"{prefix}_anchor_ordinal": np.array([r.anchor_ordinal for r in retired], dtype=np.int64),
+        f"{prefix}_anchor_stamp_ns": np.array([r.anchor_stamp_ns for r in retired], dtype=np.int64),
+        f"{prefix}_offset": np.array([r.offset for r in retired], dtype=float).reshape(-1, 3),
+    }
+
+
+def _retired_from(prefix: str, arrays) -> list[_Retired]:
+    """The retired keyframes :func:`_retired_arrays` wrote (none in a snapshot from before them)."""
+    if f"{prefix}_ordinal" not in arrays:
+        return []
+    cols = [np.array(arrays[f"{prefix}_{name}"]) for name in
+            ("ordinal", "stamp_ns", "local_pose", "local_edge", "scan_index", "anchor_ordinal", "anchor_stamp_ns",
+             "offset")]
+    r = cols[0].shape[0]
+    if any(c.shape[0] != r for c in cols) or cols[2].shape != (r, 3) or cols[7].shape != (r, 3) \
+            or not (np.all(np.isfinite(cols[2])) and np.all(np.isfinite(cols[7]))):
+        raise InputError(f"mapper snapshot: {prefix} arrays of inconsistent shapes or not finite")
+    return [_Retired(int(o), int(st), lp.astype(float), bool(le), int(si), int(ao), int(ast), off.astype(float))
+            for o, st, lp, le, si, ao, ast, off in zip(*cols, strict=True)]
+
+
+def retired_poses(live_ids: np.ndarray, live_poses: np.ndarray, retired_ids: np.ndarray, anchor_ids: np.ndarray,
+                  offsets: np.ndarray) -> np.ndarray:
+    """The poses of retired keyframes ((R, 3)): each its anchor's composed with its offset.
+
+    Parameters
+    ----------
+    live_ids : ndarray of int, shape (K,)
+        The graph's keyframes' ids (ordinals in the mapper, scan stamps in a recording).
+    live_poses : ndarray, shape (K, 3)
+        Their poses.
+    retired_ids, anchor_ids : ndarray of int, shape (R,)
+        Each retired keyframe's id and its anchor's: a graph keyframe or an older retired one.
+    offsets : ndarray, shape (R, 3)
+        Each one's pose in its anchor's frame.
+
+    Raises
+    ------
+    InputError
+        If an anchor is neither in the graph nor retired before the keyframe it anchors.
+    """
+    known = dict(zip(np.asarray(live_ids, dtype=np.int64).tolist(), np.asarray(live_poses, dtype=float),
+                     strict=True))
+    out = np.zeros((len(retired_ids), 3))
+    for r in np.argsort(retired_ids, kind="stable").tolist():
+        anchor = known.get(int(anchor_ids[r]))
+        if anchor is None:
+            raise InputError(f"retired keyframe {int(retired_ids[r])}: its anchor {int(anchor_ids[r])} is not known")
+        out[r] = compose(anchor, offsets[r])
+        known[int(retired_ids[r])] = out[r]
+    return out
 
 
 def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:

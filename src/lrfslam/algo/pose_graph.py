@@ -227,6 +227,38 @@ class PoseGraph:
         self._alive[self._check_edge(edge)] = False
         self._factor = None
 
+    def remove_nodes(self, nodes) -> tuple[np.ndarray, np.ndarray]:
+        """Take ``nodes`` out with every edge that touches them, and drop the removed edges' rows.
+
+        The graph is renumbered: the nodes and the edges in the problem keep their order.
+        Returns the new index of every old node ((K,), −1: removed) and of every old edge
+        ((E,), −1: removed, or removed before).
+
+        Raises
+        ------
+        InputError
+            If a node is not there, or is node 0 (the gauge).
+        """
+        gone = np.zeros(self._n, dtype=bool)
+        for node in np.asarray(nodes, dtype=np.int64).reshape(-1).tolist():
+            gone[self._check_node(node)] = True
+        if gone[0] and self._n:
+            raise InputError("node 0 holds the gauge: it cannot be removed")
+        node_map = np.full(self._n, -1, dtype=np.int64)
+        node_map[~gone] = np.arange(self._n - int(gone.sum()))
+        ends = self._nodes[: self._m]
+        kept = self._alive[: self._m] & ~(gone[ends[:, 0]] | gone[ends[:, 1]])
+        edge_map = np.full(self._m, -1, dtype=np.int64)
+        edge_map[kept] = np.arange(int(kept.sum()))
+        self._poses = self.poses[~gone].copy()
+        self._n = self._poses.shape[0]
+        self._nodes = node_map[ends[kept]]
+        self._z, self._info = self._z[: self._m][kept], self._info[: self._m][kept]
+        self._robust, self._alive = self._robust[: self._m][kept], self._alive[: self._m][kept]
+        self._m = self._nodes.shape[0]
+        self._factor = None
+        return node_map, edge_map
+
     def edges_of(self, node: int) -> np.ndarray:
         """Indices of the edges in the problem that touch ``node``, ascending, (D,)."""
         self._check_node(node)

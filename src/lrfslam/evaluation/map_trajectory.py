@@ -1,8 +1,10 @@
 """The mapper's trajectories from a recording: as published at each scan, and final.
 
 The *online* trajectory is ``map/pose``: each scan's pose as the mapper knew it then.
-The *final* trajectory places every scan of ``map/pose`` by the last ``map/keyframes``:
-a scan belongs to the newest keyframe made at or before it, and keeps its local pose
+The *final* trajectory places every scan of ``map/pose`` by every keyframe: the last
+``map/keyframes``'s, and those retired from the graph before it (each told once, by the
+message after its retirement, and placed on the keyframe it was folded into; :class:`KeyframeHistory`).
+A scan belongs to the newest keyframe made at or before it, and keeps its local pose
 relative to that keyframe's — exactly how the mapper places its own scans. Recordings
 made before ``map/pose`` carried the local pose place the ``slam/state`` poses instead
 (the mapper's local trajectory was the slam poses then).
@@ -15,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from lrfslam.algo.geometry import relative
-from lrfslam.algo.loop_closure import place_scans
-from lrfslam.errors import DecodeError
+from lrfslam.algo.loop_closure import place_scans, retired_poses
+from lrfslam.errors import DecodeError, InputError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_recording
@@ -33,7 +35,7 @@ def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.Map
     local_poses : ndarray, shape (T, 3)
         Their poses on the mapper's local trajectory ``(x_m, y_m, theta_rad)``.
     keyframes : MapKeyframes
-        The last one of the recording (K keyframes, their scans' stamps ascending).
+        Every keyframe of the run (K, their scans' stamps ascending): :meth:`KeyframeHistory.keyframes`.
     interpolate : bool
         As the mapper's ``loop_closure.interpolate``.
 
@@ -56,6 +58,49 @@ def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.Map
     return out
 
 
+class KeyframeHistory:
+    """Every keyframe a run's ``map/keyframes`` told of: the last message's, and the ones retired
+    before it. Feed the messages in order to :meth:`add`; what is kept grows with the keyframes
+    retired (five numbers each), the messages' graphs are not kept."""
+
+    def __init__(self) -> None:
+        self._last: t.MapKeyframes | None = None
+        self._retired: list[tuple[np.ndarray, ...]] = []
+
+    def add(self, keyframes: t.MapKeyframes) -> None:
+        self._last = keyframes
+        if keyframes.retired_scan_stamp_ns.size:
+            self._retired.append((keyframes.retired_scan_stamp_ns, keyframes.retired_local_pose,
+                                  keyframes.retired_local_edge, keyframes.retired_anchor_stamp_ns,
+                                  keyframes.retired_offset))
+
+    def keyframes(self) -> t.MapKeyframes | None:
+        """All of them in one message (stamps ascending, none retired), each retired one placed on its
+        anchor as the last message placed the graph; None before the first message.
+
+        Raises
+        ------
+        InputError
+            A retired keyframe's anchor is unknown (the message that retired it, or its anchor, was lost).
+        """
+        last = self._last
+        if last is None or not self._retired:
+            return last
+        stamps, local, edge, anchors, offsets = (np.concatenate(cols) for cols in zip(*self._retired, strict=True))
+        stamps, index = np.unique(stamps, return_index=True)   # (a restarted mapper may tell one again)
+        local, edge, anchors, offsets = local[index], edge[index], anchors[index], offsets[index]
+        keep = ~np.isin(stamps, last.scan_stamp_ns)
+        stamps, local, edge, anchors, offsets = stamps[keep], local[keep], edge[keep], anchors[keep], offsets[keep]
+        try:
+            placed = retired_poses(last.scan_stamp_ns, last.map_pose, stamps, anchors, offsets)
+        except InputError as exc:
+            raise InputError(f"map/keyframes: {exc}") from None
+        order = np.argsort(np.concatenate((last.scan_stamp_ns, stamps)), kind="stable")
+        return t.MapKeyframes(last.stamp_ns, last.seq, np.concatenate((last.scan_stamp_ns, stamps))[order],
+                              np.vstack((last.local_pose, local))[order], np.vstack((last.map_pose, placed))[order],
+                              np.concatenate((last.local_edge, edge))[order])
+
+
 class FinalTrajectoryBuilder:
     """Collects what the final trajectory needs from a recording's decoded messages, in log order.
 
@@ -69,11 +114,11 @@ class FinalTrajectoryBuilder:
 
     def __init__(self) -> None:
         self._local: dict[str, tuple[list[int], list[np.ndarray]]] = {"map": ([], []), "slam": ([], [])}
-        self._last: t.MapKeyframes | None = None
+        self._keyframes = KeyframeHistory()
 
     def add(self, topic: str, value) -> None:
         if topic == topics.MAP_KEYFRAMES.name:
-            self._last = value
+            self._keyframes.add(value)
         elif topic == topics.SLAM_STATE.name:
             self._local["slam"][0].append(value.stamp_ns)
             self._local["slam"][1].append(value.pose)
@@ -82,13 +127,20 @@ class FinalTrajectoryBuilder:
             self._local["map"][1].append(value.local_pose)
 
     def result(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """Stamps (ns, (T,)) and final poses ((T, 3)); None without ``map/keyframes``."""
+        """Stamps (ns, (T,)) and final poses ((T, 3)); None without ``map/keyframes``.
+
+        Raises
+        ------
+        InputError
+            A retired keyframe cannot be placed (:meth:`KeyframeHistory.keyframes`).
+        """
         stamps, poses = self._local["map"] if self._local["map"][0] else self._local["slam"]
-        if self._last is None or not stamps:
+        keyframes = self._keyframes.keyframes()
+        if keyframes is None or not stamps:
             return None
         order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")
         s = np.array(stamps, dtype=np.int64)[order]
-        return s, final_poses(s, np.array(poses)[order], self._last)
+        return s, final_poses(s, np.array(poses)[order], keyframes)
 
 
 def final_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:

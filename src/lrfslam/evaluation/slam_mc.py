@@ -50,7 +50,7 @@ from scipy.stats import chi2
 
 from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
 from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
-from lrfslam.evaluation.map_trajectory import final_poses
+from lrfslam.evaluation.map_trajectory import KeyframeHistory, final_poses
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.chain import Chain, Stage
@@ -285,7 +285,7 @@ class _Pipeline:
         self.chain = Chain(stages + ([cfg.stage("mapper")] if cfg.mapper else []), robot="slam_mc", wire=False)
         self.map_online: list[np.ndarray] = []
         self.map_local: list[tuple[int, np.ndarray]] = []   # (stamp ns, local pose (3,)) per map/pose
-        self.map_keyframes: t.MapKeyframes | None = None    # the last one
+        self.map_keyframes = KeyframeHistory()
         self.slam = self.chain.step("slam").slam
         self.slam.start_at(pose0)
         self.lidar = sim.config.lidar
@@ -297,7 +297,7 @@ class _Pipeline:
                 self.map_online.append(m.value.pose)
                 self.map_local.append((m.value.stamp_ns, m.value.local_pose))
             elif m.topic is topics.MAP_KEYFRAMES:
-                self.map_keyframes = m.value
+                self.map_keyframes.add(m.value)
 
     def map_trajectories(self) -> tuple[np.ndarray, np.ndarray]:
         """The mapper's online poses (T, 3) and its final trajectory (T, 3); empty without a mapper.
@@ -306,10 +306,11 @@ class _Pipeline:
         rebuilt from the published messages, as ``lrfslam eval`` does from a recording.
         """
         self._take_map([it.msg for it in self.chain.finish_items()])
-        if self.map_keyframes is None:
+        keyframes = self.map_keyframes.keyframes()
+        if keyframes is None:
             return np.zeros((0, 3)), np.zeros((0, 3))
         stamps, local = zip(*self.map_local, strict=True)
-        final = final_poses(np.array(stamps, dtype=np.int64), np.array(local), self.map_keyframes)
+        final = final_poses(np.array(stamps, dtype=np.int64), np.array(local), keyframes)
         return np.array(self.map_online).reshape(-1, 3), final
 
     def step(self, frame: SimFrame):

@@ -366,16 +366,27 @@ def _keyframes_to(m: t.MapKeyframes):
     p.local_pose.extend(m.local_pose.ravel().tolist())
     p.map_pose.extend(m.map_pose.ravel().tolist())
     p.local_edge.extend(m.local_edge.tolist())
+    p.retired_scan_stamp_ns.extend(m.retired_scan_stamp_ns.tolist())
+    p.retired_local_pose.extend(m.retired_local_pose.ravel().tolist())
+    p.retired_local_edge.extend(m.retired_local_edge.tolist())
+    p.retired_anchor_stamp_ns.extend(m.retired_anchor_stamp_ns.tolist())
+    p.retired_offset.extend(m.retired_offset.ravel().tolist())
     return p
 
 
 def _keyframes_from(p) -> t.MapKeyframes:
-    k = len(p.scan_stamp_ns)
+    k, r = len(p.scan_stamp_ns), len(p.retired_scan_stamp_ns)
     if len(p.local_pose) != 3 * k or len(p.map_pose) != 3 * k or len(p.local_edge) not in (0, k):
         raise ValueError("keyframe poses are not K x 3, or the edge flags not K")
+    if not (len(p.retired_local_pose) == len(p.retired_offset) == 3 * r
+            and len(p.retired_local_edge) == len(p.retired_anchor_stamp_ns) == r):
+        raise ValueError("retired keyframes' arrays are not R and R x 3")
     return t.MapKeyframes(p.header.stamp_ns, p.header.seq, list(p.scan_stamp_ns),
                           _bounded("local_pose", p.local_pose).reshape(k, 3),
-                          _bounded("map_pose", p.map_pose).reshape(k, 3), list(p.local_edge))
+                          _bounded("map_pose", p.map_pose).reshape(k, 3), list(p.local_edge),
+                          list(p.retired_scan_stamp_ns), _bounded("retired_local_pose", p.retired_local_pose),
+                          list(p.retired_local_edge), list(p.retired_anchor_stamp_ns),
+                          _bounded("retired_offset", p.retired_offset))
 
 
 def _truth_to(m: t.GroundTruth):

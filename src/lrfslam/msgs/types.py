@@ -180,7 +180,13 @@ class MapKeyframes:
     """The pose graph's K keyframes after an optimisation: ``scan_stamp_ns`` (K,) of the scan
     that made each, its ``local_pose`` (K, 3) on the mapper's local trajectory, its optimised
     ``map_pose`` (K, 3), and ``local_edge`` (K,) bool, whether the edge into it is the local
-    motion (no jump)."""
+    motion (no jump).
+
+    Then the R keyframes *retired* from the graph since the previous message, each told once:
+    ``retired_scan_stamp_ns`` (R,), ``retired_local_pose`` (R, 3), ``retired_local_edge`` (R,),
+    and ``retired_anchor_stamp_ns`` (R,), the older keyframe each was folded into, whose pose
+    composed with ``retired_offset`` (R, 3) is its pose ever after
+    (``lrfslam.evaluation.map_trajectory.KeyframeHistory`` keeps them)."""
 
     stamp_ns: int
     seq: int
@@ -188,6 +194,11 @@ class MapKeyframes:
     local_pose: np.ndarray
     map_pose: np.ndarray
     local_edge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    retired_scan_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    retired_local_pose: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    retired_local_edge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    retired_anchor_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    retired_offset: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "scan_stamp_ns", _array(self.scan_stamp_ns, np.int64))
@@ -196,6 +207,12 @@ class MapKeyframes:
         object.__setattr__(self, "map_pose", _array(self.map_pose, np.float64, (k, 3)))
         edge = np.zeros(k, bool) if np.size(self.local_edge) == 0 else self.local_edge
         object.__setattr__(self, "local_edge", _array(edge, bool, (k,)))
+        object.__setattr__(self, "retired_scan_stamp_ns", _array(self.retired_scan_stamp_ns, np.int64))
+        r = self.retired_scan_stamp_ns.size
+        object.__setattr__(self, "retired_local_pose", _array(self.retired_local_pose, np.float64, (r, 3)))
+        object.__setattr__(self, "retired_local_edge", _array(self.retired_local_edge, bool, (r,)))
+        object.__setattr__(self, "retired_anchor_stamp_ns", _array(self.retired_anchor_stamp_ns, np.int64, (r,)))
+        object.__setattr__(self, "retired_offset", _array(self.retired_offset, np.float64, (r, 3)))
 
 
 @dataclass(frozen=True, eq=False)

@@ -26,6 +26,7 @@ from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.viz.foxglove import ellipse_axes
+from lrfslam.viz.keyframe_path import KeyframePath
 
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
 
@@ -135,6 +136,7 @@ class DashboardModel:
         self._slam_from_world: np.ndarray | None = None
         self._map_from_slam = np.zeros(3)
         self._keyframes_until_ns = 0
+        self._keyframe_path = KeyframePath(self.cfg.max_path_poses // 4)
         self.status: dict[str, t.ServiceStatus] = {}
         self._rates: dict[str, tuple[float, float]] = {}
         self.alive: dict[str, bool] = {}
@@ -178,11 +180,11 @@ class DashboardModel:
             if value.stamp_ns > self._keyframes_until_ns:
                 self.map_path.add(*value.pose[:2])
         elif name == topics.MAP_KEYFRAMES.name:
+            stamps, poses = self._keyframe_path.update(value)
             if value.scan_stamp_ns.size:
                 # An optimisation moved the past: the path becomes the keyframes, map poses add to it after.
-                order = np.argsort(value.scan_stamp_ns, kind="stable")
-                self.map_path.replace(value.map_pose[order, :2])
-                self._keyframes_until_ns = int(value.scan_stamp_ns.max())
+                self.map_path.replace(poses[:, :2])
+                self._keyframes_until_ns = int(stamps.max())
         else:
             return False
         self.version += 1

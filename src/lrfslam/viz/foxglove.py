@@ -56,6 +56,7 @@ from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
+from lrfslam.viz.keyframe_path import KeyframePath
 
 P = topics.FOXGLOVE_PREFIX
 SCAN = P + "scan"
@@ -362,6 +363,7 @@ class FoxgloveViews:
         self._world_from_map: np.ndarray | None = None
         self._landmarks_sent_ns: int | None = None
         self._map = LandmarkMapReplica()
+        self._keyframe_path = KeyframePath(self.cfg.path_max_poses // 4)
         self._health: dict[str, tuple[int, str]] = {}
         self._handlers: dict[str, Callable[[Any, int], list[View]]] = {
             topics.SCAN.name: self._scan, topics.SCAN_FILTERED.name: self._filtered,
@@ -450,10 +452,10 @@ class FoxgloveViews:
 
     def _keyframes(self, kf: t.MapKeyframes, at: int) -> list[View]:
         # An optimisation moved the past: the path becomes the keyframes, then the poses since the last one.
+        stamps, poses = self._keyframe_path.update(kf)
         if kf.scan_stamp_ns.size == 0:
             return []
-        order = np.argsort(kf.scan_stamp_ns, kind="stable")
-        path = self.paths[TRAJECTORY_MAP].replace(kf.stamp_ns, kf.map_pose[order], int(kf.scan_stamp_ns.max()))
+        path = self.paths[TRAJECTORY_MAP].replace(kf.stamp_ns, poses, int(stamps.max()))
         return [View(TRAJECTORY_MAP, path, at)]
 
     def _status(self, status: t.ServiceStatus, at: int) -> list[View]:

@@ -28,15 +28,25 @@ class MapPose(_message.Message):
     def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., map_from_slam: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., keyframes: _Optional[int] = ..., closures: _Optional[int] = ..., closures_rejected: _Optional[int] = ..., local_pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ...) -> None: ...
 
 class MapKeyframes(_message.Message):
-    __slots__ = ("header", "scan_stamp_ns", "local_pose", "map_pose", "local_edge")
+    __slots__ = ("header", "scan_stamp_ns", "local_pose", "map_pose", "local_edge", "retired_scan_stamp_ns", "retired_local_pose", "retired_local_edge", "retired_anchor_stamp_ns", "retired_offset")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     SCAN_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
     LOCAL_POSE_FIELD_NUMBER: _ClassVar[int]
     MAP_POSE_FIELD_NUMBER: _ClassVar[int]
     LOCAL_EDGE_FIELD_NUMBER: _ClassVar[int]
+    RETIRED_SCAN_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    RETIRED_LOCAL_POSE_FIELD_NUMBER: _ClassVar[int]
+    RETIRED_LOCAL_EDGE_FIELD_NUMBER: _ClassVar[int]
+    RETIRED_ANCHOR_STAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    RETIRED_OFFSET_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     scan_stamp_ns: _containers.RepeatedScalarFieldContainer[int]
     local_pose: _containers.RepeatedScalarFieldContainer[float]
     map_pose: _containers.RepeatedScalarFieldContainer[float]
     local_edge: _containers.RepeatedScalarFieldContainer[bool]
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_stamp_ns: _Optional[_Iterable[int]] = ..., local_pose: _Optional[_Iterable[float]] = ..., map_pose: _Optional[_Iterable[float]] = ..., local_edge: _Optional[_Iterable[bool]] = ...) -> None: ...
+    retired_scan_stamp_ns: _containers.RepeatedScalarFieldContainer[int]
+    retired_local_pose: _containers.RepeatedScalarFieldContainer[float]
+    retired_local_edge: _containers.RepeatedScalarFieldContainer[bool]
+    retired_anchor_stamp_ns: _containers.RepeatedScalarFieldContainer[int]
+    retired_offset: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_stamp_ns: _Optional[_Iterable[int]] = ..., local_pose: _Optional[_Iterable[float]] = ..., map_pose: _Optional[_Iterable[float]] = ..., local_edge: _Optional[_Iterable[bool]] = ..., retired_scan_stamp_ns: _Optional[_Iterable[int]] = ..., retired_local_pose: _Optional[_Iterable[float]] = ..., retired_local_edge: _Optional[_Iterable[bool]] = ..., retired_anchor_stamp_ns: _Optional[_Iterable[int]] = ..., retired_offset: _Optional[_Iterable[float]] = ...) -> None: ...
