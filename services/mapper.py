@@ -108,8 +108,9 @@ class MapperStep(StepBase):
         pose = self.mapper.add_scan(state.stamp_ns, local, points, reference)
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats
-        nis = self.mapper.closure_nis[self.counts["closures_verified"]:]
-        self.counts.update(closures_verified=nis.size, closure_nis_milli=int(np.round(1000.0 * nis.sum())))
+        verified, nis_sum = self.mapper.closure_nis
+        self.counts["closures_verified"] = verified
+        self.counts["closure_nis_milli"] = round(1000.0 * nis_sum)
         self.counts["scans"] += 1
         self.seq += 1
         outs = [Output(topics.MAP_POSE, t.MapPose(

@@ -416,7 +416,9 @@ class LoopClosingMapper:
         self._scan_rel: list[np.ndarray] = []  # per scan: local pose relative to that keyframe's
         self._stamps: list[int] = []
         self._loop_edges: list[int] = []  # graph edge ids of the closures in the graph
-        self._closure_nis: list[float] = []  # per closure that passed verification
+        # Of the closures that passed verification: how many, and their NIS summed (a running
+        # total: a long run's closures are not kept).
+        self._closure_nis = (0, 0.0)
         # keyframe -> (last neighbour in it, grid, line reference), least recently used first
         self._submaps: OrderedDict[int, tuple[int, LikelihoodGrid, ReferenceScan]] = OrderedDict()
         self._counts = dict.fromkeys(ClosureStats.__dataclass_fields__, 0)
@@ -522,9 +524,10 @@ class LoopClosingMapper:
         return np.array(self._stamps, dtype=np.int64), poses
 
     @property
-    def closure_nis(self) -> np.ndarray:
-        """NIS (3 dof) of every closure that passed verification, against the graph's prediction, (C,)."""
-        return np.array(self._closure_nis, dtype=float)
+    def closure_nis(self) -> tuple[int, float]:
+        """How many closures passed verification, and their NIS (3 dof, against the graph's
+        prediction) summed: the mean is the consistency report's figure."""
+        return self._closure_nis
 
     def keyframe_poses(self) -> np.ndarray:
         """The graph's K keyframes' poses as they stand (optimised at the last optimisation), (K, 3).
@@ -597,7 +600,7 @@ class LoopClosingMapper:
             "scan_relative_pose": np.array(self._scan_rel, dtype=float).reshape(-1, 3),
             "scan_stamp_ns": np.array(self._stamps, dtype=np.int64),
             "loop_edges": np.array(self._loop_edges, dtype=np.int64),
-            "closure_nis": self.closure_nis,
+            "closure_nis_total": np.array([float(self._closure_nis[0]), self._closure_nis[1]]),
             "stats": np.array([self._counts[name] for name in ClosureStats.__dataclass_fields__], dtype=np.int64),
             "last_local_pose": self._last_local_pose.copy(),
             "reference_step": np.full(3, np.nan) if self._reference is None else self._reference.copy(),
@@ -660,7 +663,12 @@ class LoopClosingMapper:
                 mapper._scan_rel = list(np.array(arrays["scan_relative_pose"], dtype=float).reshape(-1, 3))
                 mapper._stamps = np.array(arrays["scan_stamp_ns"], dtype=np.int64).tolist()
             mapper._loop_edges = np.array(arrays["loop_edges"], dtype=np.int64).tolist()
-            mapper._closure_nis = np.array(arrays["closure_nis"], dtype=float).tolist()
+            if "closure_nis_total" in arrays:
+                count, total = np.array(arrays["closure_nis_total"], dtype=float).reshape(2)
+                mapper._closure_nis = (int(count), float(total))
+            else:   # a snapshot from before the running total holds every closure's
+                nis = np.array(arrays["closure_nis"], dtype=float)
+                mapper._closure_nis = (nis.size, float(nis.sum()))
             stats = np.array(arrays["stats"], dtype=np.int64)
             if stats.shape != (len(ClosureStats.__dataclass_fields__),):
                 raise InputError("mapper snapshot: wrong number of statistics")
@@ -946,7 +954,8 @@ class LoopClosingMapper:
             return None
         # Its NIS without the drift factor (with the drift model): chi-squared with 3 dof if the
         # predicted and the match's covariances were both right (kept for the consistency report).
-        self._closure_nis.append(float(innovation @ np.linalg.solve(rel_cov + cov, innovation)))
+        count, total = self._closure_nis
+        self._closure_nis = (count + 1, total + float(innovation @ np.linalg.solve(rel_cov + cov, innovation)))
         return k, n, refined.pose, cov, innovation
 
     def _optimise(self) -> None:
