@@ -8,12 +8,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from lrfslam.algo.geometry import compose, from_frame, relative, wrap_angle
-from lrfslam.algo.loop_closure import (
-    LoopClosingMapper,
-    LoopClosureParams,
-    retired_poses,
+from lrfslam.algo.geometry import (
+    anchored_poses,
+    compose,
+    from_frame,
+    relative,
+    wrap_angle,
 )
+from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.sim.simulator import OdometryNoise, SimConfig, Simulator
 
@@ -374,15 +376,15 @@ def test_laps_of_the_same_loop_leave_the_graph_the_size_of_the_place(fold):
         assert nodes_4 - nodes_2 > 1.8 * lap and edges_4 - edges_2 > 3.6 * lap
 
 
-def test_retired_keyframes_are_placed_on_their_anchors_in_order():
+def test_anchored_poses_are_placed_on_their_anchors_in_order():
     # Keyframes 10 and 20 are in the graph; 15 was retired onto 10, 30 onto 15 (an anchor
     # retired before the keyframe it anchors), 25 onto 20.
     live_ids, live = np.array([10, 20]), np.array([[0.0, 0.0, 0.0], [5.0, 0.0, np.pi / 2]])
     ids, anchors = np.array([30, 15, 25]), np.array([15, 10, 20])
     offsets = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, np.pi / 2], [1.0, 0.0, 0.0]])
-    placed = retired_poses(live_ids, live, ids, anchors, offsets)
+    placed = anchored_poses(live_ids, live, ids, anchors, offsets)
     np.testing.assert_allclose(placed[1], [2.0, 1.0, np.pi / 2])
     np.testing.assert_allclose(placed[0], [2.0, 2.0, np.pi / 2], atol=1e-12)
     np.testing.assert_allclose(placed[2], [5.0, 1.0, np.pi / 2], atol=1e-12)
     with pytest.raises(InputError, match="anchor 99"):
-        retired_poses(live_ids, live, np.array([40]), np.array([99]), np.zeros((1, 3)))
+        anchored_poses(live_ids, live, np.array([40]), np.array([99]), np.zeros((1, 3)))

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lrfslam.errors import InputError
+
 
 def wrap_angle(a):
     """Wrap angle(s) to [-pi, pi).
@@ -144,3 +146,38 @@ def from_frame(points_xy: np.ndarray, pose) -> np.ndarray:
     c, s = np.cos(t), np.sin(t)
     p = np.asarray(points_xy, dtype=float).reshape(-1, 2)
     return np.column_stack((x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]))
+
+
+def anchored_poses(known_ids: np.ndarray, known_poses: np.ndarray, ids: np.ndarray, anchor_ids: np.ndarray,
+                   offsets: np.ndarray) -> np.ndarray:
+    """Poses given on anchors ((R, 3)): each its anchor's pose composed with its offset.
+
+    An anchor is a known pose or an earlier (smaller id) anchored one: the mapper's retired
+    keyframes, each on the older keyframe it was folded into (src/lrfslam/algo/loop_closure.py).
+
+    Parameters
+    ----------
+    known_ids : ndarray of int, shape (K,)
+        Ids of the poses known (the mapper's ordinals, or scan stamps in a recording).
+    known_poses : ndarray, shape (K, 3)
+        Those poses.
+    ids, anchor_ids : ndarray of int, shape (R,)
+        Each anchored pose's id and its anchor's.
+    offsets : ndarray, shape (R, 3)
+        Each one's pose in its anchor's frame.
+
+    Raises
+    ------
+    InputError
+        If an anchor is neither known nor anchored with a smaller id.
+    """
+    known = dict(zip(np.asarray(known_ids, dtype=np.int64).tolist(), np.asarray(known_poses, dtype=float),
+                     strict=True))
+    out = np.zeros((len(ids), 3))
+    for r in np.argsort(ids, kind="stable").tolist():
+        anchor = known.get(int(anchor_ids[r]))
+        if anchor is None:
+            raise InputError(f"pose {int(ids[r])}: its anchor {int(anchor_ids[r])} is not known")
+        out[r] = compose(anchor, offsets[r])
+        known[int(ids[r])] = out[r]
+    return out

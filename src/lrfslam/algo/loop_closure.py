@@ -82,6 +82,7 @@ import numpy as np
 from lrfslam.algo.checks import require_finite
 from lrfslam.algo.correlative_match import CorrelativeParams, LikelihoodGrid, search
 from lrfslam.algo.geometry import (
+    anchored_poses,
     compose,
     compose_with_covariance,
     from_frame,
@@ -511,7 +512,7 @@ class LoopClosingMapper:
         ordinals = np.array([k.ordinal for k in live] + [r.ordinal for r in gone], dtype=np.int64)
         order = np.argsort(ordinals)   # (every ordinal below self._made is one of the two)
         live_ordinals = ordinals[: len(live)]
-        kf_poses = np.vstack((self.graph.poses, retired_poses(
+        kf_poses = np.vstack((self.graph.poses, anchored_poses(
             live_ordinals, self.graph.poses, ordinals[len(live):],
             np.array([r.anchor_ordinal for r in gone], dtype=np.int64),
             np.array([r.offset for r in gone], dtype=float).reshape(-1, 3))))[order]
@@ -1111,38 +1112,6 @@ def _retired_from(prefix: str, arrays) -> list[_Retired]:
         raise InputError(f"mapper snapshot: {prefix} arrays of inconsistent shapes or not finite")
     return [_Retired(int(o), int(st), lp.astype(float), bool(le), int(si), int(ao), int(ast), off.astype(float))
             for o, st, lp, le, si, ao, ast, off in zip(*cols, strict=True)]
-
-
-def retired_poses(live_ids: np.ndarray, live_poses: np.ndarray, retired_ids: np.ndarray, anchor_ids: np.ndarray,
-                  offsets: np.ndarray) -> np.ndarray:
-    """The poses of retired keyframes ((R, 3)): each its anchor's composed with its offset.
-
-    Parameters
-    ----------
-    live_ids : ndarray of int, shape (K,)
-        The graph's keyframes' ids (ordinals in the mapper, scan stamps in a recording).
-    live_poses : ndarray, shape (K, 3)
-        Their poses.
-    retired_ids, anchor_ids : ndarray of int, shape (R,)
-        Each retired keyframe's id and its anchor's: a graph keyframe or an older retired one.
-    offsets : ndarray, shape (R, 3)
-        Each one's pose in its anchor's frame.
-
-    Raises
-    ------
-    InputError
-        If an anchor is neither in the graph nor retired before the keyframe it anchors.
-    """
-    known = dict(zip(np.asarray(live_ids, dtype=np.int64).tolist(), np.asarray(live_poses, dtype=float),
-                     strict=True))
-    out = np.zeros((len(retired_ids), 3))
-    for r in np.argsort(retired_ids, kind="stable").tolist():
-        anchor = known.get(int(anchor_ids[r]))
-        if anchor is None:
-            raise InputError(f"retired keyframe {int(retired_ids[r])}: its anchor {int(anchor_ids[r])} is not known")
-        out[r] = compose(anchor, offsets[r])
-        known[int(retired_ids[r])] = out[r]
-    return out
 
 
 def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:

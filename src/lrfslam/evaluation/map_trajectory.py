@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo.geometry import relative
-from lrfslam.algo.loop_closure import place_scans, retired_poses
+from lrfslam.algo.geometry import anchored_poses, relative
+from lrfslam.algo.loop_closure import place_scans
 from lrfslam.errors import DecodeError, InputError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -92,7 +92,7 @@ class KeyframeHistory:
         keep = ~np.isin(stamps, last.scan_stamp_ns)
         stamps, local, edge, anchors, offsets = stamps[keep], local[keep], edge[keep], anchors[keep], offsets[keep]
         try:
-            placed = retired_poses(last.scan_stamp_ns, last.map_pose, stamps, anchors, offsets)
+            placed = anchored_poses(last.scan_stamp_ns, last.map_pose, stamps, anchors, offsets)
         except InputError as exc:
             raise InputError(f"map/keyframes: {exc}") from None
         order = np.argsort(np.concatenate((last.scan_stamp_ns, stamps)), kind="stable")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lrfslam.algo.loop_closure import retired_poses
+from lrfslam.algo.geometry import anchored_poses
 from lrfslam.msgs import types as t
 
 
@@ -35,7 +35,7 @@ class KeyframePath:
         if keyframes.retired_scan_stamp_ns.size:
             # (One anchored on a keyframe retired before, which is rare, is not drawn.)
             known = np.isin(keyframes.retired_anchor_stamp_ns, keyframes.scan_stamp_ns)
-            placed = retired_poses(keyframes.scan_stamp_ns, keyframes.map_pose, keyframes.retired_scan_stamp_ns[known],
+            placed = anchored_poses(keyframes.scan_stamp_ns, keyframes.map_pose, keyframes.retired_scan_stamp_ns[known],
                                    keyframes.retired_anchor_stamp_ns[known], keyframes.retired_offset[known])
             stamps = np.concatenate((self._stamps, keyframes.retired_scan_stamp_ns[known]))
             poses = np.vstack((self._poses, placed))
