@@ -367,11 +367,11 @@ class RetiredKeyframes:
         Its pose in the anchor's frame ``(dx_m, dy_m, dtheta_rad)``.
     """
 
-    stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    local_pose: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    local_edge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    anchor_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    offset: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    stamp_ns: np.ndarray
+    local_pose: np.ndarray
+    local_edge: np.ndarray
+    anchor_stamp_ns: np.ndarray
+    offset: np.ndarray
 
     def __len__(self) -> int:
         return int(self.stamp_ns.size)
