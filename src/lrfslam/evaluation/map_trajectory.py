@@ -61,7 +61,7 @@ def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.Map
 class KeyframeHistory:
     """Every keyframe a run's ``map/keyframes`` told of: the last message's, and the ones retired
     before it. Feed the messages in order to :meth:`add`; what is kept grows with the keyframes
-    retired (five numbers each), the messages' graphs are not kept."""
+    retired (nine numbers each), the messages' graphs are not kept."""
 
     def __init__(self) -> None:
         self._last: t.MapKeyframes | None = None
