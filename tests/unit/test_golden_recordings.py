@@ -1,9 +1,11 @@
-"""The offline commands give the same bytes as the golden recordings in tests/data/golden/.
+"""The offline commands give the golden recordings of tests/data/golden/ again.
 
 Each command of tests/data/golden/README.md is run again, in process, on the committed
-inputs (or on the committed output of an earlier command), and its output file must equal
-the committed one byte for byte: replay is deterministic and the recordings were made
-before the offline drivers became one chain.
+inputs (or on the committed output of an earlier command), and its output must hold the
+committed one's messages: the same topics, stamps, sequence numbers and metadata, every
+decoded field within the stated tolerance (``decoded_messages``). Not byte for byte: the
+goldens were made on another CPU, whose numpy and BLAS kernels round the last bit
+otherwise; byte-identity of two runs on one machine is ``test_pipeline_offline``'s.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from decoded_messages import SHORT_SLAM_RUN, assert_same_messages
 
 from lrfslam import cli
 from lrfslam.msgs import topics
@@ -22,6 +25,8 @@ from lrfslam.runtime.recording import SegmentedWriter, read_recording
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "golden"
 # The goldens predate the mapper stage; they pin the stages they were made with.
 EKF_STAGES = "denoise,features,slam"
+#: The slam stage's outputs carry the filter over the whole recording; the rest are one scan's work.
+TOLERANCE = {topics.SLAM_STATE.name: SHORT_SLAM_RUN, topics.SLAM_MAP.name: SHORT_SLAM_RUN}
 
 # (output, input, command before the --replay/--out arguments, extra arguments)
 COMMANDS = [
@@ -47,7 +52,7 @@ def test_replay_reproduces_the_golden_recording(out, source, command, extra, tmp
     shutil.copy(GOLDEN / source, tmp_path / source)
     argv = [*command, "--replay", str(tmp_path / source), "--out", str(tmp_path / out), *extra]
     assert cli.main(argv) == 0
-    assert (tmp_path / out).read_bytes() == (GOLDEN / out).read_bytes(), out
+    assert_same_messages(tmp_path / out, GOLDEN / out, TOLERANCE)
 
 
 @pytest.mark.parametrize("as_files", [False, True], ids=["folder", "files"])
@@ -64,7 +69,7 @@ def test_a_split_recording_replays_as_the_single_file(as_files, tmp_path):
     source = split("sim_head.mcap", "run")
     argv = ["pipeline", "-q", "--stages", EKF_STAGES, "--replay", *source, "--out", str(tmp_path / "out.mcap")]
     assert cli.main(argv) == 0
-    assert list(read_recording(tmp_path / "out.mcap")) == list(read_recording(GOLDEN / "sim_head.pipeline.mcap"))
+    assert_same_messages(tmp_path / "out.mcap", GOLDEN / "sim_head.pipeline.mcap", TOLERANCE, metadata=False)
     assert cli.main(["features", "--replay", *source, "--out", str(tmp_path / "f.mcap"), "--set", "mode=paper"]) == 0
     exported = split("sim_head.pipeline.mcap", "out")
     assert cli.main(["export", *exported, "-o", str(tmp_path / "a"), "--no-png"]) == 0

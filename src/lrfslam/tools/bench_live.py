@@ -19,6 +19,7 @@ benchmarks/bench_delivery.py too.
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import socket
@@ -65,6 +66,16 @@ def memory_kb(pid: int, field_name: str = "VmRSS") -> int | None:
     except (OSError, ValueError):
         return None
     return None
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time process ``pid`` has used so far (s), None if gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    # utime and stime are the 14th and 15th fields of stat(5); the 3rd is the first after the name.
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def children_of(pid: int) -> dict[str, int]:
@@ -120,14 +131,16 @@ def queue_growing(pending: list[int], min_growth: int = QUEUE_GROWTH) -> bool:
 
 class Sampler:
     """Once every :data:`SAMPLE_PERIOD_S` in a thread: the robot's service statuses (kept while
-    ``while_alive`` answers, or always if it is empty) and the peak resident memory (``VmHWM``) of
-    process ``root_pid`` (as ``up``) and of every lrfslam process it started."""
+    ``while_alive`` answers, or always if it is empty), and the peak resident memory (``VmHWM``) and
+    CPU time used so far of process ``root_pid`` (as ``up``) and of every lrfslam process it started
+    (the CPU time as last seen: a process's last second may be missing)."""
 
     def __init__(self, endpoint: str, robot: str, root_pid: int, while_alive: str = "") -> None:
         self.endpoint, self.robot, self.root_pid, self.while_alive = endpoint, robot, root_pid, while_alive
         self.snapshots: list[dict[str, t.ServiceStatus]] = []
         self.alive: set[str] = set()
         self.peak_kb: dict[str, int] = {}
+        self.cpu_s: dict[str, float] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="bench-sampler", daemon=True)
         self._thread.start()
@@ -137,6 +150,9 @@ class Sampler:
             kb = memory_kb(pid, "VmHWM")
             if kb is not None:
                 self.peak_kb[name] = max(kb, self.peak_kb.get(name, 0))
+            cpu = cpu_seconds(pid)
+            if cpu is not None:
+                self.cpu_s[name] = max(cpu, self.cpu_s.get(name, 0.0))
 
     def _run(self) -> None:
         session = None
@@ -193,6 +209,14 @@ class LiveRun:
     pending: dict[str, list[int]]               # per service: queue.pending while the sensor ran
     age_us: dict[str, tuple[int, int]]          # per service: age p50, p99 (µs) at the sensor's last status
     peak_rss_kb: dict[str, int] = field(default_factory=dict)
+    cpu_s: dict[str, float] = field(default_factory=dict)   # per process: CPU time used (s)
+
+    def cpu_ms_per_scan(self) -> dict[str, float]:
+        """Per process, CPU time per scan the sensor published (ms), and their ``total``."""
+        if not self.published:
+            return {}
+        per = {name: 1e3 * s / self.published for name, s in self.cpu_s.items()}
+        return {**per, "total": sum(per.values())}
 
     @property
     def dropped(self) -> int:
@@ -261,7 +285,7 @@ def run_up(rate_hz: float, duration_s: float, workdir: Path, seed: int = 1) -> L
     age = {name: (st.counters["age.p50_us"], st.counters["age.p99_us"]) for name, st in last.items()
            if "age.p50_us" in st.counters}
     return LiveRun(rate_hz, duration_s, up.returncode, stages, published, recorded, lost, pending, age,
-                   dict(sampler.peak_kb))
+                   dict(sampler.peak_kb), dict(sampler.cpu_s))
 
 
 @dataclass
