@@ -69,6 +69,7 @@ SPEC = ServiceSpec(
     config_type=DenoiseConfig,
     inputs=(topics.SCAN,),
     outputs=(topics.SCAN_FILTERED,),
+    skippable=(topics.SCAN,),
     build=lambda cfg, ctx: DenoiseStep(cfg),
     preset=preset,
 )

@@ -70,6 +70,7 @@ SPEC = ServiceSpec(
     config_type=FeatureConfig,
     inputs=(topics.SCAN_FILTERED,),
     outputs=(topics.FEATURES,),
+    skippable=(topics.SCAN_FILTERED,),
     build=lambda cfg, ctx: FeatureStep(cfg),
     preset=preset,
 )

@@ -203,5 +203,6 @@ SPEC = ServiceSpec(
     inputs=(topics.SCAN, topics.SLAM_STATE),
     outputs=(topics.MAP_POSE, topics.MAP_KEYFRAMES),
     latest=(topics.MAP_POSE, topics.MAP_KEYFRAMES),
+    skippable=(topics.SCAN, topics.SLAM_STATE),
     build=lambda cfg, ctx: MapperStep(cfg, ctx),
 )

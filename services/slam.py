@@ -162,5 +162,6 @@ SPEC = ServiceSpec(
     inputs=(topics.ODOM, topics.SCAN, topics.FEATURES),
     outputs=(topics.SLAM_STATE, topics.SLAM_MAP),
     latest=(topics.SLAM_STATE, topics.SLAM_MAP),
+    skippable=(topics.SCAN, topics.FEATURES),
     build=lambda cfg, ctx: SlamStep(cfg, ctx),
 )

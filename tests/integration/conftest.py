@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import socket
 import subprocess
 import sys
@@ -95,3 +96,15 @@ def cluster(tmp_path):
     c.start_router()
     yield c
     c.close()
+
+
+@pytest.fixture
+def router():
+    """A Zenoh router session in this process, on a free loopback port: its endpoint."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf):
+        yield endpoint

@@ -8,8 +8,6 @@ not a gap. The samples also show the delivery policy of ``msgs/topics.py`` appli
 
 from __future__ import annotations
 
-import json
-import socket
 import time
 from collections import Counter
 
@@ -24,23 +22,6 @@ from lrfslam.tools.status import client_config
 pytestmark = pytest.mark.integration
 
 ROBOT = "gaps"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture
-def router():
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    with zenoh.open(conf):
-        yield endpoint
 
 
 def odom(i: int) -> bytes:

@@ -109,7 +109,8 @@ def test_rates_come_from_the_services_own_stamps():
     assert dash.rates(a, b) == (40.0, 35.0)
     assert dash.rates(None, b) is None
     assert dash.rates(status("denoise", 11.0, pid=8), b) is None     # a restarted process counts from zero
-    assert dash.counter_figures(b.counters) == {"in": 180, "out": 170, "dropped": 3, "gaps": 0, "errors": 0}
+    assert dash.counter_figures(b.counters) == {"in": 180, "out": 170, "dropped": 3, "gaps": 0, "skipped": 0,
+                                                 "errors": 0}
     model = dash.DashboardModel()
     model.add("health/denoise", a)
     model.add("health/denoise", b)

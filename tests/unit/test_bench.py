@@ -128,7 +128,7 @@ def test_a_queue_grows_when_its_end_stands_well_above_its_start():
 
 
 def run_at(rate: float, dropped: int = 0, pending: list[int] | None = None) -> bench_live.LiveRun:
-    stages = {"slam": bench_live.StageRow("slam", 10, 10, dropped, 0, 0, 0, "0")}
+    stages = {"slam": bench_live.StageRow("slam", 10, 10, dropped, 0, 0, 0, 0, "0")}
     return bench_live.LiveRun(rate, 60.0, 0, stages, 100, 100, 0, {"slam": pending or [1] * 8},
                               {"slam": (8000, 14000)})
 

@@ -8,6 +8,16 @@ session. Before queueing, the callback checks the sample's sequence number
 against what its producer sent before (``runtime/sequence.py``): what went
 missing between the producer and this process counts as ``gap.<topic>``.
 
+A stage that falls behind (a slower computer, a burst, a long optimisation) skips to
+the newest input rather than answering later and later: an input of the spec's
+``skippable`` topics older than ``max_lag_s`` (its stamp against the wall clock: only
+where stamps are on it, ``wall_clock_stamps``) while a newer sample of the last of them
+(the *lead*: the slam's features, the mapper's slam states) already waits, is taken out
+undecoded and counted as ``skip.<topic>``. The step bridges what it skipped as it
+bridges a loss (the slam's next motion spans the skipped scans; the mapper's next state
+carries the filter's pose across them). A replay (``lrfslam play``, ``--speedup``) has no
+wall-clock stamps and never skips, so its outputs stay those of the offline chain.
+
 Publishers take their QoS from the topic's delivery policy (``msgs/topics.py``,
 docs/delivery.md).
 """
@@ -16,12 +26,11 @@ from __future__ import annotations
 
 import json
 import logging
-import queue
 import re
 import struct
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -56,6 +65,8 @@ class BusConfig:
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)      # ignored in client mode
     zenoh_config: str = ""                              # optional Zenoh JSON5 file applied first
     queue_size: int = 512                               # received samples waiting for the step
+    #: A stage whose inputs are older than this (s, wall clock) skips to its newest (``skip.*``); 0: never.
+    max_lag_s: float = 0.25
     health_period_s: float = 1.0                        # how often health/<service> is published
     #: For overload measurements only (docs/delivery.md): "<service>:<ms>" makes that service
     #: sleep <ms> after each input message. Every process of ``lrfslam up`` reads the same
@@ -209,6 +220,16 @@ def publisher_qos(delivery: topics.Delivery) -> dict:
     }
 
 
+class _Received(NamedTuple):
+    """A sample as the receive callback queues it."""
+
+    key: str
+    payload: bytes
+    encoding: str
+    attachment: bytes | None
+    received_ns: int        # monotonic clock
+
+
 class ZenohBus:
     """Inputs and outputs of one service over an open Zenoh session.
 
@@ -224,25 +245,35 @@ class ZenohBus:
     counts : Counter
         Shared counters (``in.*``, ``out.*``, ``error.*``), written by the main thread. What the
         receive callbacks count (``drop.queue``, ``gap.*``, ``dup.*``, ``late.*``, ``restart.*``)
-        is kept apart: :meth:`receive_counts`.
+        and what :meth:`get` skips (``skip.*``) is kept apart: :meth:`receive_counts`.
+    skippable : tuple of Topic
+        Inputs that may be skipped when older than ``max_lag_s`` while a newer sample of the
+        last of them waits (the module's docstring); empty or ``max_lag_s`` 0: none.
+    max_lag_s : float
+        Age (s) of an input's wall-clock stamp beyond which it may be skipped.
     """
 
     def __init__(self, session: zenoh.Session, robot: str, inputs: tuple[Topic, ...], raw: bool,
-                 queue_size: int, counts: Counter) -> None:
+                 queue_size: int, counts: Counter, skippable: tuple[Topic, ...] = (), max_lag_s: float = 0.0) -> None:
         self._session = session
         self._robot = robot
         self._raw = raw
-        self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self._queue: deque[_Received] = deque()
+        self._queue_size = queue_size
+        self._ready = threading.Condition(threading.Lock())
+        self._skippable = {topics.key(robot, t.name) for t in skippable} if max_lag_s > 0 else set()
+        self._lead = topics.key(robot, skippable[-1].name) if self._skippable else None
+        self._max_lag_ns = int(max_lag_s * 1e9)
+        self._lead_newest_ns: int | None = None
         self._counts = counts
         self._once = LogOnce(log)
         self._publishers: dict[str, zenoh.Publisher] = {}
         #: This session's producer id, in every attachment it puts.
         self.producer = producer_id(session)
-        # Zenoh may call back from several threads; the status is read from the main one.
-        self._lock = threading.Lock()
         self._tracker = SequenceTracker()
         self._dropped = 0
         self._left_at_stop = 0
+        self._skipped: Counter[str] = Counter()
         #: When the Zenoh callback queued the input :meth:`get` returned last (monotonic ns).
         self.received_ns = 0
         self._prefix = topics.key(robot, "")
@@ -254,23 +285,27 @@ class ZenohBus:
         key = str(sample.key_expr)
         att = sample.attachment
         att_bytes = att.to_bytes() if att is not None else None
-        item = (key, sample.payload.to_bytes(), str(sample.encoding), att_bytes, time.monotonic_ns())
-        seq, _, producer = parse_attachment(att_bytes)
-        with self._lock:
+        item = _Received(key, sample.payload.to_bytes(), str(sample.encoding), att_bytes, time.monotonic_ns())
+        seq, stamp_ns, producer = parse_attachment(att_bytes)
+        with self._ready:
             if att_bytes is not None:
                 self._tracker.observe(producer, key.removeprefix(self._prefix), seq)
-            try:
-                self._queue.put_nowait(item)
-            except queue.Full:
+            if len(self._queue) >= self._queue_size:
                 self._dropped += 1
+                return
+            self._queue.append(item)
+            if key == self._lead:
+                self._lead_newest_ns = stamp_ns   # the last to arrive: data time going back starts afresh
+            self._ready.notify()
 
     def receive_counts(self) -> Counter:
         """``drop.queue`` (samples the full queue refused), ``drop.stop`` (received but still
         queued at :meth:`discard_pending`) and the tracker's nonzero ``gap.*``, ``dup.*``,
         ``late.*``, ``restart.*`` counters: a copy."""
-        with self._lock:
+        with self._ready:
             counts = Counter({k: v for k, v in self._tracker.counts.items() if v})
             counts.update({k: v for k, v in (("drop.queue", self._dropped), ("drop.stop", self._left_at_stop)) if v})
+            counts.update(self._skipped)
             return counts
 
     def stop_receiving(self) -> None:
@@ -285,24 +320,35 @@ class ZenohBus:
         A stage stopped while behind has inputs it will never handle; they are counted, not
         silently thrown away with the process.
         """
-        with self._lock:
-            while True:
-                try:
-                    self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                self._left_at_stop += 1
+        with self._ready:
+            self._left_at_stop += len(self._queue)
+            self._queue.clear()
 
     def pending(self) -> int:
         """Received samples waiting in the queue."""
-        return self._queue.qsize()
+        return len(self._queue)
+
+    def _next(self, timeout_s: float) -> _Received | None:
+        """The oldest waiting sample that is not stale (see the module's docstring), or None after ``timeout_s``."""
+        with self._ready:
+            while True:
+                if not self._queue and not self._ready.wait_for(lambda: self._queue, timeout_s):
+                    return None
+                item = self._queue.popleft()
+                if item.key not in self._skippable:
+                    return item
+                stamp_ns = parse_attachment(item.attachment).stamp_ns
+                newer_waits = self._lead_newest_ns is not None and self._lead_newest_ns > stamp_ns
+                if not newer_waits or time.time_ns() - stamp_ns <= self._max_lag_ns:
+                    return item
+                self._skipped[f"skip.{item.key.removeprefix(self._prefix)}"] += 1
 
     def get(self, timeout_s: float) -> Message | None:
         """The next decodable input, or None after ``timeout_s`` without one."""
-        try:
-            key, payload, encoding, att, self.received_ns = self._queue.get(timeout=timeout_s)
-        except queue.Empty:
+        item = self._next(timeout_s)
+        if item is None:
             return None
+        key, payload, encoding, att, self.received_ns = item
         seq, stamp_ns, _ = parse_attachment(att)
         schema = parse_encoding(encoding)
         if self._raw:

@@ -201,7 +201,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         # Built once the bus is known to be ours: a recorder opens its segment here, a slam reads its checkpoint.
         step = spec.build(cfg, RunContext(robot))
         is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
-        bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts)
+        bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts, spec.skippable,
+                       bus_cfg.max_lag_s if bus_cfg.wall_clock_stamps else 0.0)
         latency = LatencyWindow("latency")
         age = LatencyWindow("age") if bus_cfg.wall_clock_stamps else None
         slow_s = bus_cfg.debug_delay_s(spec.name)

@@ -101,6 +101,10 @@ class ServiceSpec:
     #: Outputs whose newest message the live service keeps and answers for on ``topics.latest``
     #: (the state a late viewer needs at once, e.g. the slam's landmarks).
     latest: tuple[Topic, ...] = ()
+    #: Inputs the live service skips when it falls behind, the last of them the lead (a newer one
+    #: of it waiting makes older inputs stale; lrfslam/runtime/bus.py). Its step bridges a skipped
+    #: input as a lost one. Empty: every input is handled, however late (the recorder).
+    skippable: tuple[Topic, ...] = ()
 
 
 @dataclass(frozen=True)

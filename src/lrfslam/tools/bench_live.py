@@ -104,6 +104,7 @@ class StageRow:
     outs: int
     dropped: int
     gaps: int
+    skipped: int
     errors: int
     restarts: int
     exit: str
@@ -112,7 +113,7 @@ class StageRow:
 def parse_summary(stdout: str) -> tuple[dict[str, StageRow], tuple[int, int, int]]:
     """up's stage table and its ``scans published … / … in the recording … / lost …`` line (zeros without one)."""
     stages = {}
-    for m in re.finditer(r"^(\w+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\S+)$", stdout, re.MULTILINE):
+    for m in re.finditer(r"^(\w+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\S+)$", stdout, re.MULTILINE):
         name, *nums, code = m.groups()
         stages[name] = StageRow(name, *map(int, nums), code)
     m = re.search(r"scans published by the sensor (\d+) / scans in the recording (\d+) / lost (-?\d+)", stdout)
@@ -227,15 +228,19 @@ class LiveRun:
         return sum(r.gaps for r in self.stages.values())
 
     @property
+    def skipped(self) -> int:
+        return sum(r.skipped for r in self.stages.values())
+
+    @property
     def growing(self) -> list[str]:
         """Services whose input queue grew while the sensor ran."""
         return sorted(name for name, series in self.pending.items() if queue_growing(series))
 
     @property
     def held(self) -> bool:
-        """The rate was held: up ran and summarised, nothing dropped, missed or lost, no queue grew."""
+        """The rate was held: up ran and summarised, nothing dropped, skipped, missed or lost, no queue grew."""
         return (self.returncode == 0 and bool(self.stages) and self.published > 0 and not self.dropped
-                and not self.gaps and not self.lost and not self.growing)
+                and not self.skipped and not self.gaps and not self.lost and not self.growing)
 
     def verdict(self) -> str:
         """``held``, or why not."""
@@ -245,6 +250,7 @@ class LiveRun:
         why += ["no summary"] if not self.stages else []
         why += [f"dropped {self.dropped}"] if self.dropped else []
         why += [f"gaps {self.gaps}"] if self.gaps else []
+        why += [f"skipped {self.skipped}"] if self.skipped else []
         why += [f"lost {self.lost}"] if self.lost else []
         why += [f"queue growing in {', '.join(self.growing)}"] if self.growing else []
         return "not held: " + "; ".join(why)

@@ -654,15 +654,17 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
 
     ``wall_s`` is the run's duration on the monotonic clock. ``dropped`` counts inputs a stage
     received but never handled (its full queue refused them, or they were still queued when it
-    was stopped), ``gaps`` inputs that never reached it (sequence numbers skipped; docs/delivery.md).
+    was stopped), ``gaps`` inputs that never reached it (sequence numbers skipped; docs/delivery.md),
+    ``skipped`` inputs a stage that fell behind skipped to answer the newest (bridged; not losses of
+    the recording).
     """
     lines = ["", f"lrfslam up: ran {wall_s:.1f} s (monotonic clock)", "",
-             "stage      in          out         dropped  gaps    errors  restarts  exit"]
+             "stage      in          out         dropped  gaps    skipped  errors  restarts  exit"]
     for name, child in children.items():
         f = counter_figures(observer.counters(name))
         code = child.proc.returncode if child.proc else None
         lines.append(f"{name:10s} {f['in']:<11d} {f['out']:<11d} {f['dropped']:<8d} {f['gaps']:<7d} "
-                     f"{f['errors']:<7d} {child.restarts:<9d} {code}")
+                     f"{f['skipped']:<8d} {f['errors']:<7d} {child.restarts:<9d} {code}")
     err = pose_errors(observer)
     lines.append("")
     if err is None:

@@ -53,12 +53,13 @@ def total(counters: dict[str, int], *prefixes: str) -> int:
 
 
 def counter_figures(counters: dict[str, int]) -> dict[str, int]:
-    """A service's totals: inputs, outputs (health not counted), dropped (``drop.*``), gaps (``gap.*``), errors;
+    """A service's totals: inputs, outputs (health not counted), dropped (``drop.*``), gaps (``gap.*``),
+    skipped (``skip.*``: stale inputs a stage behind skipped, lrfslam/runtime/bus.py), errors;
     its latency percentiles (ms) from receiving an input to publishing its outputs, when it has inputs; and
     the age percentiles (ms) of what it published, from the scan's sensor stamp on the wall clock, when it
     reports them (lrfslam/runtime/latency.py)."""
     figures = {"in": total(counters, "in."), "out": total(counters, "out.") - total(counters, "out.health"),
-               "dropped": total(counters, "drop."), "gaps": total(counters, "gap."),
+               "dropped": total(counters, "drop."), "gaps": total(counters, "gap."), "skipped": total(counters, "skip."),
                "errors": total(counters, "error.", "step.error")}
     if "latency.p50_us" in counters:
         figures |= {"latency_p50_ms": counters["latency.p50_us"] / 1e3,
