@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from lrfslam.errors import ConfigError
 from lrfslam.sim.floor_plans import doorway_room, hallway_loop, straight_wall
-from lrfslam.sim.lidar import LidarModel, raycast, simulate_scan
+from lrfslam.sim.lidar import LidarModel, _first_hit, raycast, simulate_scan
 
 ANGLES = LidarModel().angles_rad()
 
@@ -49,6 +49,22 @@ def test_raycast_matches_plane_distance_for_any_pose(x, y, theta, dist, normal):
     facing = cos_inc > 0.05
     np.testing.assert_allclose(r[facing], dist / cos_inc[facing], rtol=1e-8)
     assert np.all(np.isinf(r[cos_inc < -1e-9]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), max_range=st.floats(0.5, 12.0))
+def test_walls_out_of_range_left_out_change_nothing(seed, max_range):
+    """The broad phase (walls farther than the range are not intersected) gives what intersecting
+    every wall and cutting at the range gives: the same ranges and the same wall indices."""
+    rng = np.random.default_rng(seed)
+    seg = rng.uniform(-10, 10, (40, 4))
+    seg[:5] = np.round(seg[:5])   # some walls sharing vertices with others
+    pose = (*rng.uniform(-5, 5, 2), rng.uniform(-np.pi, np.pi))
+    ranges, index = _first_hit(seg, pose, ANGLES, max_range)
+    every, every_index = _first_hit(seg, pose, ANGLES)
+    beyond = every > max_range
+    np.testing.assert_array_equal(ranges, np.where(beyond, np.inf, every))
+    np.testing.assert_array_equal(index, np.where(beyond, -1, every_index))
 
 
 def test_nearest_of_two_walls_wins_and_max_range_cuts():

@@ -587,33 +587,53 @@ class PoseGraph:
         index = np.full(self._n, -1)
         index[nodes] = np.arange(nodes.size)
         size = 3 * nodes.size
-        info = np.zeros((size, size))
+        # The information of S ∪ N is a dense block for S and a sparse chain of 3×3 blocks for N:
+        # a sparse factorisation solves for a's and b's columns in time linear in |N|, where a
+        # dense inverse of up to 3 × 200 unknowns cost milliseconds per search window.
+        rows, cols, vals = [], [], []
         if old.size:
-            rows = (3 * factor.block[old][:, None] + np.arange(3)).ravel()
-            rhs = np.zeros((factor.lu.shape[0], rows.size))
-            rhs[rows, np.arange(rows.size)] = 1.0
-            old_cov = factor.lu.solve(rhs)[rows]
-            info[: 3 * old.size, : 3 * old.size] = np.linalg.inv(0.5 * (old_cov + old_cov.T))
+            block_rows = (3 * factor.block[old][:, None] + np.arange(3)).ravel()
+            rhs = np.zeros((factor.lu.shape[0], block_rows.size))
+            rhs[block_rows, np.arange(block_rows.size)] = 1.0
+            old_cov = factor.lu.solve(rhs)[block_rows]
+            dense = np.linalg.inv(0.5 * (old_cov + old_cov.T))
+            k = np.arange(3 * old.size)
+            rows.append(np.repeat(k, k.size))
+            cols.append(np.tile(k, k.size))
+            vals.append(dense.ravel())
         if new.size:
             e, jac_i, jac_j = self._residuals(self.poses, i, j, self._z[new], with_jacobians=True)
             _, w = self._robust_terms(_mahalanobis2(e, self._info[new]), self._robust[new])
             winfo = self._info[new] * w[:, None, None]
+            three = np.arange(3)
             for r_nodes, jac_r in ((i, jac_i), (j, jac_j)):
                 for c_nodes, jac_c in ((i, jac_i), (j, jac_j)):
                     blocks = np.swapaxes(jac_r, 1, 2) @ winfo @ jac_c
-                    for rn, cn, blk in zip(index[r_nodes].tolist(), index[c_nodes].tolist(), blocks, strict=True):
-                        if rn >= 0 and cn >= 0:
-                            info[3 * rn: 3 * rn + 3, 3 * cn: 3 * cn + 3] += blk
+                    rn, cn = index[r_nodes], index[c_nodes]
+                    keep = (rn >= 0) & (cn >= 0)
+                    r = 3 * rn[keep, None, None] + three[None, :, None]
+                    c = 3 * cn[keep, None, None] + three[None, None, :]
+                    rows.append(np.broadcast_to(r, blocks[keep].shape).ravel())
+                    cols.append(np.broadcast_to(c, blocks[keep].shape).ravel())
+                    vals.append(blocks[keep].ravel())
+        info = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(size, size)).tocsc()   # repeated entries summed
+        wanted = [k for k in (a, b) if k > 0]
+        want_rows = (3 * index[wanted][:, None] + np.arange(3)).ravel()
+        unit = np.zeros((size, want_rows.size))
+        unit[want_rows, np.arange(want_rows.size)] = 1.0
         try:
-            cov = np.linalg.inv(info)
-        except np.linalg.LinAlgError:
+            cov = _factorise(info).solve(unit)[want_rows]
+        except RuntimeError:   # SuperLU: "Factor is exactly singular"
             raise InputError("pose graph is not connected: a node added since has no edge") from None
+        if not np.all(np.isfinite(cov)):
+            raise InputError("pose graph is not connected: a node added since has no edge")
         joint = np.zeros((6, 6))
+        at = {k: 3 * n for n, k in enumerate(wanted)}
         for x, kx in enumerate((a, b)):
             for y, ky in enumerate((a, b)):
                 if kx > 0 and ky > 0:
-                    rx, ry = 3 * index[kx], 3 * index[ky]
-                    joint[3 * x: 3 * x + 3, 3 * y: 3 * y + 3] = cov[rx: rx + 3, ry: ry + 3]
+                    joint[3 * x: 3 * x + 3, 3 * y: 3 * y + 3] = cov[at[kx]: at[kx] + 3, at[ky]: at[ky] + 3]
         return 0.5 * (joint + joint.T)
 
 

@@ -133,6 +133,16 @@ def _first_hit(segments_m, pose, angles_rad, max_range_m: float = np.inf) -> tup
         return np.full(n, np.inf), np.full(n, -1)
 
     x, y, theta = (float(v) for v in pose)
+    index_of = None
+    if np.isfinite(max_range_m):
+        # Only walls within range can be hit within it: the rest would come out inf anyway, so
+        # leaving them out (order kept, ties still to the lower index) changes no output.
+        near = _segment_distance(seg, x, y) <= max_range_m
+        if not near.all():
+            index_of, seg = np.flatnonzero(near), seg[near]
+            if len(seg) == 0:
+                n = len(np.atleast_1d(angles_rad))
+                return np.full(n, np.inf), np.full(n, -1)
     bearing = theta + np.asarray(angles_rad, dtype=float)
     d = np.stack((np.cos(bearing), np.sin(bearing)), axis=-1)[:, None, :]  # (N, 1, 2)
     a = seg[None, :, :2]
@@ -148,9 +158,22 @@ def _first_hit(segments_m, pose, angles_rad, max_range_m: float = np.inf) -> tup
     t_hit = np.where(hit, t, np.inf)
     index = t_hit.argmin(axis=1)
     ranges = t_hit[np.arange(len(index)), index]
-    index[~np.isfinite(ranges) | (ranges > max_range_m)] = -1
+    none = ~np.isfinite(ranges) | (ranges > max_range_m)
+    if index_of is not None:
+        index = index_of[index]
+    index[none] = -1
     ranges[ranges > max_range_m] = np.inf
     return ranges, index
+
+
+def _segment_distance(seg: np.ndarray, x: float, y: float) -> np.ndarray:
+    """Distance (M,) from the point ``(x, y)`` to each segment ``(x0, y0, x1, y1)`` of ``seg`` (M, 4), m."""
+    a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
+    w = np.array([x, y]) - a
+    length2 = np.einsum("ij,ij->i", e, e)
+    along = np.clip(np.einsum("ij,ij->i", w, e) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    gap = w - along[:, None] * e
+    return np.hypot(gap[:, 0], gap[:, 1])
 
 
 def simulate_scan(

@@ -426,8 +426,7 @@ class FoxgloveViews:
         map_pose = compose(self._map_from_slam, state.pose)
         tfs = [transform(stamp, MAP, SLAM, self._map_from_slam)]
         if self._odom:
-            stamps = np.fromiter((s for s, _ in self._odom), np.int64, len(self._odom))
-            odom = interpolate_pose(stamps, np.array([p for _, p in self._odom]), stamp)
+            odom = self._odometry_at(stamp)
             tfs.append(transform(stamp, MAP, ODOM, compose(map_pose, inverse(odom))))
         else:  # no odometry: the EKF's pose places the robot
             tfs += [transform(stamp, MAP, ODOM, self._map_from_slam), transform(stamp, ODOM, BASE, state.pose),
@@ -444,6 +443,22 @@ class FoxgloveViews:
             self._landmarks_sent_ns = stamp
             views.append(View(LANDMARKS, landmarks_scene(state, self._map.landmarks), at))
         return views + self._path(TRAJECTORY_SLAM, stamp, state.pose, at)
+
+    def _odometry_at(self, stamp_ns: int) -> np.ndarray:
+        """The odometry pose (3,) at ``stamp_ns``, as :func:`interpolate_pose` over every sample kept gives it.
+
+        Found from the newest end: a state's stamp is among the last few odometry samples, and
+        only the two bracketing it (or the nearest end) matter.
+        """
+        later = None
+        for sample in reversed(self._odom):
+            if sample[0] <= stamp_ns:
+                near = [sample] if later is None else [sample, later]
+                break
+            later = sample
+        else:
+            near = [later]
+        return interpolate_pose(np.array([s for s, _ in near], np.int64), np.array([p for _, p in near]), stamp_ns)
 
     def _map_pose(self, mp: t.MapPose, at: int) -> list[View]:
         self._map_from_slam = mp.map_from_slam
