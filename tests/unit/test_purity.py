@@ -1,8 +1,8 @@
 """Pure algorithm modules stay apart from transport, the clock, the environment and the console.
 
 Every module listed here is numpy in, numpy out: it may import only the standard
-library's data-structure and maths modules, numpy/scipy/filterpy, and other pure
-lrfslam modules. A new module under algo/ or sim/ is covered automatically.
+library's data-structure and maths modules, numpy/scipy/filterpy, numba (a compiler of
+numpy code: the scan matcher's kernels), and other pure lrfslam modules. A new module under algo/ or sim/ is covered automatically.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ PURE = sorted(
 IMPURE = ("lrfslam.drivers.lms200.port", "lrfslam.drivers.lms200.emulator")
 
 ALLOWED_ROOTS = {"__future__", "collections", "dataclasses", "typing", "math", "enum", "functools",
-                 "itertools", "heapq", "operator", "struct", "decimal", "numpy", "scipy", "filterpy", "lrfslam"}
+                 "itertools", "heapq", "operator", "struct", "decimal", "numpy", "scipy", "filterpy", "numba",
+                 "lrfslam"}
 ALLOWED_LRFSLAM_PREFIXES = ("lrfslam.errors", "lrfslam.algo", "lrfslam.sim", "lrfslam.drivers.lms200")
 FORBIDDEN_CALLS = {"print", "open", "input", "exec", "eval", "breakpoint"}
 

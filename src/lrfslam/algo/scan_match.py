@@ -99,12 +99,11 @@ from __future__ import annotations
 
 import enum
 from collections import deque
-from dataclasses import dataclass, replace
-from functools import cached_property
+from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from lrfslam.algo import _scan_match_kernel as kernel
 from lrfslam.algo.checks import require_finite
 from lrfslam.algo.free_space import FreeSpace, seen_through
 from lrfslam.algo.geometry import compose, relative, wrap_angle
@@ -293,6 +292,7 @@ class ReferenceScan:
 
     points_xy_m: np.ndarray
     normals: np.ndarray
+    _grid: list = field(default_factory=list, repr=False)   # [cell m, Grid] once asked for
 
     @classmethod
     def build(cls, points_xy_m, params: ScanMatchParams) -> ReferenceScan:
@@ -304,34 +304,20 @@ class ReferenceScan:
         pts = _usable(points_xy_m, np.inf)
         if pts.shape[0] < params.normal_min_neighbours:
             return cls(np.zeros((0, 2)), np.zeros((0, 2)))
-        dist, idx = cKDTree(pts).query(pts, k=params.normal_neighbours,
-                                       distance_upper_bound=params.normal_radius_m)
-        # Neighbours beyond the radius come back with distance inf (and an index
-        # past the end). Up to k of them: near the sensor the beams are dense and
-        # k spans enough wall for the line to stand out of the range noise.
-        # Over several scans, a wall seen twice out of register is thick here and
-        # drops out, so a misaligned old keyframe cannot drag the match.
-        found = np.isfinite(dist)
-        count = found.sum(axis=1)
-        enough = count >= params.normal_min_neighbours
-        wts = found / np.maximum(count, 1)[:, None]  # (N, k) averaging weights over the found neighbours
-        nb = pts[np.where(found, idx, 0)]  # (N, k, 2)
-        d = nb - np.einsum("nk,nkc->nc", wts, nb)[:, None, :]
-        sxx, sxy, syy = (np.sum(wts * d[..., a] * d[..., b], axis=1) for a, b in ((0, 0), (0, 1), (1, 1)))
-        # Closed-form eigen-decomposition of each 2×2 scatter [[sxx, sxy], [sxy, syy]].
-        half_trace = 0.5 * (sxx + syy)
-        disc = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
-        lam_major, lam_minor = half_trace + disc, np.maximum(half_trace - disc, 0.0)
-        phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # direction of the major axis
-        normals = np.column_stack((-np.sin(phi), np.cos(phi)))
-        line = enough & (lam_major > 0)
-        line[line] = np.sqrt(lam_minor[line] / lam_major[line]) <= params.normal_max_thickness
+        # Up to k neighbours within the radius: near the sensor the beams are dense and k spans
+        # enough wall for the line to stand out of the range noise. Over several scans, a wall
+        # seen twice out of register is thick here and drops out, so a misaligned old keyframe
+        # cannot drag the match.
+        line, normals = kernel.line_normals(pts, params.normal_neighbours, params.normal_radius_m,
+                                            params.normal_min_neighbours, params.normal_max_thickness)
         return cls(pts[line], normals[line])
 
-    @cached_property
-    def tree(self) -> cKDTree:
-        """k-d tree over ``points_xy_m``, built on first use."""
-        return cKDTree(self.points_xy_m)
+    def grid(self, cell_m: float) -> kernel.Grid:
+        """The points bucketed in ``cell_m`` squares for the nearest-neighbour search (the last one kept)."""
+        cached = self._grid
+        if not cached or cached[0] != cell_m:
+            self._grid[:] = [cell_m, kernel.grid(self.points_xy_m, cell_m)]
+        return self._grid[1]
 
     def __len__(self) -> int:
         return int(self.points_xy_m.shape[0])
@@ -410,29 +396,17 @@ def _usable(points_xy_m, max_range_m: float) -> np.ndarray:
 
 def _linearise(reference: ReferenceScan, current: ReferenceScan, u: np.ndarray, gate_m: float,
                params: ScanMatchParams) -> _Linearisation:
-    c, s = np.cos(u[2]), np.sin(u[2])
-    rot_t = np.array([[c, s], [-s, c]])  # row vectors: p @ R^T = (R p)^T
-    moved = current.points_xy_m @ rot_t + u[:2]
-    dist, j = reference.tree.query(moved, distance_upper_bound=gate_m)
-    paired = np.isfinite(dist)
-    # A point pairs only with a line of about its own direction: near a corner the
-    # nearest reference point may lie on the other wall.
-    cos_angle = np.einsum("ij,ij->i", reference.normals[np.where(paired, j, 0)], current.normals @ rot_t)
-    paired &= np.abs(cos_angle) >= np.cos(params.max_normal_angle_rad)
-    pairs = np.where(paired, j, -1)
-    q, nrm = reference.points_xy_m[j[paired]], reference.normals[j[paired]]
-    p, m = current.points_xy_m[paired], moved[paired]
-    r = np.einsum("ij,ij->i", nrm, m - q)
-    w = 1.0 / (1.0 + (r / params.robust_scale_m) ** 2)
-    d_theta = nrm[:, 0] * (-s * p[:, 0] - c * p[:, 1]) + nrm[:, 1] * (c * p[:, 0] - s * p[:, 1])
-    jac = np.column_stack((nrm, d_theta))
-    info = jac.T @ (w[:, None] * jac)
-    # Rotation in metres of arc at the rms range, information per unit weight:
-    # the eigenvalues are then comparable between scans and directions.
-    lever = float(np.sqrt(np.mean(np.sum(p * p, axis=1)))) if p.size else 1.0
-    scale = np.array([1.0, 1.0, 1.0 / max(lever, 1e-9)])
-    eigvals, eigvecs = np.linalg.eigh(info * np.outer(scale, scale) / max(float(w.sum()), 1e-300))
-    return _Linearisation(pairs, r, w, info, jac.T @ (w * r), scale, eigvals, eigvecs)
+    """Correspondences and normal equations at pose ``u`` (the compiled kernel)."""
+    lin = kernel.linearise(reference.points_xy_m, reference.normals, reference.grid(_grid_cell(params)),
+                           current.points_xy_m, current.normals, u, gate_m, params.max_normal_angle_rad,
+                           params.robust_scale_m)
+    return _Linearisation(lin.pairs, lin.residual_m, lin.weight, lin.info, lin.gradient, lin.scale, lin.eigvals,
+                          lin.eigvecs)
+
+
+def _grid_cell(params: ScanMatchParams) -> float:
+    """The reference grid's cell (m): as wide as the widest gate, so the 3×3 cells round a point hold every pair."""
+    return max(params.wide_gate_m, params.narrow_gate_m)
 
 
 def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatchParams,
