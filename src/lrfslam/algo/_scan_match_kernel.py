@@ -158,8 +158,8 @@ def _line_normals(pts, origin, cell_m, cols, rows, start, order, k, radius_m, mi
     cand = np.empty(n, np.int64)
     cand_d2 = np.empty(n)
     for i in range(n):
-        col = int(math.floor((pts[i, 0] - origin[0]) / cell_m))
-        row = int(math.floor((pts[i, 1] - origin[1]) / cell_m))
+        col = math.floor((pts[i, 0] - origin[0]) / cell_m)
+        row = math.floor((pts[i, 1] - origin[1]) / cell_m)
         m = 0
         for r in range(max(row - 1, 0), min(row + 2, rows)):
             first, last = r * cols + max(col - 1, 0), r * cols + min(col + 1, cols - 1)
