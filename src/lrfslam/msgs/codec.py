@@ -159,7 +159,8 @@ def _scan_from(p) -> t.LaserScan:
     if not p.angle_increment_rad > 0:
         raise ValueError(f"angle_increment_rad must be > 0, got {p.angle_increment_rad}")
     # numpy would wrap a code of 256 round to 0, BEAM_VALID.
-    if any(not 0 <= s <= 255 for s in p.status):
+    status = np.array(p.status, np.int64)
+    if status.size and not (0 <= status.min() and status.max() <= 255):
         raise ValueError("a beam status code is outside 0..255")
     # Bearings in the laser frame: the first within a turn either way, a step of at most a turn.
     if not (abs(p.angle_min_rad) <= MAX_TURN_RAD and p.angle_increment_rad <= MAX_TURN_RAD):
@@ -169,7 +170,7 @@ def _scan_from(p) -> t.LaserScan:
     if np.any(ranges < 0) or np.any(np.isfinite(ranges) & (ranges > MAX_ABS)):
         raise ValueError(f"a range is negative or beyond {MAX_ABS:g} m (no return is +inf)")
     return t.LaserScan(
-        p.header.stamp_ns, p.header.seq, ranges, np.array(p.status, np.uint8),
+        p.header.stamp_ns, p.header.seq, ranges, status.astype(np.uint8),
         p.angle_min_rad, p.angle_increment_rad, p.range_max_m, p.range_min_m, p.header.frame_id,
         p.scan_time_s, p.source,
     )

@@ -4,11 +4,13 @@
     lrfslam bench --check ekf
 
 The table's header names the machine (cores, CPU model, Python and numpy versions, BLAS threads,
-load average) and the commit. Sections (``--only``, comma-separated; default all, in this order):
+load average) and the commit; its first rows time two fixed workloads (plain Python, small NumPy
+calls), so figures from two machines can be compared. Sections (``--only``, comma-separated; default all, in this order):
 
 ``stages``
     Per-scan cost of denoise, corner extraction, wall direction and a scan-matching tracker step on
-    simulated LMS200 scans (src/lrfslam/tools/bench_cost.py).
+    simulated LMS200 scans (src/lrfslam/tools/bench_cost.py); the scan matcher's kernels compiled in
+    a fresh process with an empty cache, and loaded from it.
 ``ekf``
     One EKF observation update at 50, 200, 500 and 1,000 landmarks against filterpy's dense
     ``ExtendedKalmanFilter.update`` on the same filter (ratio), and the log-log slope of each.
@@ -17,8 +19,9 @@ load average) and the commit. Sections (``--only``, comma-separated; default all
     per scan with a map of 50, 200 and 1,000 landmarks.
 ``live``
     ``lrfslam up`` (every stage, the recorder and the router as separate processes) at 75 scans/s for
-    ``--duration`` s: the scan-to-output ``age`` p50/p99 the slam and mapper report, drops, gaps, and
-    every process's peak resident memory (src/lrfslam/tools/bench_live.py).
+    ``--duration`` s: the scan-to-output ``age`` p50/p99 the slam and mapper report, drops, gaps,
+    skipped inputs, every process's CPU time per scan and peak resident memory
+    (src/lrfslam/tools/bench_live.py).
 ``rates``
     The same at each rate of ``--rates`` in turn (the 75 Hz run shared with ``live``), up to the
     first one not held for ``--duration`` s, then once halfway between the highest held and that
@@ -167,9 +170,18 @@ def live_rows(run: live.LiveRun, section: str) -> list[cost.Row]:
             p50, p99 = run.age_us[service]
             rows += [cost.Row(section, f"{what} age p50", p50 / 1e3, "ms", note=f"{service}'s last 1,024 outputs"),
                      cost.Row(section, f"{what} age p99", p99 / 1e3, "ms", note=f"{service}'s last 1,024 outputs")]
-    rows.append(cost.Row(section, f"{run.rate_hz:g} Hz for {run.duration_s:g} s: drops + gaps + lost",
-                         run.dropped + run.gaps + run.lost, "", note=f"{run.published} scans; {run.verdict()}"))
-    return rows
+    rows.append(cost.Row(section, f"{run.rate_hz:g} Hz for {run.duration_s:g} s: drops + gaps + skipped + lost",
+                         run.dropped + run.gaps + run.skipped + run.lost, "", note=f"{run.published} scans; {run.verdict()}"))
+    return rows + cpu_rows(run, section)
+
+
+def cpu_rows(run: live.LiveRun, section: str) -> list[cost.Row]:
+    """CPU time per scan of every process of the run (router, each service, up) and their sum."""
+    per = run.cpu_ms_per_scan()
+    return [cost.Row(section, f"CPU per scan: {name}", per[name], "ms",
+                     note="all processes: the machine's CPU time per scan" if name == "total"
+                     else "user + system, threads included, over the whole run")
+            for name in (*PROCESSES, "total") if name in per]
 
 
 def rate_rows(runs: Sequence[live.LiveRun]) -> list[cost.Row]:
@@ -254,11 +266,12 @@ def memory_rows(sources: Sequence[tuple[str, dict[str, int]]]) -> list[cost.Row]
 
 def run(sections: Sequence[str], s: Settings, datasets: Path, progress: Callable[[str], None]) -> list[cost.Row]:
     """The rows of ``sections``."""
-    rows: list[cost.Row] = []
+    progress("calibration")
+    rows: list[cost.Row] = cost.calibration_rows(s.repeat)
     memory: list[tuple[str, dict[str, int]]] = []
     if "stages" in sections:
         progress("stages")
-        rows += cost.stage_rows(s.scans, s.seed, s.repeat)
+        rows += cost.stage_rows(s.scans, s.seed, s.repeat) + cost.kernel_compile_rows()
     if "ekf" in sections:
         progress("ekf")
         rows += cost.ekf_rows(cost.ekf_shape(cost.EKF_TABLE_SIZES, cost.EKF_TABLE_SIZES, s.seed, s.ekf_budget_s,

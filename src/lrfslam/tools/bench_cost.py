@@ -21,7 +21,10 @@ many cores BLAS grabs.
 
 from __future__ import annotations
 
+import os
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from collections import defaultdict
@@ -135,6 +138,47 @@ def median_s(fn: Callable[[], object], budget_s: float, min_reps: int = 3,
         fn()
         times.append(clock() - t0)
     return statistics.median(times)
+
+
+#: The calibration workloads: fixed, so their times say how fast this machine is against another's.
+CALIBRATION_ADDITIONS = 3_000_000
+CALIBRATION_NUMPY_CALLS = 20_000
+
+
+def calibration_rows(repeat: int = 3) -> list[Row]:
+    """How fast this machine runs plain Python and small NumPy calls (the pipeline's two kinds of
+    work), fastest of ``repeat``: read every other figure of a table against these two."""
+    def python_loop() -> int:
+        total = 0
+        for i in range(CALIBRATION_ADDITIONS):
+            total += i
+        return total
+
+    a = np.linspace(0.0, 1.0, 181)
+
+    def numpy_calls() -> None:
+        for _ in range(CALIBRATION_NUMPY_CALLS // 4):
+            np.hypot(a, a).sum() + np.sin(a).max()
+
+    return [Row("calibration", f"pure Python: {CALIBRATION_ADDITIONS:,} additions", fastest_s(python_loop, repeat),
+                "s", note="int additions in a loop inside a function"),
+            Row("calibration", f"NumPy: {CALIBRATION_NUMPY_CALLS:,} small calls", fastest_s(numpy_calls, repeat),
+                "s", note="hypot, sin, sum, max on 181 floats: call overhead, as in the stages")]
+
+
+def kernel_compile_rows() -> list[Row]:
+    """The scan matcher's compiled kernels: compiling them in a fresh process with an empty cache,
+    then loading them from that cache in another (what each slam and mapper start costs)."""
+    code = "from lrfslam.algo._scan_match_kernel import warm_up; warm_up()"
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="lrfslam_numba_") as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        for what in ("compile (empty cache)", "load from the cache"):
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-c", code], env=env, check=True)
+            rows.append(Row("stage cost", f"scan-matching kernels: {what}", time.perf_counter() - t0, "s",
+                            note="a fresh process: import, then both kernels on a few points"))
+    return rows
 
 
 def _per_scan_row(measure: str, seconds: Sequence[float], note: str) -> Row:
