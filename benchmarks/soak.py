@@ -116,7 +116,7 @@ class SoakResult:
         if self.returncode != 0:
             found.append(f"lrfslam up exited with {self.returncode}")
         for name, row in self.stages.items():
-            for what, n in (("dropped", row.dropped), ("gaps", row.gaps), ("skipped", row.skipped), ("errors", row.errors),
+            for what, n in (("dropped", row.dropped), ("gaps", row.gaps), ("errors", row.errors),
                             ("restarts", row.restarts)):
                 if n:
                     found.append(f"{name}: {what} {n}")

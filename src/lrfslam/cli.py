@@ -88,6 +88,16 @@ def main(argv: list[str] | None = None) -> int:
     except Interrupted as exc:
         print(f"lrfslam {command}: stopped by {signal.Signals(exc.signum).name}", file=sys.stderr)
         return 128 + exc.signum
+    except SystemError as exc:
+        # A signal handled while compiled code (the scan matcher's numba kernels) was being
+        # entered surfaces as a SystemError caused by the handler's Interrupted.
+        cause = exc.__cause__
+        while cause is not None and not isinstance(cause, Interrupted):
+            cause = cause.__cause__
+        if cause is None:
+            raise
+        print(f"lrfslam {command}: stopped by {signal.Signals(cause.signum).name}", file=sys.stderr)
+        return 128 + cause.signum
     except KeyboardInterrupt:
         print(f"lrfslam {command}: interrupted", file=sys.stderr)
         return 128 + signal.SIGINT

@@ -38,13 +38,13 @@ def test_quick_bench_gives_every_section(tmp_path):
     rows: dict[str, list[dict]] = {}
     for row in report["rows"]:
         rows.setdefault(row["section"], []).append(row)
-    assert set(rows) == {"stage cost", "EKF update", "encode/decode", "live 75 Hz", "max rate",
+    assert set(rows) == {"calibration", "stage cost", "EKF update", "encode/decode", "live 75 Hz", "max rate",
                          "logs, play --rate max", "slam/state per scan", "peak RSS"}
     # The played log's recording: its slam states at the start and the end, beside v1's whole-map state.
     states = rows["slam/state per scan"]
     assert [r["measure"].split(" states")[0] for r in states] == ["intel_head, first 10", "intel_head, last 10"]
     assert all(r["value"] > 0 and r["compared"].startswith("v1 whole-map state") for r in states), states
-    for section in ("stage cost", "EKF update", "encode/decode", "peak RSS"):
+    for section in ("calibration", "stage cost", "EKF update", "encode/decode", "peak RSS"):
         assert all(r["value"] is not None and r["value"] > 0 for r in rows[section]), rows[section]
     ages = {r["measure"]: r["value"] for r in rows["live 75 Hz"] if "age" in r["measure"]}
     assert set(ages) == {f"scan → {k} age {p}" for k in ("slam/state", "map/pose") for p in ("p50", "p99")}
@@ -54,5 +54,7 @@ def test_quick_bench_gives_every_section(tmp_path):
     (played,) = rows["logs, play --rate max"]
     assert played["measure"] == "intel_head (10 scans): wall time" and played["value"] > 0
     assert "dropped 0, gaps 0" in played["note"]
+    cpu = {r["measure"].removeprefix("CPU per scan: "): r["value"] for r in rows["live 75 Hz"] if "CPU" in r["measure"]}
+    assert set(cpu) == {*PROCESSES, "total"} and cpu["total"] == pytest.approx(sum(cpu.values()) - cpu["total"])
     assert {r["measure"] for r in rows["peak RSS"]} == set(PROCESSES)
     assert all(math.isfinite(r["value"]) for r in rows["peak RSS"])

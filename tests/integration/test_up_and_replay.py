@@ -63,7 +63,7 @@ def test_up_prints_a_live_status_line_while_it_runs(up_run):
 def test_up_loses_nothing_at_40_hz_and_says_so(up_run):
     stdout, recording, _ = up_run
     # stage, in, out, dropped (full input queue), gaps (sequence numbers never received)
-    rows = re.findall(r"^(\w+)\s+\d+\s+\d+\s+(\d+)\s+(\d+)\s+\d+\s+\d+\s+\S+$", stdout, re.MULTILINE)
+    rows = re.findall(r"^(\w+)\s+\d+\s+\d+\s+(\d+)\s+(\d+)\s+\d+\s+\d+\s+\d+\s+\S+$", stdout, re.MULTILINE)
     assert {name for name, _, _ in rows} >= {"sensor", "denoise", "features", "slam", "mapper", "recorder"}, stdout
     assert all(dropped == gaps == "0" for _, dropped, gaps in rows), stdout
     recorded = sum(1 for _ in read_recording(recording, ["scan"]))

@@ -93,11 +93,12 @@ class Settings:
     max_logs: int | None = None
     log_scans: int | None = None
     seed: int = 0
+    compile_kernels: bool = True   # time the scan matcher's kernels compiled afresh (~10 s)
 
     @classmethod
     def quick(cls) -> Settings:
         return cls(scans=60, repeat=1, ekf_budget_s=0.02, ekf_min_reps=3, duration_s=8.0, rates=(75.0, 150.0), refine=0,
-                   max_logs=1, log_scans=1000)
+                   max_logs=1, log_scans=1000, compile_kernels=False)
 
 
 # -- the machine and the table
@@ -271,7 +272,8 @@ def run(sections: Sequence[str], s: Settings, datasets: Path, progress: Callable
     memory: list[tuple[str, dict[str, int]]] = []
     if "stages" in sections:
         progress("stages")
-        rows += cost.stage_rows(s.scans, s.seed, s.repeat) + cost.kernel_compile_rows()
+        rows += cost.stage_rows(s.scans, s.seed, s.repeat)
+        rows += cost.kernel_compile_rows() if s.compile_kernels else []
     if "ekf" in sections:
         progress("ekf")
         rows += cost.ekf_rows(cost.ekf_shape(cost.EKF_TABLE_SIZES, cost.EKF_TABLE_SIZES, s.seed, s.ekf_budget_s,
