@@ -206,5 +206,8 @@ SPEC = ServiceSpec(
     outputs=(topics.MAP_POSE, topics.MAP_KEYFRAMES),
     latest=(topics.MAP_POSE, topics.MAP_KEYFRAMES),
     skippable=(topics.SCAN, topics.SLAM_STATE),
+    # An optimisation holds the mapper up to a second now and then (docs/delivery.md); it catches up
+    # within milliseconds after, so it skips only when behind for longer than that.
+    max_lag_s=1.0,
     build=lambda cfg, ctx: MapperStep(cfg, ctx),
 )

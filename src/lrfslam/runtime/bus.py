@@ -10,8 +10,8 @@ missing between the producer and this process counts as ``gap.<topic>``.
 
 A stage that falls behind (a slower computer, a burst, a long optimisation) skips to
 the newest input rather than answering later and later: an input of the spec's
-``skippable`` topics older than ``max_lag_s`` (its stamp against the wall clock: only
-where stamps are on it, ``wall_clock_stamps``) while a newer sample of the last of them
+``skippable`` topics older than the spec's ``max_lag_s`` (its stamp against the wall clock:
+only where stamps are on it, ``wall_clock_stamps``) while a newer sample of the last of them
 (the *lead*: the slam's features, the mapper's slam states) already waits, is taken out
 undecoded and counted as ``skip.<topic>``. The step bridges what it skipped as it
 bridges a loss (the slam's next motion spans the skipped scans; the mapper's next state
@@ -65,8 +65,9 @@ class BusConfig:
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)      # ignored in client mode
     zenoh_config: str = ""                              # optional Zenoh JSON5 file applied first
     queue_size: int = 512                               # received samples waiting for the step
-    #: A stage whose inputs are older than this (s, wall clock) skips to its newest (``skip.*``); 0: never.
-    max_lag_s: float = 0.25
+    #: A stage that falls behind skips stale inputs to answer the newest (``skip.*``; each stage's
+    #: ``ServiceSpec.max_lag_s`` says how stale); false: it queues them, up to ``queue_size``.
+    skip_stale: bool = True
     health_period_s: float = 1.0                        # how often health/<service> is published
     #: For overload measurements only (docs/delivery.md): "<service>:<ms>" makes that service
     #: sleep <ms> after each input message. Every process of ``lrfslam up`` reads the same

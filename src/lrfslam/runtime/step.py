@@ -105,6 +105,8 @@ class ServiceSpec:
     #: of it waiting makes older inputs stale; lrfslam/runtime/bus.py). Its step bridges a skipped
     #: input as a lost one. Empty: every input is handled, however late (the recorder).
     skippable: tuple[Topic, ...] = ()
+    #: How old (s, wall clock) a skippable input may be before a newer lead input makes it stale.
+    max_lag_s: float = 0.25
 
 
 @dataclass(frozen=True)
