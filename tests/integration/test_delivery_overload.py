@@ -48,7 +48,7 @@ def test_an_overloaded_stage_counts_its_drops_and_the_others_keep_up(tmp_path):
             up.wait()
     assert up.returncode == 0, stdout
     rows = {m[0]: tuple(map(int, m[1:])) for m in
-            re.findall(r"^(\w+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+\d+\s+\d+\s+\S+$", stdout, re.MULTILINE)}
+            re.findall(r"^(\w+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+\d+\s+\d+\s+\d+\s+\S+$", stdout, re.MULTILINE)}
     (folder,) = (tmp_path / "recordings").glob("*_ov")
     scans = sum(1 for _ in read_recording(folder, ["scan"]))
     assert f"scans published by the sensor {scans} / scans in the recording {scans} / lost 0" in stdout, stdout

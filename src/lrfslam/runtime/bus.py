@@ -15,8 +15,10 @@ only where stamps are on it, ``wall_clock_stamps``) while a newer sample of the 
 (the *lead*: the slam's features, the mapper's slam states) already waits, is taken out
 undecoded and counted as ``skip.<topic>``. The step bridges what it skipped as it
 bridges a loss (the slam's next motion spans the skipped scans; the mapper's next state
-carries the filter's pose across them). A replay (``lrfslam play``, ``--speedup``) has no
-wall-clock stamps and never skips, so its outputs stay those of the offline chain.
+carries the filter's pose across them). Only a live stream skips: one whose last lead input
+arrived stamped within :data:`LIVE_WITHIN_S` of this machine's wall clock. A replay
+(``lrfslam play``: recorded stamps; ``--speedup``: simulated ones) never does, so its outputs
+stay those of the offline chain.
 
 Publishers take their QoS from the topic's delivery policy (``msgs/topics.py``,
 docs/delivery.md).
@@ -207,6 +209,11 @@ def connected(session: zenoh.Session) -> bool:
     return any(True for _ in session.info.routers_zid()) or any(True for _ in session.info.peers_zid())
 
 
+#: A lead input that arrives stamped within this of the wall clock (s, either way) is live: the
+#: sensor's own time, a few milliseconds of transport and stages old. A recording's stamps are
+#: minutes to years old, a simulation's at ``--speedup`` run ahead or behind.
+LIVE_WITHIN_S = 2.0
+
 _PRIORITY = {name: getattr(zenoh.Priority, name.upper()) for name in topics.PRIORITIES}
 
 
@@ -266,6 +273,7 @@ class ZenohBus:
         self._lead = topics.key(robot, skippable[-1].name) if self._skippable else None
         self._max_lag_ns = int(max_lag_s * 1e9)
         self._lead_newest_ns: int | None = None
+        self._lead_live = False   # the last lead input arrived stamped near the wall clock
         self._counts = counts
         self._once = LogOnce(log)
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -297,6 +305,7 @@ class ZenohBus:
             self._queue.append(item)
             if key == self._lead:
                 self._lead_newest_ns = stamp_ns   # the last to arrive: data time going back starts afresh
+                self._lead_live = abs(time.time_ns() - stamp_ns) <= LIVE_WITHIN_S * 1e9
             self._ready.notify()
 
     def receive_counts(self) -> Counter:
@@ -340,7 +349,7 @@ class ZenohBus:
                     return item
                 stamp_ns = parse_attachment(item.attachment).stamp_ns
                 newer_waits = self._lead_newest_ns is not None and self._lead_newest_ns > stamp_ns
-                if not newer_waits or time.time_ns() - stamp_ns <= self._max_lag_ns:
+                if not (self._lead_live and newer_waits) or time.time_ns() - stamp_ns <= self._max_lag_ns:
                     return item
                 self._skipped[f"skip.{item.key.removeprefix(self._prefix)}"] += 1
 
