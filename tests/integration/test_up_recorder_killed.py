@@ -53,7 +53,7 @@ def test_up_survives_a_killed_recorder_without_overwriting(tmp_path):
     (folder,) = (tmp_path / "recordings").glob("*_rk")
     first, second = folder / f"{folder.name}_0.mcap", folder / f"{folder.name}_1.mcap"
     assert sorted(folder.glob("*.mcap")) == [first, second]
-    row = re.search(r"^recorder\s+\d+\s+\d+\s+\d+\s+\d+\s+\d+\s+(\d+)", stdout, re.MULTILINE)  # restarts
+    row = re.search(r"^recorder\s+\d+\s+\d+\s+\d+\s+\d+\s+\d+\s+\d+\s+(\d+)", stdout, re.MULTILINE)  # restarts
     assert row and row.group(1) == "1", stdout
     rel_first, rel_second = first.relative_to(tmp_path), second.relative_to(tmp_path)
     assert f"lrfslam recover {rel_first} -o" in stdout and f"{rel_second}" in stdout, stdout
