@@ -33,9 +33,16 @@ def test_an_overloaded_stage_counts_its_drops_and_the_others_keep_up(tmp_path):
                            "--port", str(port), "--robot", "ov", "--skip", "mapper"],
                           cwd=tmp_path, env=env, stdout=subprocess.PIPE, text=True)
     try:
-        time.sleep(3)
+        deadline = time.monotonic() + 60
+        while True:   # up's router listens once up has started it
+            try:
+                session = zenoh.open(client_config([f"tcp/127.0.0.1:{port}"]))
+                break
+            except zenoh.ZError:
+                assert time.monotonic() < deadline and up.poll() is None, "up's router never came up"
+                time.sleep(0.5)
         dropped = 0
-        with zenoh.open(client_config([f"tcp/127.0.0.1:{port}"])) as session:
+        with session:
             deadline = time.monotonic() + 60
             while not dropped and time.monotonic() < deadline:
                 _, statuses = query_status(session, "ov", 1.0)
