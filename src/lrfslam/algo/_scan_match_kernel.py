@@ -30,6 +30,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from lrfslam.errors import ConfigError
+
 
 class Grid(NamedTuple):
     """Reference points bucketed by square cells: point indices of cell ``c`` are
@@ -130,6 +132,11 @@ class Linearised(NamedTuple):
     eigvals: np.ndarray     # (3,) ascending eigenvalues of the information normalised per unit weight
     eigvecs: np.ndarray     # (3, 3) their eigenvectors (columns), in scaled coordinates
 
+    @property
+    def paired(self) -> np.ndarray:
+        """(N,) bool: the current point has a correspondence."""
+        return self.pairs >= 0
+
 
 def linearise(ref_pts: np.ndarray, ref_normals: np.ndarray, ref_grid: Grid, cur_pts: np.ndarray,
               cur_normals: np.ndarray, u: np.ndarray, gate_m: float, max_normal_angle_rad: float,
@@ -142,7 +149,7 @@ def linearise(ref_pts: np.ndarray, ref_normals: np.ndarray, ref_grid: Grid, cur_
     ``max_normal_angle_rad`` of its own (either way round).
     """
     if gate_m > ref_grid.cell_m:
-        raise ValueError(f"gate {gate_m} m wider than the grid's cells ({ref_grid.cell_m} m)")
+        raise ConfigError(f"gate {gate_m} m wider than the grid's cells ({ref_grid.cell_m} m)")
     g = ref_grid
     return Linearised(*_linearise(ref_pts, ref_normals, g.origin, g.cell_m, g.cols, g.rows, g.start, g.order,
                                   cur_pts, cur_normals, float(u[0]), float(u[1]), float(u[2]), float(gate_m),

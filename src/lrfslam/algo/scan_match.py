@@ -362,28 +362,10 @@ class MatchResult:
         return self.status is MatchStatus.OK
 
 
-@dataclass(frozen=True, eq=False)
-class _Linearisation:
-    """Correspondences of the current points at one pose, and the normal equations."""
-
-    pairs: np.ndarray  # (N,) index of each current point's reference point, -1 if none (gate, direction)
-    residual_m: np.ndarray  # (K,) point-to-line residuals of the paired points
-    weight: np.ndarray  # (K,) Cauchy weights
-    info: np.ndarray  # (3, 3) J^T W J
-    gradient: np.ndarray  # (3,) J^T W r
-    scale: np.ndarray  # (3,) (1, 1, 1/lever): normalisation of the information
-    eigvals: np.ndarray  # (3,) ascending eigenvalues of the normalised information
-    eigvecs: np.ndarray  # (3, 3) their eigenvectors (columns), in scaled coordinates
-
-    @property
-    def paired(self) -> np.ndarray:
-        """(N,) bool: the current point has a correspondence."""
-        return self.pairs >= 0
-
-    def residual_variance(self, params: ScanMatchParams) -> float:
-        """Per-point residual variance (m²): weighted, 3 degrees of freedom used, floored."""
-        sigma2 = float(np.sum(self.weight * self.residual_m**2) / max(float(self.weight.sum()) - 3.0, 1.0))
-        return max(sigma2, params.min_residual_sigma_m**2)
+def _residual_variance(lin: kernel.Linearised, params: ScanMatchParams) -> float:
+    """Per-point residual variance (m²) of a linearisation: weighted, 3 degrees of freedom used, floored."""
+    sigma2 = float(np.sum(lin.weight * lin.residual_m**2) / max(float(lin.weight.sum()) - 3.0, 1.0))
+    return max(sigma2, params.min_residual_sigma_m**2)
 
 
 def _usable(points_xy_m, max_range_m: float) -> np.ndarray:
@@ -395,13 +377,11 @@ def _usable(points_xy_m, max_range_m: float) -> np.ndarray:
 
 
 def _linearise(reference: ReferenceScan, current: ReferenceScan, u: np.ndarray, gate_m: float,
-               params: ScanMatchParams) -> _Linearisation:
+               params: ScanMatchParams) -> kernel.Linearised:
     """Correspondences and normal equations at pose ``u`` (the compiled kernel)."""
-    lin = kernel.linearise(reference.points_xy_m, reference.normals, reference.grid(_grid_cell(params)),
-                           current.points_xy_m, current.normals, u, gate_m, params.max_normal_angle_rad,
-                           params.robust_scale_m)
-    return _Linearisation(lin.pairs, lin.residual_m, lin.weight, lin.info, lin.gradient, lin.scale, lin.eigvals,
-                          lin.eigvecs)
+    return kernel.linearise(reference.points_xy_m, reference.normals, reference.grid(_grid_cell(params)),
+                            current.points_xy_m, current.normals, u, gate_m, params.max_normal_angle_rad,
+                            params.robust_scale_m)
 
 
 def prepare() -> None:
@@ -458,7 +438,7 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
     if len(current) < params.min_points or len(reference) < params.min_points:
         return MatchResult(MatchStatus.TOO_FEW_POINTS, guess.copy(), np.full((3, 3), np.nan))
 
-    def failed(status: MatchStatus, lin: _Linearisation, iterations: int) -> MatchResult:
+    def failed(status: MatchStatus, lin: kernel.Linearised, iterations: int) -> MatchResult:
         return MatchResult(status, guess.copy(), np.full((3, 3), np.nan), iterations, float(lin.paired.mean()),
                            information_ratio=float(lin.eigvals[0]))
 
@@ -512,7 +492,7 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
     free = lin.eigvecs[:, ~constrained]
     to_free = free @ free.T
     inv_scale = 1.0 / lin.scale
-    info_scaled = np.outer(lin.scale, lin.scale) * lin.info / (params.cov_scale * lin.residual_variance(params)) \
+    info_scaled = np.outer(lin.scale, lin.scale) * lin.info / (params.cov_scale * _residual_variance(lin, params)) \
         + to_free @ (np.outer(inv_scale, inv_scale) * prior_info) @ to_free
     cov = np.outer(lin.scale, lin.scale) * np.linalg.inv(info_scaled)
     rms = float(np.sqrt(np.sum(lin.weight * lin.residual_m**2) / lin.weight.sum()))

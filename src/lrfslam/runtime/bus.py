@@ -229,12 +229,13 @@ def publisher_qos(delivery: topics.Delivery) -> dict:
 
 
 class _Received(NamedTuple):
-    """A sample as the receive callback queues it."""
+    """A sample as the receive callback queues it, its attachment read once."""
 
     key: str
     payload: bytes
     encoding: str
-    attachment: bytes | None
+    seq: int
+    stamp_ns: int           # the data stamp
     received_ns: int        # monotonic clock
 
 
@@ -294,8 +295,8 @@ class ZenohBus:
         key = str(sample.key_expr)
         att = sample.attachment
         att_bytes = att.to_bytes() if att is not None else None
-        item = _Received(key, sample.payload.to_bytes(), str(sample.encoding), att_bytes, time.monotonic_ns())
         seq, stamp_ns, producer = parse_attachment(att_bytes)
+        item = _Received(key, sample.payload.to_bytes(), str(sample.encoding), seq, stamp_ns, time.monotonic_ns())
         with self._ready:
             if att_bytes is not None:
                 self._tracker.observe(producer, key.removeprefix(self._prefix), seq)
@@ -347,9 +348,8 @@ class ZenohBus:
                 item = self._queue.popleft()
                 if item.key not in self._skippable:
                     return item
-                stamp_ns = parse_attachment(item.attachment).stamp_ns
-                newer_waits = self._lead_newest_ns is not None and self._lead_newest_ns > stamp_ns
-                if not (self._lead_live and newer_waits) or time.time_ns() - stamp_ns <= self._max_lag_ns:
+                newer_waits = self._lead_newest_ns is not None and self._lead_newest_ns > item.stamp_ns
+                if not (self._lead_live and newer_waits) or time.time_ns() - item.stamp_ns <= self._max_lag_ns:
                     return item
                 self._skipped[f"skip.{item.key.removeprefix(self._prefix)}"] += 1
 
@@ -358,8 +358,7 @@ class ZenohBus:
         item = self._next(timeout_s)
         if item is None:
             return None
-        key, payload, encoding, att, self.received_ns = item
-        seq, stamp_ns, _ = parse_attachment(att)
+        key, payload, encoding, seq, stamp_ns, self.received_ns = item
         schema = parse_encoding(encoding)
         if self._raw:
             name = topics.relative(self._robot, key)
