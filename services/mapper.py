@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo import scan_match
+from lrfslam.algo import kernels
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
@@ -65,7 +65,7 @@ class MapperStep(StepBase):
     def __init__(self, cfg: MapperConfig, ctx: RunContext) -> None:
         super().__init__()
         self.cfg = cfg
-        scan_match.prepare()
+        kernels.prepare()
         self.mapper = LoopClosingMapper(cfg.loop_closure, keep_scans=False)
         # A slam state waits for its scan as features do in the slam stage (no odometry here).
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(

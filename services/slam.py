@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo import checkpoint, scan_match
+from lrfslam.algo import checkpoint, kernels
 from lrfslam.algo.corner_slam import CornerSlam
 from lrfslam.algo.ekf_slam import EkfParams
 from lrfslam.algo.geometry import polar_to_xy
@@ -60,7 +60,7 @@ class SlamStep(StepBase):
     def __init__(self, cfg: SlamConfig, ctx: RunContext) -> None:
         super().__init__()
         self.cfg = cfg
-        scan_match.prepare()
+        kernels.prepare()
         self.align = StreamAligner(AlignmentParams(cfg.wait_for_odometry, cfg.scan_matching, cfg.max_odom_wait_scans))
         motion = MotionParams(cfg.scan_matching, cfg.scan_match, cfg.no_odometry_sigma_m, cfg.no_odometry_sigma_rad)
         self.slam = CornerSlam(cfg.ekf, motion, cfg.use_backward_features, cfg.use_wall_direction, self.counts)

@@ -22,10 +22,10 @@ Design choices
 --------------
 * **Rotations are enumerated, translations branched**, as Hess et al. do: the
   rotated points' cells are computed once per angle (``angle_step_rad``).
-* **Breadth-first, vectorised.** Python cannot afford a depth-first search one
+* **Breadth-first, by levels.** Python cannot afford a depth-first search one
   node at a time; a greedy descent from the best top-level candidates gives a
-  good first leaf (lower bound) and then whole levels are scored and pruned at
-  once with numpy. ``max_frontier`` caps a level in a pathological (featureless)
+  good first leaf (lower bound) and then whole levels are scored (a compiled
+  loop, ``_correlative_kernel``) and pruned at once. ``max_frontier`` caps a level in a pathological (featureless)
   map; the search is then no longer exact and says so (``exact``).
 * **Zero border.** The grid has a border of empty cells and indices are clipped
   into it, so a point pushed out of the map scores 0 at the leaves and the
@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+from lrfslam.algo import _correlative_kernel as kernel
 from lrfslam.algo.checks import require_finite
 from lrfslam.errors import ConfigError, InputError
 
@@ -217,17 +218,10 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     y = s * pts[:, 0] + c * pts[:, 1] + centre[1]
     cols = np.floor((x - grid.origin_xy_m[0]) / p.cell_m).astype(np.int64)
     rows = np.floor((y - grid.origin_xy_m[1]) / p.cell_m).astype(np.int64)
-    height, width = grid.grid.shape
     top = p.levels - 1
 
-    flat = [g.ravel() for g in grid.pooled]
-
     def scores(level: int, cand: np.ndarray) -> np.ndarray:
-        r = np.clip(rows[cand[:, 0]] + cand[:, 2:3], 0, height - 1)
-        q = np.clip(cols[cand[:, 0]] + cand[:, 1:2], 0, width - 1)
-        r *= width
-        r += q
-        return flat[level].take(r).mean(axis=1, dtype=np.float64)
+        return kernel.scores(grid.pooled[level], rows, cols, cand)
 
     def children(level: int, cand: np.ndarray) -> np.ndarray:
         """The four sub-blocks (level − 1) of each candidate that start inside the window."""

@@ -384,13 +384,6 @@ def _linearise(reference: ReferenceScan, current: ReferenceScan, u: np.ndarray, 
                             params.robust_scale_m)
 
 
-def prepare() -> None:
-    """Compile the matcher's kernels now, or load them from numba's cache (seconds, once per process),
-    rather than at the first scan: a live stage calls it before it takes inputs, so its first
-    scans do not wait behind the compiler."""
-    kernel.warm_up()
-
-
 def _grid_cell(params: ScanMatchParams) -> float:
     """The reference grid's cell (m): as wide as the widest gate, so the 3×3 cells round a point hold every pair."""
     return max(params.wide_gate_m, params.narrow_gate_m)

@@ -167,17 +167,17 @@ def calibration_rows(repeat: int = 3) -> list[Row]:
 
 
 def kernel_compile_rows() -> list[Row]:
-    """The scan matcher's compiled kernels: compiling them in a fresh process with an empty cache,
+    """The compiled kernels (scan matching, correlative search): compiling them in a fresh process with an empty cache,
     then loading them from that cache in another (what each slam and mapper start costs)."""
-    code = "from lrfslam.algo._scan_match_kernel import warm_up; warm_up()"
+    code = "from lrfslam.algo.kernels import prepare; prepare()"
     rows = []
     with tempfile.TemporaryDirectory(prefix="lrfslam_numba_") as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         for what in ("compile (empty cache)", "load from the cache"):
             t0 = time.perf_counter()
             subprocess.run([sys.executable, "-c", code], env=env, check=True)
-            rows.append(Row("stage cost", f"scan-matching kernels: {what}", time.perf_counter() - t0, "s",
-                            note="a fresh process: import, then both kernels on a few points"))
+            rows.append(Row("stage cost", f"compiled kernels: {what}", time.perf_counter() - t0, "s",
+                            note="a fresh process: import, then every kernel on a few points"))
     return rows
 
 

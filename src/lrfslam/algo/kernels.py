@@ -1,0 +1,17 @@
+"""The compiled kernels, made ready in one call.
+
+Numba compiles a kernel on its first call and caches the result beside its module; the first
+process after an install pays the compilation (seconds), later ones load it (under a second).
+:func:`prepare` does that before a live stage takes inputs, so its first scans do not wait
+behind the compiler, and an image build runs it once so no container compiles.
+"""
+
+from __future__ import annotations
+
+from lrfslam.algo import _correlative_kernel, _scan_match_kernel
+
+
+def prepare() -> None:
+    """Compile (or load from numba's cache) the scan matcher's and the correlative search's kernels."""
+    _scan_match_kernel.warm_up()
+    _correlative_kernel.warm_up()

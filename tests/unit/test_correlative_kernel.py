@@ -1,0 +1,34 @@
+"""The correlative search's compiled scores against their NumPy form (reference_correlative.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from reference_correlative import scores as oracle
+
+from lrfslam.algo import _correlative_kernel as kernel
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), height=st.integers(1, 40), width=st.integers(1, 40),
+       angles=st.integers(1, 5), points=st.integers(1, 200), candidates=st.integers(0, 300))
+def test_the_kernel_scores_as_the_numpy_form(seed, height, width, angles, points, candidates):
+    rng = np.random.default_rng(seed)
+    grid = rng.uniform(0, 1, (height, width)).astype(np.float32)
+    # Cells and offsets reaching past every edge: the clipping is part of what is compared.
+    rows = rng.integers(-10, height + 10, (angles, points))
+    cols = rng.integers(-10, width + 10, (angles, points))
+    cand = np.column_stack((rng.integers(0, angles, candidates), rng.integers(-15, 15, candidates),
+                            rng.integers(-15, 15, candidates)))
+    got, want = kernel.scores(grid, rows, cols, cand), oracle(grid, rows, cols, cand)
+    assert got.shape == want.shape == (candidates,)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
+
+
+def test_a_point_off_the_grid_scores_the_edge_cell():
+    grid = np.zeros((3, 4), np.float32)
+    grid[2, 3] = 1.0          # the top-right cell
+    rows, cols = np.array([[50]]), np.array([[50]])
+    cand = np.array([[0, 0, 0], [0, -60, -60]])
+    np.testing.assert_array_equal(kernel.scores(grid, rows, cols, cand), [1.0, 0.0])
