@@ -21,7 +21,8 @@ from lrfslam.services import stage
 from test_steps import chain, sim_outputs
 
 from lrfslam.algo.geometry import from_frame
-from lrfslam.algo.occupancy_grid import GridParams
+from lrfslam.algo.occupancy_grid import GridParams, fitting_resolution
+from lrfslam.errors import InputError
 from lrfslam.evaluation.map_trajectory import final_trajectory
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -239,6 +240,33 @@ def test_a_grid_too_large_is_one_line_and_writes_nothing(sim_run, tmp_path):
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert run.stderr.strip().count("\n") == 0 and "exceeds" in run.stderr
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_a_map_too_large_for_the_default_cells_is_drawn_coarser_and_says_so(sim_run, monkeypatch, capsys):
+    out, folder, _ = sim_run
+    _, fine = read_map_server(folder / "map.yaml")
+    # A cell budget the default 0.05 m grid exceeds, and 0.1 m (a quarter of its cells) fits.
+    @dataclasses.dataclass(frozen=True)
+    class SmallBudget(GridParams):
+        max_cells: int = fine.size // 2
+
+    monkeypatch.setattr(export, "GridParams", SmallBudget)
+    data = export.collect(out)
+    with pytest.raises(InputError, match="exceeds"):
+        export.scene(out, data, SmallBudget())
+    sc = export.scene(out, data, SmallBudget(), fit=True)
+    assert sc.grid.resolution_m == 0.1 and sc.grid.log_odds.size <= fine.size // 2
+    assert export.main([str(out), "-o", str(folder / "fit"), "--no-png"]) == 0
+    meta, _ = read_map_server(folder / "fit" / "map.yaml")
+    assert meta["resolution"] == 0.1
+    assert "grid at 0.1 m (--resolution sets it)" in capsys.readouterr().out
+
+
+def test_the_fitting_resolution_is_the_finest_doubling_that_fits():
+    p = GridParams(resolution_m=0.05, max_cells=10_000)
+    # 10 x 10 m: 203 x 203 cells at 0.05, 103 x 103 at 0.1 m, 53 x 53 at 0.2 m (border included).
+    assert fitting_resolution(np.zeros(2), np.full(2, 10.0), p) == 0.2
+    assert fitting_resolution(np.zeros(2), np.full(2, 1.0), p) == 0.05
 
 
 def placed_hits(path: Path, stamps: np.ndarray, poses: np.ndarray, max_range_m: float) -> np.ndarray:

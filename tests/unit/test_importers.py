@@ -190,6 +190,29 @@ def test_the_no_return_code_is_read_from_the_log_not_its_name(tmp_path):
     assert read_metadata(tmp_path / "b.mcap")["lrfslam"]["no_return_m"] == "50.0"
 
 
+def test_a_code_written_with_jitter_is_no_return_across_its_band(tmp_path):
+    # As MIT Killian writes it: mostly 51.06 m, the rest of the band 51.01-51.22 m round it, a real
+    # return at 50.9 m just below the band, and the band's top (51.22) once: not the code.
+    rng = np.random.default_rng(5)
+    band = np.array([51.01, 51.05, 51.06, 51.06, 51.06, 51.06, 51.07, 51.11])
+    lines = []
+    for k in range(30):
+        ranges = rng.uniform(0.5, 20.0, 180)
+        ranges[rng.random(180) < 0.1] = rng.choice(band)
+        ranges[0] = 50.9
+        ranges[1] = 51.22 if k == 7 else ranges[1]
+        lines.append(flaser(ranges, (0.1 * k, 0.0, 0.0), 10.0 + 0.1 * k))
+    log = tmp_path / "killian.clf"
+    log.write_text("\n".join(lines) + "\n")
+    result = import_carmen(log, tmp_path / "k.mcap")
+    assert result.sensor["no_return_m"] == "51.01"
+    assert "round the code 51.06 m" in result.sensor["no_return_from"]
+    for scan, _, _ in decoded(tmp_path / "k.mcap", topics.SCAN):
+        finite = scan.ranges_m[np.isfinite(scan.ranges_m)]
+        assert np.all(finite < 51.0) and scan.ranges_m[0] == pytest.approx(50.9)   # float32 on the wire
+        assert np.all(np.isinf(scan.ranges_m) == (scan.status == t.BEAM_NO_RETURN))
+
+
 def test_a_log_without_a_repeated_maximum_keeps_carmens_rule(tmp_path):
     log = tmp_path / "plain.clf"
     log.write_text("\n".join(flaser([1.0 + 0.01 * k, 2.0, 3.0], (0.0, 0.0, 0.0), 1.0 + k) for k in range(5)) + "\n")

@@ -181,6 +181,41 @@ def _world(poses: np.ndarray, dist: np.ndarray, angles: np.ndarray) -> tuple[np.
     return poses[:, 0:1] + dist * np.cos(bearing), poses[:, 1:2] + dist * np.sin(bearing)
 
 
+def extent_m(poses, ranges, angles, params: GridParams) -> tuple[np.ndarray, np.ndarray]:
+    """Lower-left and upper-right corners (m), shape (2,) each, of every pose and every point the
+    scans update (arguments as :func:`grid_frame`'s; the resolution does not enter).
+
+    Raises
+    ------
+    InputError
+        No pose, or non-finite poses or angles.
+    """
+    poses, ranges, angles = _check(poses, ranges, angles)
+    if poses.shape[0] == 0:
+        raise InputError("occupancy grid: no scans")
+    lo, hi = poses[:, :2].min(axis=0), poses[:, :2].max(axis=0)
+    # In batches, as the tracing: the whole log's beams at once would hold several (T, N) arrays.
+    for start in range(0, poses.shape[0], params.batch_scans * 64):
+        sl = slice(start, start + params.batch_scans * 64)
+        rb = ranges[sl].astype(float)
+        free, hit = _beam_lengths(rb, params)
+        x, y = _world(poses[sl], np.maximum(free, np.where(hit, rb, 0.0)), angles[sl])
+        lo = np.minimum(lo, (x.min(), y.min()))
+        hi = np.maximum(hi, (x.max(), y.max()))
+    return lo, hi
+
+
+def fitting_resolution(lo_m, hi_m, params: GridParams) -> float:
+    """The finest of ``params.resolution_m × 2^k`` (m; k = 0, 1, …) at which a grid over
+    ``lo_m``–``hi_m`` (m, shape (2,) each) holds at most ``params.max_cells`` cells, border included."""
+    res = params.resolution_m
+    while True:
+        w, h = np.floor(np.asarray(hi_m) / res) + 2 - (np.floor(np.asarray(lo_m) / res) - 1)
+        if w * h <= params.max_cells:
+            return float(res)
+        res *= 2.0
+
+
 def grid_frame(poses, ranges, angles, params: GridParams) -> tuple[np.ndarray, tuple[int, int]]:
     """Origin and shape of the smallest grid holding every pose and every cell the scans update.
 
@@ -206,18 +241,7 @@ def grid_frame(poses, ranges, angles, params: GridParams) -> tuple[np.ndarray, t
     InputError
         No pose, non-finite poses or angles, or a grid larger than ``params.max_cells``.
     """
-    poses, ranges, angles = _check(poses, ranges, angles)
-    if poses.shape[0] == 0:
-        raise InputError("occupancy grid: no scans")
-    lo, hi = poses[:, :2].min(axis=0), poses[:, :2].max(axis=0)
-    # In batches, as the tracing: the whole log's beams at once would hold several (T, N) arrays.
-    for start in range(0, poses.shape[0], params.batch_scans * 64):
-        sl = slice(start, start + params.batch_scans * 64)
-        rb = ranges[sl].astype(float)
-        free, hit = _beam_lengths(rb, params)
-        x, y = _world(poses[sl], np.maximum(free, np.where(hit, rb, 0.0)), angles[sl])
-        lo = np.minimum(lo, (x.min(), y.min()))
-        hi = np.maximum(hi, (x.max(), y.max()))
+    lo, hi = extent_m(poses, ranges, angles, params)
     res = params.resolution_m
     lo = np.floor(lo / res) - 1
     hi = np.floor(hi / res) + 2

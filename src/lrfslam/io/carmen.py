@@ -34,14 +34,21 @@ from lrfslam.errors import ConfigError, InputError
 #: longest range mode); a reading at or beyond it is a "no return".
 CARMEN_FLASER_MAX_RANGE_M = 80.0
 
-#: A log's largest reading is its "no return" code when at least this share of all
-#: readings (and :data:`NO_RETURN_MIN_COUNT` of them) are exactly that value: a
-#: measured range repeats to the centimetre on that many beams only when the sensor
-#: writes one number for "nothing seen" (Intel 81.83 m on 2.8 % of its beams, MIT
-#: CSAIL 81.91 m on 3.3 %, ACES 50.0 m on 0.84 %; the next largest readings there
-#: occur once to three times).
+#: A log's "no return" code is the most frequent reading within
+#: :data:`NO_RETURN_SEARCH_M` of its largest, when at least this share of all readings
+#: (and :data:`NO_RETURN_MIN_COUNT` of them) are exactly that value: a measured range
+#: repeats to the centimetre on that many beams only when the sensor writes one number
+#: for "nothing seen" (Intel 81.83 m on 2.8 % of its beams, MIT CSAIL 81.91 m on 3.3 %,
+#: ACES 50.0 m on 0.84 %, MIT Killian 51.06 m on 1.0 %).
 NO_RETURN_MIN_SHARE = 1e-3
 NO_RETURN_MIN_COUNT = 10
+#: How far below the largest reading the code is looked for (m).
+NO_RETURN_SEARCH_M = 1.0
+#: Readings from this far below the code (m) upward are "no return" too: some loggers write
+#: the code with centimetres of jitter round it (MIT Killian: 51.01–51.22 m round 51.06 m, a
+#: band of 1.26 % of its readings), where a real return so close to the sensor's limit, on
+#: that many beams, would be a coincidence.
+NO_RETURN_JITTER_M = 0.05
 
 #: Message names this parser turns into records.
 LASER_MESSAGES = ("FLASER", "RLASER", "ROBOTLASER1", "ROBOTLASER2")
@@ -533,8 +540,8 @@ class LaserSurvey:
         Range readings over all lines.
     max_reading_m : float
         Largest reading (m); NaN without readings.
-    max_reading_count : int
-        Readings exactly equal to ``max_reading_m``.
+    top_counts : dict of float to int
+        Readings within :data:`NO_RETURN_SEARCH_M` of ``max_reading_m``, counted by value.
     line_mount : ndarray, shape (3,)
         Median over the lines of the laser pose in the robot frame,
         ``(x_m, y_m, theta_rad)``, from each line's laser and odometry poses;
@@ -548,21 +555,40 @@ class LaserSurvey:
     beam_counts: dict[int, int]
     readings: int
     max_reading_m: float
-    max_reading_count: int
+    top_counts: dict[float, int]
     line_mount: np.ndarray
     params: dict[str, str] = field(default_factory=dict)
 
     @property
-    def no_return_m(self) -> float | None:
+    def no_return_code_m(self) -> float | None:
         """The value the log writes for "no return" (m), or None when it writes none.
 
-        The largest reading is that code when it repeats on at least
-        :data:`NO_RETURN_MIN_SHARE` of all readings (and :data:`NO_RETURN_MIN_COUNT`).
+        The most frequent reading near the largest is that code when it repeats on at least
+        :data:`NO_RETURN_MIN_SHARE` of all readings (and :data:`NO_RETURN_MIN_COUNT`); ties
+        go to the larger value.
         """
-        count = self.max_reading_count
+        if not self.top_counts:
+            return None
+        count, code = max((n, value) for value, n in self.top_counts.items())
         if count >= NO_RETURN_MIN_COUNT and count >= NO_RETURN_MIN_SHARE * self.readings:
-            return self.max_reading_m
+            return code
         return None
+
+    @property
+    def no_return_m(self) -> float | None:
+        """Readings at or above this (m) are "no return": the least reading of the log within
+        :data:`NO_RETURN_JITTER_M` below the code (the code itself when none is); None without a code."""
+        code = self.no_return_code_m
+        if code is None:
+            return None
+        # The slack keeps a reading printed exactly at the band's edge (51.01 = 51.06 − 0.05) inside it.
+        return min(value for value in self.top_counts if code - value <= NO_RETURN_JITTER_M + 1e-9)
+
+    @property
+    def no_return_count(self) -> int:
+        """Readings at or above :attr:`no_return_m` (0 without a code)."""
+        floor = self.no_return_m
+        return 0 if floor is None else sum(n for value, n in self.top_counts.items() if value >= floor)
 
     @property
     def mount(self) -> np.ndarray:
@@ -596,8 +622,9 @@ def survey(lines: Iterable[str] | str) -> LaserSurvey:
     """
     reader = CarmenReader(lines, no_return_min_m=math.inf)
     beam_counts: Counter[int] = Counter()
-    readings = top_count = 0
+    readings = 0
     top = -math.inf
+    near_top: Counter[float] = Counter()
     mounts: list[np.ndarray] = []
     for item in reader:
         if not isinstance(item, LaserRecord):
@@ -606,11 +633,8 @@ def survey(lines: Iterable[str] | str) -> LaserSurvey:
         beam_counts[item.n_beams] += 1
         readings += ranges.size
         if ranges.size:
-            line_max = float(ranges.max())
-            if line_max > top:
-                top, top_count = line_max, 0
-            if line_max == top:
-                top_count += int(np.count_nonzero(ranges == top))
+            top = max(top, float(ranges.max()))
+            near_top.update(ranges[ranges >= top - NO_RETURN_SEARCH_M].tolist())
         mounts.append(laser_in_robot_frame(item.laser_pose, item.odom_pose))
     line_mount = np.zeros(3)
     if mounts:
@@ -621,5 +645,6 @@ def survey(lines: Iterable[str] | str) -> LaserSurvey:
         if np.mean(rigid) >= 0.9:
             line_mount = median
     return LaserSurvey(scans=sum(beam_counts.values()), beam_counts=dict(beam_counts), readings=readings,
-                       max_reading_m=top if readings else math.nan, max_reading_count=top_count,
+                       max_reading_m=top if readings else math.nan,
+                       top_counts={v: n for v, n in near_top.items() if v >= top - NO_RETURN_SEARCH_M},
                        line_mount=line_mount, params=reader.params)

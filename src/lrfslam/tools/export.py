@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +38,8 @@ from lrfslam.algo.occupancy_grid import (
     GridParams,
     OccupancyGrid,
     build_grid,
+    extent_m,
+    fitting_resolution,
 )
 from lrfslam.errors import DecodeError, MissingExtraError, RecordingError
 from lrfslam.evaluation.map_trajectory import FinalTrajectoryBuilder
@@ -203,10 +205,11 @@ def _rmse(stamps_ns: np.ndarray, poses: np.ndarray, ref_stamps: list[int], ref: 
     return float(np.sqrt(np.mean(np.sum((poses[i, :2] - ref[k, :2]) ** 2, axis=1))))
 
 
-def scene(path: RecordingSource, data: dict, grid_params: GridParams | None) -> Scene:
+def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit: bool = False) -> Scene:
     """Place everything of ``data`` (from :func:`collect`) on the best trajectory's map; build the grid.
 
-    ``grid_params`` None: no grid.
+    ``grid_params`` None: no grid. ``fit``: a grid too large at ``grid_params.resolution_m`` is
+    built at the finest coarser resolution that fits (:func:`fitting_resolution`) instead of refused.
     """
     stamps, poses, label = best_trajectory(data)
     last, lms = data["last"], data["landmarks"]
@@ -232,15 +235,16 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None) -> 
         anchor = _anchor(stamps, poses, truth_poses)
         sc.true_corners = np.array([relative(anchor, (*c, 0.0))[:2] for c in corners.values()]).reshape(-1, 2)
     if grid_params is not None and data["scans"]:
-        sc.grid, sc.scans_placed = _grid(stamps, poses, data["scans"], grid_params)
+        sc.grid, sc.scans_placed = _grid(stamps, poses, data["scans"], grid_params, fit)
         sc.scans_unplaced = len(data["scans"]) - sc.scans_placed
     sc.figures = _figures(sc, data)
     sc.view = _view(sc)
     return sc
 
 
-def _grid(stamps: np.ndarray, poses: np.ndarray, scans: dict, params: GridParams) -> tuple[OccupancyGrid | None, int]:
-    """The grid of the scans that have a pose at their stamp, and how many those are."""
+def _grid(stamps: np.ndarray, poses: np.ndarray, scans: dict, params: GridParams,
+          fit: bool) -> tuple[OccupancyGrid | None, int]:
+    """The grid of the scans that have a pose at their stamp, and how many those are (``fit``: see :func:`scene`)."""
     placed = [(i, scans[int(s)]) for i, s in enumerate(stamps) if int(s) in scans]
     if not placed:
         return None, 0
@@ -254,7 +258,11 @@ def _grid(stamps: np.ndarray, poses: np.ndarray, scans: dict, params: GridParams
         angles = a0 + da * np.arange(width)
     else:
         angles = np.array([a0 + da * np.arange(width) for _, (_, a0, da) in placed])
-    return build_grid(poses[[i for i, _ in placed]], ranges, angles, params), len(placed)
+    placed_poses = poses[[i for i, _ in placed]]
+    if fit:
+        lo, hi = extent_m(placed_poses, ranges, angles, params)
+        params = replace(params, resolution_m=fitting_resolution(lo, hi, params))
+    return build_grid(placed_poses, ranges, angles, params), len(placed)
 
 
 def _figures(sc: Scene, data: dict) -> dict:
@@ -460,8 +468,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-png", action="store_true", help="no map.png (no plotting extra needed)")
     parser.add_argument("--no-grid", action="store_true",
                         help="no occupancy grid: no map.pgm/map.yaml, no walls in map.png")
-    parser.add_argument("--resolution", type=float, default=GridParams.resolution_m, metavar="M",
-                        help=f"grid cell size in metres (default {GridParams.resolution_m})")
+    parser.add_argument("--resolution", type=float, default=None, metavar="M",
+                        help=f"grid cell size in metres (default {GridParams.resolution_m}, or the finest of its "
+                             f"doublings a map larger than {GridParams.max_cells:,} cells fits, said when so)")
     parser.add_argument("--max-range", type=float, default=GridParams.max_range_m, metavar="M",
                         help="returns up to this range mark walls, farther ones only clear the space before them; "
                              f"free space is marked up to it too (default {GridParams.max_range_m})")
@@ -478,14 +487,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.foxglove:
         from lrfslam.tools import foxglove_export
         return foxglove_export.main(args.recording, args.foxglove)
-    params = None if args.no_grid else GridParams(resolution_m=args.resolution, max_range_m=args.max_range,
+    resolution = GridParams.resolution_m if args.resolution is None else args.resolution
+    params = None if args.no_grid else GridParams(resolution_m=resolution, max_range_m=args.max_range,
                                                   free_range_m=args.max_range)
     if args.ellipse_scale is not None and args.ellipse_scale < 1:
         parser.error("--ellipse-scale must be >= 1")
     data = collect(args.recording, scans=params is not None)
     if data["undecodable"]:
         print(f"lrfslam export: skipped {data['undecodable']} undecodable messages", file=sys.stderr)
-    sc = scene(args.recording, data, params)
+    sc = scene(args.recording, data, params, fit=args.resolution is None)
+    if sc.grid is not None and sc.grid.resolution_m != resolution:
+        h, w = sc.grid.log_odds.shape
+        print(f"lrfslam export: the map spans {w * sc.grid.resolution_m:.0f} x {h * sc.grid.resolution_m:.0f} m, "
+              f"more than {GridParams.max_cells:,} cells at {resolution:g} m: grid at {sc.grid.resolution_m:g} m "
+              "(--resolution sets it)")
     out = args.out_dir
     with atomic_output(out / "map.json") as partial:
         partial.write_text(json.dumps(to_json(data, sc), indent=1))

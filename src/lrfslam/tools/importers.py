@@ -119,8 +119,11 @@ def sensor_facts(found: LaserSurvey, no_return_min_m: float | None) -> dict[str,
     if no_return_min_m is not None:
         no_return, source = no_return_min_m, "--max-range-m"
     elif found.no_return_m is not None:
-        share = 100.0 * found.max_reading_count / max(found.readings, 1)
-        no_return, source = found.no_return_m, f"the log: {share:.2f} % of readings are exactly this value"
+        share = 100.0 * found.no_return_count / max(found.readings, 1)
+        code = found.no_return_code_m
+        exact = found.no_return_count == found.top_counts[code]
+        band = "exactly this value" if exact else f"at or above it, round the code {code} m"
+        no_return, source = found.no_return_m, f"the log: {share:.2f} % of readings are {band}"
     else:
         no_return, source = None, "none written; CARMEN's 80 m rule (ROBOTLASER: the line's maximum range)"
     mount = found.mount
