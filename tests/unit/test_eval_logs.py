@@ -53,6 +53,16 @@ def test_every_log_runs_with_one_configuration_and_the_scored_ones_get_a_table(d
     assert np.isfinite(scored.scores["slam estimate"].trans_abs_m.mean)
 
 
+def test_logs_run_side_by_side_give_what_they_give_one_after_another(datasets, tmp_path):
+    one = eval_logs.evaluate_all(datasets, tmp_path / "one", [], {}, {}, draw_maps=False, jobs=1)
+    two = eval_logs.evaluate_all(datasets, tmp_path / "two", [], {}, {}, draw_maps=False, jobs=2)
+    assert [r.log.name for r in two] == ["scored", "unscored"]
+    # Same machine, same inputs: the same figures (the time per scan aside).
+    for a, b in zip(one, two):
+        a.pipeline_s = b.pipeline_s = 0.0
+    assert eval_logs.markdown(one) == eval_logs.markdown(two)
+
+
 def test_a_folder_without_logs_is_an_error(tmp_path):
     with pytest.raises(ConfigError, match="no CARMEN log"):
         eval_logs.find_logs(tmp_path)

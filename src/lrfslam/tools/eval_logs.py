@@ -14,9 +14,11 @@ scan matching alone (the slam stage's tracker without the filter), and raw odome
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import time
 from collections.abc import Iterable, Mapping
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -183,16 +185,32 @@ def markdown(results: Iterable[LogResult]) -> str:
     return "\n".join(lines)
 
 
+def _run_log_configured(log: Log, work: Path, sets: list[str], file: Mapping, env: Mapping[str, str],
+                        draw_map: bool) -> LogResult:
+    """:func:`run_log` with stages built from the configuration (in a worker process)."""
+    return run_log(log, work, pipeline.build_stages(pipeline.DEFAULT_STAGES, sets, file, env), draw_map)
+
+
 def evaluate_all(root: Path, work: Path, sets: list[str], file: Mapping, env: Mapping[str, str],
-                 draw_maps: bool = True) -> list[LogResult]:
-    """Every log under ``root`` with the same stages and configuration."""
-    stages = pipeline.build_stages(pipeline.DEFAULT_STAGES, sets, file, env)
-    return [run_log(log, work / log.name, stages, draw_maps) for log in find_logs(root)]
+                 draw_maps: bool = True, jobs: int = 1) -> list[LogResult]:
+    """Every log under ``root`` with the same stages and configuration, ``jobs`` logs at a time
+    (each in a process of its own when more than one); results in the logs' order."""
+    logs = find_logs(root)
+    if jobs <= 1 or len(logs) == 1:
+        return [_run_log_configured(log, work / log.name, sets, file, env, draw_maps) for log in logs]
+    # Largest first, so the longest log does not start last.
+    order = sorted(logs, key=lambda log: log.path.stat().st_size, reverse=True)
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(jobs, len(logs)), mp_context=context) as pool:
+        running = {log.name: pool.submit(_run_log_configured, log, work / log.name, sets, dict(file), dict(env),
+                                         draw_maps) for log in order}
+        return [running[log.name].result() for log in logs]
 
 
-def main_all(root: Path, work: Path, sets: list[str], config_file: str | None) -> int:
+def main_all(root: Path, work: Path, sets: list[str], config_file: str | None, jobs: int = 1) -> int:
     """``lrfslam eval relations --all``: print the table (Markdown) and where the outputs are."""
-    results = evaluate_all(root, work, sets, config_mod.read_file(config_file, services.CONFIG_TABLES), os.environ)
+    results = evaluate_all(root, work, sets, config_mod.read_file(config_file, services.CONFIG_TABLES), os.environ,
+                           jobs=jobs)
     print(markdown(results))
     for r in results:
         facts = r.sensor

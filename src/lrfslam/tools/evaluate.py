@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -161,6 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     rel.add_argument("--work", metavar="DIR", type=Path, default=Path("recordings") / "eval",
                      help="with --all: where the imported logs, pipeline outputs and maps go")
     rel.add_argument("--config", metavar="FILE", help="with --all: TOML config file for every stage")
+    rel.add_argument("--jobs", type=int, default=len(os.sched_getaffinity(0)), metavar="N",
+                     help="with --all: logs run at once, each in a process of its own (default: this "
+                          "process's CPUs)")
     rel.add_argument("--max-gap-s", type=float, default=DEFAULT_MAX_STAMP_GAP_S, dest="max_gap_s",
                      help=f"stamp-matching tolerance in s (default {DEFAULT_MAX_STAMP_GAP_S})")
     rel.add_argument("--scan-matching", action="store_true",
@@ -174,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--all takes no recording, relations file or --scan-matching")
         from lrfslam.tools import eval_logs
         try:
-            return eval_logs.main_all(args.all_logs, args.work, args.sets, args.config)
+            return eval_logs.main_all(args.all_logs, args.work, args.sets, args.config, args.jobs)
         except (LrfSlamError, OSError) as exc:
             print(f"lrfslam eval relations: {exc}", file=sys.stderr)
             return 2
