@@ -181,18 +181,10 @@ def _world(poses: np.ndarray, dist: np.ndarray, angles: np.ndarray) -> tuple[np.
     return poses[:, 0:1] + dist * np.cos(bearing), poses[:, 1:2] + dist * np.sin(bearing)
 
 
-def extent_m(poses, ranges, angles, params: GridParams) -> tuple[np.ndarray, np.ndarray]:
+def _bounds_m(poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
+              params: GridParams) -> tuple[np.ndarray, np.ndarray]:
     """Lower-left and upper-right corners (m), shape (2,) each, of every pose and every point the
-    scans update (arguments as :func:`grid_frame`'s; the resolution does not enter).
-
-    Raises
-    ------
-    InputError
-        No pose, or non-finite poses or angles.
-    """
-    poses, ranges, angles = _check(poses, ranges, angles)
-    if poses.shape[0] == 0:
-        raise InputError("occupancy grid: no scans")
+    scans update (checked arguments as :func:`grid_frame`'s; the resolution does not enter)."""
     lo, hi = poses[:, :2].min(axis=0), poses[:, :2].max(axis=0)
     # In batches, as the tracing: the whole log's beams at once would hold several (T, N) arrays.
     for start in range(0, poses.shape[0], params.batch_scans * 64):
@@ -205,19 +197,27 @@ def extent_m(poses, ranges, angles, params: GridParams) -> tuple[np.ndarray, np.
     return lo, hi
 
 
+def _cells(lo_m: np.ndarray, hi_m: np.ndarray, res: float) -> tuple[np.ndarray, int, int]:
+    """Lower-left cell (2,) and the (H, W) cells of a grid over ``lo_m``–``hi_m`` at ``res``, a border included."""
+    lo = np.floor(np.asarray(lo_m) / res) - 1
+    w, h = (np.floor(np.asarray(hi_m) / res) + 2 - lo).astype(np.int64)
+    return lo, int(h), int(w)
+
+
 def fitting_resolution(lo_m, hi_m, params: GridParams) -> float:
     """The finest of ``params.resolution_m × 2^k`` (m; k = 0, 1, …) at which a grid over
     ``lo_m``–``hi_m`` (m, shape (2,) each) holds at most ``params.max_cells`` cells, border included."""
     res = params.resolution_m
     while True:
-        w, h = np.floor(np.asarray(hi_m) / res) + 2 - (np.floor(np.asarray(lo_m) / res) - 1)
-        if w * h <= params.max_cells:
+        _, h, w = _cells(lo_m, hi_m, res)
+        if h * w <= params.max_cells:
             return float(res)
         res *= 2.0
 
 
-def grid_frame(poses, ranges, angles, params: GridParams) -> tuple[np.ndarray, tuple[int, int]]:
-    """Origin and shape of the smallest grid holding every pose and every cell the scans update.
+def grid_frame(poses, ranges, angles, params: GridParams,
+               fit: bool = False) -> tuple[np.ndarray, tuple[int, int], float]:
+    """Origin, shape and resolution of the smallest grid holding every pose and every cell the scans update.
 
     Parameters
     ----------
@@ -228,6 +228,9 @@ def grid_frame(poses, ranges, angles, params: GridParams) -> tuple[np.ndarray, t
     angles : array_like, shape (N,) or (T, N)
         Bearing of each beam in the scanner frame, radians.
     params : GridParams
+    fit : bool
+        A grid larger than ``params.max_cells`` at ``params.resolution_m`` takes the finest
+        doubling of it that fits (:func:`fitting_resolution`) instead of being refused.
 
     Returns
     -------
@@ -235,24 +238,27 @@ def grid_frame(poses, ranges, angles, params: GridParams) -> tuple[np.ndarray, t
         Lower-left corner, metres, a whole number of cells from the world origin.
     shape : (int, int)
         (H, W) cells.
+    resolution_m : float
+        Side of a cell (m): ``params.resolution_m`` unless ``fit`` coarsened it.
 
     Raises
     ------
     InputError
-        No pose, non-finite poses or angles, or a grid larger than ``params.max_cells``.
+        No pose, non-finite poses or angles, or (without ``fit``) a grid larger than ``params.max_cells``.
     """
-    lo, hi = extent_m(poses, ranges, angles, params)
-    res = params.resolution_m
-    lo = np.floor(lo / res) - 1
-    hi = np.floor(hi / res) + 2
-    w, h = (hi - lo).astype(np.int64)
+    poses, ranges, angles = _check(poses, ranges, angles)
+    if poses.shape[0] == 0:
+        raise InputError("occupancy grid: no scans")
+    lo_m, hi_m = _bounds_m(poses, ranges, angles, params)
+    res = fitting_resolution(lo_m, hi_m, params) if fit else params.resolution_m
+    lo, h, w = _cells(lo_m, hi_m, res)
     if h * w > params.max_cells:
         raise InputError(f"occupancy grid of {h} x {w} cells at {res} m exceeds {params.max_cells} cells "
                          "(a coarser resolution, or a shorter max range)")
-    return lo * res, (int(h), int(w))
+    return lo * res, (h, w), res
 
 
-def build_grid(poses, ranges, angles, params: GridParams = GridParams()) -> OccupancyGrid:
+def build_grid(poses, ranges, angles, params: GridParams = GridParams(), fit: bool = False) -> OccupancyGrid:
     """The occupancy grid of scans ``ranges`` taken at ``poses``.
 
     Parameters
@@ -264,6 +270,8 @@ def build_grid(poses, ranges, angles, params: GridParams = GridParams()) -> Occu
     angles : array_like, shape (N,) or (T, N)
         Bearing of each beam in the scanner frame, radians.
     params : GridParams
+    fit : bool
+        As :func:`grid_frame`'s: a grid too large is built coarser rather than refused.
 
     Returns
     -------
@@ -276,9 +284,8 @@ def build_grid(poses, ranges, angles, params: GridParams = GridParams()) -> Occu
         As :func:`grid_frame`.
     """
     poses, ranges, angles = _check(poses, ranges, angles)
-    origin, (h, w) = grid_frame(poses, ranges, angles, params)
+    origin, (h, w), res = grid_frame(poses, ranges, angles, params, fit)
     grid = np.zeros(h * w, dtype=np.float32)
-    res = params.resolution_m
     n_cells = h * w
     for start in range(0, poses.shape[0], params.batch_scans):
         sl = slice(start, start + params.batch_scans)

@@ -176,6 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.all_logs is not None:
         if args.recording or args.relations or args.scan_matching:
             parser.error("--all takes no recording, relations file or --scan-matching")
+        if args.jobs < 1:
+            parser.error(f"--jobs must be >= 1, got {args.jobs}")
         from lrfslam.tools import eval_logs
         try:
             return eval_logs.main_all(args.all_logs, args.work, args.sets, args.config, args.jobs)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -38,8 +38,6 @@ from lrfslam.algo.occupancy_grid import (
     GridParams,
     OccupancyGrid,
     build_grid,
-    extent_m,
-    fitting_resolution,
 )
 from lrfslam.errors import DecodeError, MissingExtraError, RecordingError
 from lrfslam.evaluation.map_trajectory import FinalTrajectoryBuilder
@@ -209,7 +207,7 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit
     """Place everything of ``data`` (from :func:`collect`) on the best trajectory's map; build the grid.
 
     ``grid_params`` None: no grid. ``fit``: a grid too large at ``grid_params.resolution_m`` is
-    built at the finest coarser resolution that fits (:func:`fitting_resolution`) instead of refused.
+    built at the finest coarser resolution that fits (``build_grid``'s ``fit``) instead of refused.
     """
     stamps, poses, label = best_trajectory(data)
     last, lms = data["last"], data["landmarks"]
@@ -258,11 +256,7 @@ def _grid(stamps: np.ndarray, poses: np.ndarray, scans: dict, params: GridParams
         angles = a0 + da * np.arange(width)
     else:
         angles = np.array([a0 + da * np.arange(width) for _, (_, a0, da) in placed])
-    placed_poses = poses[[i for i, _ in placed]]
-    if fit:
-        lo, hi = extent_m(placed_poses, ranges, angles, params)
-        params = replace(params, resolution_m=fitting_resolution(lo, hi, params))
-    return build_grid(placed_poses, ranges, angles, params), len(placed)
+    return build_grid(poses[[i for i, _ in placed]], ranges, angles, params, fit), len(placed)
 
 
 def _figures(sc: Scene, data: dict) -> dict:
