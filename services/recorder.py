@@ -94,7 +94,7 @@ class RecorderStep(StepBase):
             self.counts["drop.unwritable"] += 1
             return ()
         stamp = msg.stamp_ns or time.time_ns()
-        received = time.time_ns()
+        received = msg.received_ns or time.time_ns()
         try:
             self.writer.write(msg.name, msg.schema, msg.value, stamp, received, msg.seq)
         except RecordingError as exc:
@@ -181,4 +181,5 @@ SPEC = ServiceSpec(
     outputs=(),
     build=lambda cfg, ctx: RecorderStep(cfg, ctx),
     raw_inputs=True,
+    batched=True,
 )

@@ -20,6 +20,11 @@ arrived stamped within :data:`LIVE_WITHIN_S` of this machine's wall clock. A rep
 (``lrfslam play``: recorded stamps; ``--speedup``: simulated ones) never does, so its outputs
 stay those of the offline chain.
 
+A consumer that need not answer at once (the recorder) is *batched*: its receive callbacks
+queue without waking its main thread, which takes what waits when its ``get`` timeout ends,
+or at once when a quarter of the queue is full. Waking a thread per message cost about as much
+CPU as receiving it (docs/delivery.md); the recorder takes 7 messages per scan.
+
 Publishers take their QoS from the topic's delivery policy (``msgs/topics.py``,
 docs/delivery.md).
 """
@@ -237,6 +242,7 @@ class _Received(NamedTuple):
     seq: int
     stamp_ns: int           # the data stamp
     received_ns: int        # monotonic clock
+    received_wall_ns: int   # wall clock
 
 
 class ZenohBus:
@@ -260,15 +266,20 @@ class ZenohBus:
         last of them waits (the module's docstring); empty or ``max_lag_s`` 0: none.
     max_lag_s : float
         Age (s) of an input's wall-clock stamp beyond which it may be skipped.
+    batched : bool
+        Wake the caller of :meth:`get` only when a quarter of the queue is full; otherwise inputs
+        wait for its timeout (the module's docstring).
     """
 
     def __init__(self, session: zenoh.Session, robot: str, inputs: tuple[Topic, ...], raw: bool,
-                 queue_size: int, counts: Counter, skippable: tuple[Topic, ...] = (), max_lag_s: float = 0.0) -> None:
+                 queue_size: int, counts: Counter, skippable: tuple[Topic, ...] = (), max_lag_s: float = 0.0,
+                 batched: bool = False) -> None:
         self._session = session
         self._robot = robot
         self._raw = raw
         self._queue: deque[_Received] = deque()
         self._queue_size = queue_size
+        self._wake_at = max(1, queue_size // 4) if batched else 1
         self._ready = threading.Condition(threading.Lock())
         self._skippable = {topics.key(robot, t.name) for t in skippable} if max_lag_s > 0 else set()
         self._lead = topics.key(robot, skippable[-1].name) if self._skippable else None
@@ -296,7 +307,8 @@ class ZenohBus:
         att = sample.attachment
         att_bytes = att.to_bytes() if att is not None else None
         seq, stamp_ns, producer = parse_attachment(att_bytes)
-        item = _Received(key, sample.payload.to_bytes(), str(sample.encoding), seq, stamp_ns, time.monotonic_ns())
+        item = _Received(key, sample.payload.to_bytes(), str(sample.encoding), seq, stamp_ns, time.monotonic_ns(),
+                         time.time_ns())
         with self._ready:
             if att_bytes is not None:
                 self._tracker.observe(producer, key.removeprefix(self._prefix), seq)
@@ -307,7 +319,8 @@ class ZenohBus:
             if key == self._lead:
                 self._lead_newest_ns = stamp_ns   # the last to arrive: data time going back starts afresh
                 self._lead_live = abs(time.time_ns() - stamp_ns) <= LIVE_WITHIN_S * 1e9
-            self._ready.notify()
+            if len(self._queue) >= self._wake_at:
+                self._ready.notify()
 
     def receive_counts(self) -> Counter:
         """``drop.queue`` (samples the full queue refused), ``drop.stop`` (received but still
@@ -358,12 +371,12 @@ class ZenohBus:
         item = self._next(timeout_s)
         if item is None:
             return None
-        key, payload, encoding, seq, stamp_ns, self.received_ns = item
+        key, payload, encoding, seq, stamp_ns, self.received_ns, received_wall_ns = item
         schema = parse_encoding(encoding)
         if self._raw:
             name = topics.relative(self._robot, key)
             self._counts["in.raw"] += 1
-            return Message(None, payload, stamp_ns, schema, name, seq)
+            return Message(None, payload, stamp_ns, schema, name, seq, received_wall_ns)
         topic = self._by_key.get(key)
         if topic is None:
             return None

@@ -202,7 +202,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         step = spec.build(cfg, RunContext(robot))
         is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
         bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts, spec.skippable,
-                       spec.max_lag_s if bus_cfg.wall_clock_stamps and bus_cfg.skip_stale else 0.0)
+                       spec.max_lag_s if bus_cfg.wall_clock_stamps and bus_cfg.skip_stale else 0.0, spec.batched)
         latency = LatencyWindow("latency")
         age = LatencyWindow("age") if bus_cfg.wall_clock_stamps else None
         slow_s = bus_cfg.debug_delay_s(spec.name)

@@ -27,6 +27,7 @@ class Message:
     schema: str
     name: str = ""      # relative key; the only way a raw service knows what it got
     seq: int = 0
+    received_ns: int = 0   # wall clock (ns) when the bus received it, for raw services; 0: not received live
 
     @classmethod
     def of(cls, out: Output) -> Message:
@@ -107,6 +108,9 @@ class ServiceSpec:
     skippable: tuple[Topic, ...] = ()
     #: How old (s, wall clock) a skippable input may be before a newer lead input makes it stale.
     max_lag_s: float = 0.25
+    #: A consumer that need not answer at once (the recorder): it takes its inputs in batches,
+    #: about every 0.1 s, rather than being woken for each (lrfslam/runtime/bus.py).
+    batched: bool = False
 
 
 @dataclass(frozen=True)
