@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -12,6 +13,8 @@ from lrfslam.algo.geometry import relative
 from lrfslam.errors import ConfigError
 from lrfslam.io.carmen import iter_records, laser_trajectory
 from lrfslam.io.textfile import open_log
+from lrfslam.msgs import topics
+from lrfslam.runtime.recording import read_recording
 from lrfslam.tools import eval_logs, evaluate
 
 HEAD = Path(__file__).resolve().parents[1] / "data" / "intel_head.clf"
@@ -37,7 +40,7 @@ def datasets(tmp_path):
 
 
 def test_every_log_runs_with_one_configuration_and_the_scored_ones_get_a_table(datasets, tmp_path):
-    results = eval_logs.evaluate_all(datasets, tmp_path / "work", [], {}, {}, draw_maps=False)
+    results = [runs[0] for runs in eval_logs.evaluate_all(datasets, tmp_path / "work", [], {}, {}, draw_maps=False)]
     assert [r.log.name for r in results] == ["scored", "unscored"]
     scored, unscored = results
     assert scored.scans == unscored.scans == 10 and not unscored.scores
@@ -54,13 +57,45 @@ def test_every_log_runs_with_one_configuration_and_the_scored_ones_get_a_table(d
 
 
 def test_logs_run_side_by_side_give_what_they_give_one_after_another(datasets, tmp_path):
-    one = eval_logs.evaluate_all(datasets, tmp_path / "one", [], {}, {}, draw_maps=False, jobs=1)
-    two = eval_logs.evaluate_all(datasets, tmp_path / "two", [], {}, {}, draw_maps=False, jobs=2)
+    one = [runs[0] for runs in eval_logs.evaluate_all(datasets, tmp_path / "one", [], {}, {}, draw_maps=False)]
+    two = [runs[0] for runs in eval_logs.evaluate_all(datasets, tmp_path / "two", [], {}, {}, draw_maps=False,
+                                                      jobs=2)]
     assert [r.log.name for r in two] == ["scored", "unscored"]
     # Same machine, same inputs: the same figures (the time per scan aside).
     for a, b in zip(one, two):
         a.pipeline_s = b.pipeline_s = 0.0
     assert eval_logs.markdown(one) == eval_logs.markdown(two)
+
+
+def test_trials_run_each_scored_log_under_perturbations_that_must_not_matter(datasets, tmp_path):
+    found = eval_logs.evaluate_all(datasets, tmp_path / "work", [], {}, {}, draw_maps=False, jobs=2, trials=3)
+    scored, unscored = found
+    assert [len(scored), len(unscored)] == [3, 1]   # a log without relations has nothing to spread
+    # Trial k adds 1e-6 m of noise seeded k to every return; trial 0 none.
+    ranges = []
+    for k in range(3):
+        [rec] = [r for r in read_recording(tmp_path / "work" / "scored" / f"trial-{k}" / "scored.mcap",
+                                           [topics.SCAN.name]) if r.sequence == 5]
+        ranges.append(topics.SCAN.codec.decode(rec.data, rec.schema).ranges_m)
+    returns = np.isfinite(ranges[0]) & (ranges[0] > 0)
+    for k in (1, 2):
+        noise = ranges[k][returns] - ranges[0][returns]
+        assert 0 < np.abs(noise).max() < 1e-5 and np.all(ranges[k][~returns] == ranges[0][~returns])
+    assert not np.array_equal(ranges[1], ranges[2])
+    # The odometry is not perturbed: its relations error is zero in every trial, with no spread.
+    table = eval_logs.trials_markdown(found)
+    assert "| scored | raw odometry | 3 | 0.000 [0.000, 0.000] 0 % |" in table
+    assert "unscored" not in table
+    assert all(np.isfinite(r.scores["mapper final"].trans_abs_m.mean) for r in scored)
+
+
+def test_each_run_starts_in_a_process_of_its_own_with_its_trials_environment():
+    calls = [(os.getenv, ("OPENBLAS_CORETYPE",), path) for path in eval_logs.FP_PATHS[:3]]
+    before = os.environ.get("OPENBLAS_CORETYPE")
+    assert eval_logs.in_processes(calls, jobs=2) == [before, "Haswell", "Prescott"]
+    assert os.environ.get("OPENBLAS_CORETYPE") == before
+    with pytest.raises(ZeroDivisionError):
+        eval_logs.in_processes([(divmod, (1, 0), {})], jobs=1)
 
 
 def test_a_folder_without_logs_is_an_error(tmp_path):

@@ -249,3 +249,9 @@ def test_info_shows_what_the_log_says_of_its_laser(tmp_path):
     text = info.describe(out)
     assert "laser:     180 beams, 1.00 deg apart, -90.0 to +89.0 deg, range max 81.83 m" in text
     assert "no return (m): 81.83" in text and "laser mount (x m, y m, theta rad): 0.0000 0.0000 0.00000" in text
+
+
+def test_range_noise_must_not_be_negative(tmp_path):
+    with pytest.raises(ConfigError, match="range_noise_m"):
+        import_carmen(HEAD, tmp_path / "noisy.mcap", range_noise_m=-1e-6)
+    assert not (tmp_path / "noisy.mcap").exists()

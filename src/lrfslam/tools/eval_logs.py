@@ -10,15 +10,24 @@ span. A log without relations runs end to end and gets its map drawn (``lrfslam 
 Rows per scored log: the mapper's final trajectory (every loop closure solved for), the
 mapper's and the EKF's estimates as published at each scan (``map/pose``, ``slam/state``),
 scan matching alone (the slam stage's tracker without the filter), and raw odometry.
+
+``--trials N`` runs every scored log N times under perturbations that must not matter — trial
+0 as it is, trial k on another floating-point path (:data:`FP_PATHS`: numpy's SIMD dispatch
+narrowed, other OpenBLAS kernels) with :data:`TRIAL_RANGE_NOISE_M` of noise seeded k on the
+ranges — and reports each figure as the trials' mean, minimum, maximum and spread
+((max − min) / mean): a figure a rounding moves is a sample, not a property of the method.
+Every run is a process of its own, started with its trial's environment (numpy and OpenBLAS
+read it only when loaded).
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import multiprocessing.connection
 import os
 import time
-from collections.abc import Iterable, Mapping
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,6 +59,42 @@ SCAN_MATCHING = "scan matching alone"
 #: Rows of the table, per log with relations: the mapper's final trajectory (every closure solved
 #: for), the mapper and the EKF as published at each scan, and the references.
 ROWS = (MAPPER_FINAL, "mapper online", "slam estimate", SCAN_MATCHING, "raw odometry")
+
+#: The floating-point paths trials run on, trial k on ``FP_PATHS[k % len(FP_PATHS)]``: this
+#: machine's own, then numpy's SIMD dispatch narrowed (no AVX-512; nor AVX2) and other OpenBLAS
+#: kernels. numpy ignores the names of features a CPU lacks, so these hold on any x86-64 machine.
+FP_PATHS: tuple[dict[str, str], ...] = (
+    {},
+    {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR", "OPENBLAS_CORETYPE": "Haswell"},
+    {"NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR", "OPENBLAS_CORETYPE": "Prescott"},
+    {"OPENBLAS_CORETYPE": "Sandybridge"},
+    {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR", "OPENBLAS_CORETYPE": "Zen"},
+)
+
+#: Standard deviation (m) of the range noise trials after the first add: a thousandth of a
+#: millimetre, four orders below the LMS200's own noise; only rounding-sized effects can follow.
+TRIAL_RANGE_NOISE_M = 1e-6
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One run of a log under perturbations that must not matter (trial 0: none)."""
+
+    index: int
+
+    @property
+    def env(self) -> dict[str, str]:
+        """Environment variables this trial's process starts with."""
+        return FP_PATHS[self.index % len(FP_PATHS)]
+
+    @property
+    def range_noise_m(self) -> float:
+        return TRIAL_RANGE_NOISE_M if self.index else 0.0
+
+    def describe(self) -> str:
+        path = " ".join(f"{k}={v!r}" for k, v in self.env.items()) or "this machine's floating-point path"
+        noise = f", {self.range_noise_m:g} m range noise seeded {self.index}" if self.index else ""
+        return f"trial {self.index}: {path}{noise}"
 
 
 @dataclass(frozen=True)
@@ -122,11 +167,12 @@ def find_logs(root: Path) -> list[Log]:
     return logs
 
 
-def run_log(log: Log, work: Path, stages: list[chain.Stage], draw_map: bool = True) -> LogResult:
-    """Import ``log``, run ``stages`` over it, and score what it has ground truth for."""
+def run_log(log: Log, work: Path, stages: list[chain.Stage], draw_map: bool = True, trial: Trial = Trial(0)) -> LogResult:
+    """Import ``log`` (with ``trial``'s range noise), run ``stages`` over it, and score what it has ground truth for."""
     work.mkdir(parents=True, exist_ok=True)
     imported, out = work / f"{log.name}.mcap", work / f"{log.name}.run.mcap"
-    found = import_carmen(log.path, imported, robot=log.name.replace(" ", "_"))
+    found = import_carmen(log.path, imported, robot=log.name.replace(" ", "_"), range_noise_m=trial.range_noise_m,
+                          seed=trial.index)
     result = LogResult(log, scans=found.scans, sensor=found.sensor)
     started = time.perf_counter()
     counts = pipeline.run_pipeline(stages, log.name.replace(" ", "_"), imported, out)
@@ -186,33 +232,135 @@ def markdown(results: Iterable[LogResult]) -> str:
 
 
 def _run_log_configured(log: Log, work: Path, sets: list[str], file: Mapping, env: Mapping[str, str],
-                        draw_map: bool) -> LogResult:
+                        draw_map: bool, trial: Trial = Trial(0)) -> LogResult:
     """:func:`run_log` with stages built from the configuration (in a worker process)."""
-    return run_log(log, work, pipeline.build_stages(pipeline.DEFAULT_STAGES, sets, file, env), draw_map)
+    return run_log(log, work, pipeline.build_stages(pipeline.DEFAULT_STAGES, sets, file, env), draw_map, trial)
+
+
+@contextmanager
+def _environment(extra: Mapping[str, str]) -> Iterator[None]:
+    """``os.environ`` with ``extra`` set, as a child started meanwhile inherits it; restored after."""
+    saved = {k: os.environ.get(k) for k in extra}
+    os.environ.update(extra)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _call_and_send(conn: multiprocessing.connection.Connection, fn: Callable, args: tuple) -> None:
+    try:
+        conn.send((True, fn(*args)))
+    except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
+        conn.send((False, exc))
+    finally:
+        conn.close()
+
+
+def in_processes(calls: list[tuple[Callable, tuple, Mapping[str, str]]], jobs: int) -> list:
+    """``fn(*args)`` for each ``(fn, args, env)`` of ``calls``, each in a new process started with
+    ``env`` added to this one's environment, ``jobs`` at a time; the results in the calls' order.
+
+    Raises
+    ------
+    Exception
+        The first call that raised, once the running ones are stopped; :class:`RuntimeError` for
+        a process that died without an answer.
+    """
+    context = multiprocessing.get_context("spawn")
+    results: list = [None] * len(calls)
+    waiting = list(enumerate(calls))
+    running: dict[int, tuple[multiprocessing.process.BaseProcess, multiprocessing.connection.Connection]] = {}
+    try:
+        while waiting or running:
+            while waiting and len(running) < jobs:
+                i, (fn, args, env) = waiting.pop(0)
+                receiver, sender = context.Pipe(duplex=False)
+                with _environment(env):
+                    process = context.Process(target=_call_and_send, args=(sender, fn, args))
+                    process.start()
+                sender.close()
+                running[i] = (process, receiver)
+            ready = multiprocessing.connection.wait([conn for _, conn in running.values()])
+            for i, (process, conn) in list(running.items()):
+                if conn not in ready:
+                    continue
+                try:
+                    ok, value = conn.recv()
+                except EOFError:
+                    process.join()
+                    ok, value = False, RuntimeError(f"a worker process died (exit code {process.exitcode})")
+                process.join()
+                del running[i]
+                if not ok:
+                    raise value
+                results[i] = value
+    finally:
+        for process, _ in running.values():
+            process.terminate()
+            process.join()
+    return results
 
 
 def evaluate_all(root: Path, work: Path, sets: list[str], file: Mapping, env: Mapping[str, str],
-                 draw_maps: bool = True, jobs: int = 1) -> list[LogResult]:
-    """Every log under ``root`` with the same stages and configuration, ``jobs`` logs at a time
-    (each in a process of its own when more than one); results in the logs' order."""
+                 draw_maps: bool = True, jobs: int = 1, trials: int = 1) -> list[list[LogResult]]:
+    """Every log under ``root`` with the same stages and configuration, ``jobs`` runs at a time.
+
+    Returns, in the logs' order, each log's results: one per trial for a log with relations
+    (``trials`` of them, see the module's docstring), one for a log without (its map).
+    With ``jobs`` 1 and one trial everything runs in this process.
+    """
     logs = find_logs(root)
-    if jobs <= 1 or len(logs) == 1:
-        return [_run_log_configured(log, work / log.name, sets, file, env, draw_maps) for log in logs]
-    # Largest first, so the longest log does not start last.
-    order = sorted(logs, key=lambda log: log.path.stat().st_size, reverse=True)
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(jobs, len(logs)), mp_context=context) as pool:
-        running = {log.name: pool.submit(_run_log_configured, log, work / log.name, sets, dict(file), dict(env),
-                                         draw_maps) for log in order}
-        return [running[log.name].result() for log in logs]
+    if jobs <= 1 and trials == 1:
+        return [[_run_log_configured(log, work / log.name, sets, file, env, draw_maps)] for log in logs]
+    runs = [(log, Trial(k)) for log in logs for k in range(trials if log.relations else 1)]
+    # Largest log first, so the longest runs do not start last.
+    order = sorted(range(len(runs)), key=lambda i: (-runs[i][0].path.stat().st_size, i))
+    calls = [(_run_log_configured, (log, work / log.name / (f"trial-{trial.index}" if trials > 1 else ""), sets,
+                                    dict(file), dict(env), draw_maps, trial), trial.env)
+             for log, trial in (runs[i] for i in order)]
+    done = dict(zip(order, in_processes(calls, jobs)))
+    return [[done[i] for i, (other, _) in enumerate(runs) if other is log] for log in logs]
 
 
-def main_all(root: Path, work: Path, sets: list[str], config_file: str | None, jobs: int = 1) -> int:
+def _spread(values: list[float]) -> str:
+    """``mean [min, max] spread %``, the spread being (max − min) / mean."""
+    mean = float(np.mean(values))
+    spread = (max(values) - min(values)) / mean if mean else 0.0
+    return f"{mean:.3f} [{min(values):.3f}, {max(values):.3f}] {100 * spread:.0f} %"
+
+
+def trials_markdown(results: Iterable[list[LogResult]]) -> str:
+    """One row per (scored log, trajectory): each relation error over the trials as
+    ``mean [min, max] spread %``, overall and by span."""
+    scored = [runs for runs in results if runs[0].scores]
+    spans = next((list(r[0].by_span[k]) for r in scored for k in r[0].by_span), [])
+    head = ["log", "trajectory", "trials", "trans. m: mean [min, max] spread"] + [f"{s} m" for s in spans]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for runs in scored:
+        for label in runs[0].scores:
+            cells = [runs[0].log.name, label, str(len(runs)),
+                     _spread([r.scores[label].trans_abs_m.mean for r in runs])]
+            cells += [_spread([r.by_span[label][span][1].mean for r in runs]) for span in spans]
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main_all(root: Path, work: Path, sets: list[str], config_file: str | None, jobs: int = 1,
+             trials: int = 1) -> int:
     """``lrfslam eval relations --all``: print the table (Markdown) and where the outputs are."""
-    results = evaluate_all(root, work, sets, config_mod.read_file(config_file, services.CONFIG_TABLES), os.environ,
-                           jobs=jobs)
-    print(markdown(results))
-    for r in results:
+    found = evaluate_all(root, work, sets, config_mod.read_file(config_file, services.CONFIG_TABLES), os.environ,
+                         jobs=jobs, trials=trials)
+    if trials > 1:
+        print(trials_markdown(found))
+        print("\n".join(Trial(k).describe() for k in range(trials)))
+    print(markdown(runs[0] for runs in found) if trials == 1 else
+          "trial 0 alone:\n" + markdown(runs[0] for runs in found))
+    for r in (runs[0] for runs in found):
         facts = r.sensor
         nis, inside, n = r.matched_nis
         print(f"{r.log.name}: matched NIS mean {nis:.2f} (2.00 if consistent), {100 * inside:.1f} % inside "

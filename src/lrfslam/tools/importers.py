@@ -50,7 +50,7 @@ import numpy as np
 from tqdm import tqdm
 
 from lrfslam.algo.geometry import compose
-from lrfslam.errors import InputError, LrfSlamError
+from lrfslam.errors import ConfigError, InputError, LrfSlamError
 from lrfslam.io.carmen import (
     CarmenIssue,
     CarmenReader,
@@ -147,7 +147,7 @@ def stamp_ns(stamp_s: float) -> int:
 def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = BusConfig.robot,
                   no_return_min_m: float | None = None,
                   on_issue: Callable[[CarmenIssue], None] | None = None,
-                  progress: bool = False) -> CarmenImport:
+                  progress: bool = False, range_noise_m: float = 0.0, seed: int = 0) -> CarmenImport:
     """Convert the CARMEN log ``log_path`` (plain, .bz2 or .gz) into the recording ``out_path``.
 
     Parameters
@@ -165,6 +165,10 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
         Called with each malformed line as it is met (it is skipped either way).
     progress : bool
         Show a tqdm bar of lines read on stderr.
+    range_noise_m, seed : float, int
+        Standard deviation (m) of Gaussian noise added to every return (not to no-return or zero
+        readings), drawn from ``seed``: a perturbation that must not matter, for
+        ``lrfslam eval relations --trials``. 0: the ranges as logged.
 
     Returns
     -------
@@ -184,6 +188,9 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
     (:func:`~lrfslam.runtime.outputs.atomic_output`).
     """
     topics.check_robot(robot)
+    if not range_noise_m >= 0.0:
+        raise ConfigError(f"range_noise_m must be >= 0, got {range_noise_m}")
+    rng = np.random.default_rng(seed)
     log_path = Path(log_path)
     issues: list[CarmenIssue] = []
     odom_lines = scans = backsteps = 0
@@ -216,7 +223,12 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
             if previous_ns is not None and ns < previous_ns:
                 backsteps += 1
             previous_ns = ns
-            scan = t.LaserScan.from_ranges(ns, scans, item.ranges_m, item.angle_min_rad,
+            ranges = item.ranges_m
+            if range_noise_m:
+                returns = np.isfinite(ranges) & (ranges > 0)
+                noisy = np.maximum(ranges + rng.normal(0.0, range_noise_m, ranges.shape), 0.0)
+                ranges = np.where(returns, noisy, ranges)
+            scan = t.LaserScan.from_ranges(ns, scans, ranges, item.angle_min_rad,
                                            item.angle_increment_rad, item.max_range_m,
                                            source=f"carmen:{item.source}")
             odom = t.Odometry(ns, scans, compose(item.odom_pose, mount) if mounted else item.odom_pose)
