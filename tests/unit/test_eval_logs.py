@@ -121,3 +121,16 @@ def test_the_closure_nis_band_holds_the_mean_of_consistent_closures_95_percent_o
         assert 0.93 < inside < 0.97 and lo < 3.0 < hi
     assert np.diff(eval_logs.nis_mean_band(3, 1000)) < np.diff(eval_logs.nis_mean_band(3, 100))
     assert all(np.isnan(eval_logs.nis_mean_band(3, 0)))
+
+
+def test_the_closure_audit_runs_the_pipeline_on_an_imported_log(datasets, tmp_path, capsys):
+    from lrfslam.tools.importers import import_carmen
+    imported = tmp_path / "head.mcap"
+    import_carmen(datasets / "scored" / "head.clf", imported)
+    rc = evaluate.main(["closures", str(imported), str(datasets / "scored" / "head.relations"),
+                        "--work", str(tmp_path / "audit")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "0 closure attempts, 0 covered" in out and "false accepts" in out
+    assert (tmp_path / "audit" / "head.closures.mcap").exists()
+    assert evaluate.main(["closures", str(tmp_path / "missing.mcap"), str(datasets / "scored" / "head.relations"),
+                          "--work", str(tmp_path / "audit")]) == 2

@@ -75,6 +75,7 @@ Everything is deterministic: same calls, same results.
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -328,6 +329,36 @@ class ClosureStats:
     ekf_jumps: int = 0
 
 
+#: What became of a closure attempt (:class:`ClosureAttempt`): the verification step that dropped
+#: it (as counted in :class:`ClosureStats`), ``accepted`` into the graph, or ``removed`` from it
+#: after an optimisation (the graph disagreed).
+VERDICTS = ("low_score", "ambiguous", "refine_failed", "gated", "unconfirmed", "accepted", "removed")
+
+
+@dataclass(frozen=True)
+class ClosureAttempt:
+    """One loop closure the mapper tried, for an audit against ground truth (``lrfslam eval closures``).
+
+    Attributes
+    ----------
+    old_stamp_ns, new_stamp_ns : int
+        The stamps of the scans that made the old keyframe and the new one.
+    pose : ndarray, shape (3,)
+        What was measured: the new keyframe in the old one's frame (m, m, rad) — the refined
+        match, or the correlative search's best pose where it stopped before refining.
+    cov : ndarray, shape (3, 3), or None
+        The measurement's covariance (m², rad²) where it was refined, else None.
+    verdict : str
+        One of :data:`VERDICTS`.
+    """
+
+    old_stamp_ns: int
+    new_stamp_ns: int
+    pose: np.ndarray
+    cov: np.ndarray | None
+    verdict: str
+
+
 #: The points of a keyframe that has none (trimmed), one array for all of them (read-only).
 _NO_POINTS = np.zeros((0, 2))
 _NO_POINTS.flags.writeable = False
@@ -402,6 +433,12 @@ class LoopClosingMapper:
         scan) for :meth:`trajectory`. A long-running service does not: its published
         local poses and keyframes give the same trajectory
         (``lrfslam.evaluation.map_trajectory.final_poses``).
+
+    Attributes
+    ----------
+    observer : callable or None
+        Called with a :class:`ClosureAttempt` for every closure verified or dropped (an audit;
+        None, the default: nothing is kept).
     """
 
     def __init__(self, params: LoopClosureParams | None = None, keep_scans: bool = True) -> None:
@@ -431,6 +468,7 @@ class LoopClosingMapper:
         self._tentative = None  # a closure from a wide window awaiting confirmation
         self._pending_strong = False  # one of them disagrees strongly with the estimate they were added to
         self._fold_queue: list[int] = []  # revisit keyframes not folded yet, oldest first
+        self.observer: Callable[[ClosureAttempt], None] | None = None
 
     @property
     def stats(self) -> ClosureStats:
@@ -839,6 +877,7 @@ class LoopClosingMapper:
             else:
                 if earlier is not None:
                     self._counts["unconfirmed"] += 1
+                    self._observe(earlier[0], earlier[1], earlier[2], earlier[3], "unconfirmed")
                 self._tentative = closure
         urgent = False
         for k, n_, z, cov, innovation in found:
@@ -846,12 +885,19 @@ class LoopClosingMapper:
             info = np.linalg.inv(cov)
             self._loop_edges.append(self.graph.add_edge(k, n_, z, info, robust=True))
             self._counts["accepted"] += 1
+            self._observe(k, n_, z, cov, "accepted")
             edge_chi2 = float(innovation @ info @ innovation)
             self._pending += 1
             urgent |= edge_chi2 > p.optimise_chi2
             self._pending_strong |= edge_chi2 > p.graph.cauchy_scale**2
         if urgent or self._pending >= p.max_pending_closures:
             self._optimise()
+
+    def _observe(self, k: int, n: int, pose: np.ndarray, cov: np.ndarray | None, verdict: str) -> None:
+        """Tell the :attr:`observer` what became of a closure between keyframes ``k`` and ``n``."""
+        if self.observer is not None:
+            self.observer(ClosureAttempt(self._keyframes[k].stamp_ns, self._keyframes[n].stamp_ns,
+                                         np.array(pose, float), None if cov is None else np.array(cov, float), verdict))
 
     def _agree(self, first, second) -> bool:
         """Do two closures put the second one's keyframe at the same place (``confirm_*``)?
@@ -939,19 +985,23 @@ class LoopClosingMapper:
         found = search(grid, query, predicted, half_m, half_rad, p.min_score)
         if found.score < p.min_score:
             count["low_score"] += 1
+            self._observe(k, n, found.pose, None, "low_score")
             return None
         if found.second_score >= p.max_second_ratio * found.score:
             count["ambiguous"] += 1
+            self._observe(k, n, found.pose, None, "ambiguous")
             return None
         refined = match(reference, query, found.pose, p.scan_match)
         if not refined.ok:
             count["refine_failed"] += 1
+            self._observe(k, n, found.pose, None, "refine_failed")
             return None
         cov = p.match_cov_scale * refined.cov
         innovation = relative(predicted, refined.pose)
         chi2 = float(innovation @ np.linalg.solve(p.drift_scale**2 * rel_cov + cov, innovation))
         if not chi2 <= p.gate_chi2:
             count["gated"] += 1
+            self._observe(k, n, refined.pose, cov, "gated")
             return None
         # Its NIS without the drift factor (with the drift model): chi-squared with 3 dof if the
         # predicted and the match's covariances were both right (kept for the consistency report).
@@ -978,7 +1028,11 @@ class LoopClosingMapper:
             worst = int(np.argmin(weights))
             if weights[worst] >= p.min_weight:
                 break
-            self.graph.remove_edge(self._loop_edges.pop(worst))
+            edge = self._loop_edges.pop(worst)
+            if self.observer is not None:
+                i, j = self.graph.edge_nodes(edge)
+                self._observe(i, j, self.graph.edge_measurement(edge), None, "removed")
+            self.graph.remove_edge(edge)
             self._counts["removed"] += 1
         self._fold_settled()
 

@@ -4,6 +4,9 @@
         Every CARMEN log in the folders under DIR through the whole pipeline with one
         configuration; one table of relation errors (overall and by span) for those
         with relations, a map for those without (lrfslam.tools.eval_logs).
+    lrfslam eval closures RECORDING RELATIONS [--work DIR] [--set STAGE.NAME=VALUE ...]
+        Every loop closure the mapper tried on RECORDING (an imported log), judged by the
+        relations: false accepts, precision and recall (lrfslam.evaluation.closure_audit).
     lrfslam eval relations RECORDING RELATIONS [--max-gap-s S] [--scan-matching [--set NAME=VALUE ...]]
         Kümmerle et al. (2009) relation metric of the SLAM estimate (``slam/state``)
         and of the raw odometry (``odom``) of a recording (an MCAP file or a recording
@@ -130,6 +133,27 @@ def format_table(results: Mapping[str, RelationStats], relations: Relations | No
     return "\n".join(lines)
 
 
+def audit_closures(recording: str, relations_path: str, work: Path, sets: list[str], max_gap_s: float) -> int:
+    """``lrfslam eval closures``: run the pipeline with the mapper observed; print the audit."""
+    from lrfslam.evaluation import closure_audit
+    from lrfslam.tools import pipeline
+
+    with open_log(relations_path) as f:
+        relations = load_relations(f)
+    journal: list = []
+    stages = closure_audit.observed_stages(
+        pipeline.build_stages(pipeline.DEFAULT_STAGES, sets, {}, os.environ), journal)
+    work.mkdir(parents=True, exist_ok=True)
+    out = work / (Path(recording).name.split(".")[0] + ".closures.mcap")
+    pipeline.run_pipeline(stages, "audit", recording, out)
+    traj, _ = read_trajectories(out, {"slam": topics.SLAM_STATE})
+    judged = closure_audit.judge(journal, relations, *traj["slam"], max_gap_s)
+    print(f"{recording} vs {relations_path}: {len(journal)} closure attempts, "
+          f"{sum(j.covered for j in judged)} covered by a relation within {closure_audit.BRIDGE_S} s")
+    print(closure_audit.report(judged))
+    return 0
+
+
 def _delegate(name: str, argv: list[str]) -> int:
     module = DELEGATED[name]
     try:
@@ -150,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
         return _delegate(argv[0], argv[1:])
     parser = argparse.ArgumentParser(prog="lrfslam eval", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{relations,features,slam}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{relations,closures,features,slam}")
     rel = sub.add_parser("relations", help="relation metric of the SLAM estimate and of raw odometry")
     rel.add_argument("recording", metavar="RECORDING", nargs="?",
                      help="recording with slam/state and odom: an MCAP file or a recording folder")
@@ -176,7 +200,22 @@ def main(argv: list[str] | None = None) -> int:
     rel.add_argument("--set", dest="sets", action="append", default=[], metavar="NAME=VALUE",
                      help="with --scan-matching: a scan-matching setting, e.g. max_point_range_m=4; "
                           "with --all: a stage's setting for every log, e.g. slam.scan_matching=false")
+    clo = sub.add_parser("closures", help="every loop closure the mapper tried, judged by the relations")
+    clo.add_argument("recording", metavar="RECORDING", help="an imported log (lrfslam import carmen): scans and odometry")
+    clo.add_argument("relations", metavar="RELATIONS", help="its ground-truth relations file")
+    clo.add_argument("--work", metavar="DIR", type=Path, default=Path("recordings") / "eval",
+                     help="where the pipeline's output goes")
+    clo.add_argument("--set", dest="sets", action="append", default=[], metavar="STAGE.NAME=VALUE",
+                     help="a stage's setting, e.g. mapper.loop_closure.min_score=0.6")
+    clo.add_argument("--max-gap-s", type=float, default=DEFAULT_MAX_STAMP_GAP_S, dest="max_gap_s",
+                     help=f"stamp-matching tolerance in s (default {DEFAULT_MAX_STAMP_GAP_S})")
     args = parser.parse_args(argv)
+    if args.command == "closures":
+        try:
+            return audit_closures(args.recording, args.relations, args.work, args.sets, args.max_gap_s)
+        except (LrfSlamError, OSError) as exc:
+            print(f"lrfslam eval closures: {exc}", file=sys.stderr)
+            return 2
     if args.all_logs is not None:
         if args.recording or args.relations or args.scan_matching:
             parser.error("--all takes no recording, relations file or --scan-matching")

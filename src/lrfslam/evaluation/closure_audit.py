@@ -1,0 +1,171 @@
+"""``lrfslam eval closures RECORDING RELATIONS``: every loop closure the mapper tried, judged by the relations.
+
+The pipeline's stages run over a recording (a log imported with ``lrfslam import carmen``) in
+this process, with the mapper observed (:attr:`LoopClosingMapper.observer`): each closure it
+verified or dropped is kept with its verdict. Then each one is judged where the relations
+cover it: a relation whose two stamps lie within :data:`BRIDGE_S` of the closure's old and new
+keyframe scans (either way round) gives the true pose of the new keyframe in the old one's
+frame, bridged from the relation's scans to the keyframes' along the EKF's published
+trajectory (at most :data:`BRIDGE_S` each side, where the EKF drifts by millimetres).
+
+Against that truth:
+
+- a closure the mapper **accepted** is a *false accept* when its error's χ² under its own
+  covariance exceeds the 99 % quantile for 3 degrees of freedom (the issue's definition: the
+  measurement claims to be better than it is by more than its own gate allows);
+- any attempt is *right* when its pose lies within :data:`RIGHT_M` and :data:`RIGHT_RAD` of
+  the truth: precision is the share of covered accepted closures that are right, recall the
+  share of covered right attempts that were accepted (an attempt the verification dropped
+  although it was right is a missed closure).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.stats import chi2
+
+from lrfslam.algo.geometry import compose, relative
+from lrfslam.algo.loop_closure import VERDICTS, ClosureAttempt
+from lrfslam.evaluation.relations import Relations, match_stamps, stamp_s
+from lrfslam.runtime import chain
+
+#: Farthest (s) a relation's scan may lie from a closure's keyframe scan to judge it.
+BRIDGE_S = 1.0
+
+#: An attempt within this of the truth (m, rad) is right.
+RIGHT_M = 0.2
+RIGHT_RAD = math.radians(2.0)
+
+#: χ² (3 dof) beyond which an accepted closure contradicts its own covariance.
+CHI2_99 = float(chi2.ppf(0.99, 3))
+
+
+@dataclass(frozen=True)
+class Judged:
+    """One closure attempt and, where the relations cover it, its error against them."""
+
+    attempt: ClosureAttempt
+    error: np.ndarray | None   # (3,) the measured pose in the true one's frame (m, m, rad); None: not covered
+    chi2: float | None         # error's χ² under the attempt's covariance (accepted and gated ones)
+
+    @property
+    def covered(self) -> bool:
+        return self.error is not None
+
+    @property
+    def right(self) -> bool:
+        return self.covered and math.hypot(self.error[0], self.error[1]) <= RIGHT_M and abs(self.error[2]) <= RIGHT_RAD
+
+    @property
+    def false_accept(self) -> bool:
+        return self.attempt.verdict == "accepted" and self.chi2 is not None and self.chi2 > CHI2_99
+
+
+def observed_stages(stages: Iterable[chain.Stage], journal: list[ClosureAttempt]) -> list[chain.Stage]:
+    """``stages`` with the mapper's closure attempts appended to ``journal`` as they happen."""
+    def watched(build):
+        def build_and_observe(cfg, ctx):
+            step = build(cfg, ctx)
+            step.mapper.observer = journal.append
+            return step
+        return build_and_observe
+    return [replace(s, spec=replace(s.spec, build=watched(s.spec.build))) if s.spec.name == "mapper" else s
+            for s in stages]
+
+
+def judge(attempts: Iterable[ClosureAttempt], relations: Relations, ekf_stamps_s: np.ndarray,
+          ekf_poses: np.ndarray, max_gap_s: float) -> list[Judged]:
+    """Each attempt with its error against the relations where they cover it.
+
+    Parameters
+    ----------
+    attempts : iterable of ClosureAttempt
+    relations : Relations
+    ekf_stamps_s, ekf_poses : ndarray, shapes (T,) and (T, 3)
+        The EKF's published trajectory (s; m, m, rad), which bridges a relation's scans to the
+        keyframes' scans.
+    max_gap_s : float
+        Stamp-matching tolerance (s) between a relation's or a keyframe's stamp and the EKF's.
+    """
+    rel_a, _ = match_stamps(ekf_stamps_s, relations.stamp1_s, max_gap_s)
+    rel_b, _ = match_stamps(ekf_stamps_s, relations.stamp2_s, max_gap_s)
+    usable = (rel_a >= 0) & (rel_b >= 0)
+    t1, t2 = relations.stamp1_s[usable], relations.stamp2_s[usable]
+    ia, ib, delta = rel_a[usable], rel_b[usable], relations.delta[usable]
+    judged = []
+    for att in attempts:
+        old_s, new_s = stamp_s(att.old_stamp_ns), stamp_s(att.new_stamp_ns)
+        (io,), _ = match_stamps(ekf_stamps_s, np.array([old_s]), max_gap_s)
+        (inew,), _ = match_stamps(ekf_stamps_s, np.array([new_s]), max_gap_s)
+        truth = None
+        if io >= 0 and inew >= 0:
+            forward = np.abs(t1 - old_s) + np.abs(t2 - new_s)
+            backward = np.abs(t2 - old_s) + np.abs(t1 - new_s)
+            near_f = (np.abs(t1 - old_s) <= BRIDGE_S) & (np.abs(t2 - new_s) <= BRIDGE_S)
+            near_b = (np.abs(t2 - old_s) <= BRIDGE_S) & (np.abs(t1 - new_s) <= BRIDGE_S)
+            cost = np.minimum(np.where(near_f, forward, np.inf), np.where(near_b, backward, np.inf))
+            best = int(np.argmin(cost)) if cost.size else -1
+            if best >= 0 and np.isfinite(cost[best]):
+                if near_f[best] and forward[best] <= backward[best]:
+                    a, b, between = ia[best], ib[best], delta[best]        # a near old, b near new
+                else:
+                    a, b, between = ib[best], ia[best], relative(delta[best], np.zeros(3))
+                to_a = relative(ekf_poses[io], ekf_poses[a])       # old keyframe -> relation's first scan
+                from_b = relative(ekf_poses[b], ekf_poses[inew])   # relation's second scan -> new keyframe
+                truth = compose(compose(to_a, between), from_b)
+        if truth is None:
+            judged.append(Judged(att, None, None))
+            continue
+        error = relative(truth, att.pose)
+        error[2] = math.remainder(error[2], 2 * math.pi)
+        chi = float(error @ np.linalg.solve(att.cov, error)) if att.cov is not None else None
+        judged.append(Judged(att, error, chi))
+    return judged
+
+
+def report(judged: list[Judged]) -> str:
+    """Counts per verdict (covered, right, errors), false accepts, precision and recall; then every
+    covered accepted closure and every false accept."""
+    lines = [f"{'verdict':14s} {'tried':>6s} {'covered':>8s} {'right':>6s} {'median err m':>13s} {'max err m':>10s}"]
+    for verdict in VERDICTS:
+        of = [j for j in judged if j.attempt.verdict == verdict]
+        covered = [j for j in of if j.covered]
+        errs = [math.hypot(j.error[0], j.error[1]) for j in covered]
+        lines.append(f"{verdict:14s} {len(of):6d} {len(covered):8d} {sum(j.right for j in covered):6d} "
+                     + (f"{np.median(errs):13.3f} {max(errs):10.3f}" if errs else f"{'-':>13s} {'-':>10s}"))
+    accepted = [j for j in judged if j.attempt.verdict == "accepted" and j.covered]
+    right = [j for j in judged if j.right]
+    false = [j for j in judged if j.false_accept]
+    precision = sum(j.right for j in accepted) / len(accepted) if accepted else float("nan")
+    recall = sum(j.attempt.verdict == "accepted" for j in right) / len(right) if right else float("nan")
+    lines.append(f"false accepts (accepted, error's chi2 over its own covariance > {CHI2_99:.2f}): {len(false)} "
+                 f"of {len(accepted)} covered accepted closures")
+    lines.append(f"precision {precision:.3f} (covered accepted closures within {RIGHT_M} m and "
+                 f"{math.degrees(RIGHT_RAD):.0f} deg of the truth), recall {recall:.3f} (covered attempts that "
+                 "right, accepted)")
+    if accepted:
+        lines.append("accepted closures the relations cover (stamps s; error x y m, theta deg; chi2):")
+        for j in accepted:
+            att = j.attempt
+            flag = "  FALSE ACCEPT" if j.false_accept else ""
+            lines.append(f"  {stamp_s(att.old_stamp_ns):.3f} -> {stamp_s(att.new_stamp_ns):.3f}  "
+                         f"{j.error[0]:+.3f} {j.error[1]:+.3f} {math.degrees(j.error[2]):+.2f}  "
+                         f"{j.chi2:.1f}{flag}")
+    return "\n".join(lines)
+
+
+def summary_counts(judged: list[Judged]) -> Counter:
+    """``<verdict>``, ``<verdict>.covered``, ``<verdict>.right`` and ``false_accepts`` counts."""
+    counts: Counter = Counter()
+    for j in judged:
+        v = j.attempt.verdict
+        counts[v] += 1
+        counts[f"{v}.covered"] += j.covered
+        counts[f"{v}.right"] += j.right
+        counts["false_accepts"] += j.false_accept
+    return counts
