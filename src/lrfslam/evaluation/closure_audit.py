@@ -146,8 +146,8 @@ def report(judged: list[Judged]) -> str:
     lines.append(f"false accepts (accepted, error's chi2 over its own covariance > {CHI2_99:.2f}): {len(false)} "
                  f"of {len(accepted)} covered accepted closures")
     lines.append(f"precision {precision:.3f} (covered accepted closures within {RIGHT_M} m and "
-                 f"{math.degrees(RIGHT_RAD):.0f} deg of the truth), recall {recall:.3f} (covered attempts that "
-                 "right, accepted)")
+                 f"{math.degrees(RIGHT_RAD):.0f} deg of the truth), recall {recall:.3f} (of the covered "
+                 "attempts that were right, the share accepted)")
     if accepted:
         lines.append("accepted closures the relations cover (stamps s; error x y m, theta deg; chi2):")
         for j in accepted:
