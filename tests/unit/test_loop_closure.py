@@ -310,7 +310,7 @@ def test_the_drift_model_widens_long_loops_windows_and_leaves_short_ones_as_the_
     # A 40 m drive with a slow turn (no points: no closure); the same graph seen with and without
     # the drift model. Past the onset the window grows with the graph's heading variance, and
     # the model is the only difference: the graph's own covariance is untouched.
-    assert LoopClosureParams().drift_scale == 1.0 and LoopClosureParams().drift_onset_rad == 0.02
+    assert LoopClosureParams().drift_onset_rad == 0.02
     near = LoopClosureParams(candidate_radius_m=100.0)   # every keyframe is a neighbour here
     modelled = LoopClosingMapper(near)
     plain = LoopClosingMapper(replace(near, drift_onset_rad=0.0))

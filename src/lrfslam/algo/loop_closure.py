@@ -33,8 +33,8 @@ Design choices
   The search window and the gate therefore use the graph's relative covariance grown by
   its own heading variance, ``× (1 + σθ² / drift_onset_rad²)``: unchanged over a short
   loop or right after a closure, growing with the square of the loop past the onset;
-  the optimisation does not. It replaced a constant factor (``drift_scale`` 3, window
-  and gate on 9 × the covariance), which was three times too wide for short loops and
+  the optimisation does not. It replaced a constant factor (window and gate on 9 × the
+  covariance), which was three times too wide for short loops and
   still overconfident for long ones (docs/slam.md, "Every log, one configuration").
   (Loose edges, 2.5 cm and 0.9° per half metre, with no model: Intel 0.028 m relation
   error against 0.022 m, ACES 0.051 m either way.)
@@ -142,10 +142,6 @@ class LoopClosureParams:
         ...plus this much per metre travelled (rad/m) and per radian turned (dimensionless).
     window_sigmas : float
         Search half-widths in standard deviations of the relative pose.
-    drift_scale : float
-        Factor on the relative pose's standard deviations for the search window
-        and the gate, not for the optimisation (dimensionless; see the module
-        notes on odometry edges). 1 with the drift model below; it was 3 without.
     drift_onset_rad : float
         The systematic drift model of the search window and the gate: the graph's relative
         covariance times ``1 + σθ² / drift_onset_rad²``, σθ its heading standard deviation (rad).
@@ -190,10 +186,6 @@ class LoopClosureParams:
         is asked for): each solve costs a sparse factorisation of the whole graph.
     odometry_keyframes : int
         The new keyframe's scan is matched against this many last keyframes, merged.
-    interpolate : bool
-        :meth:`LoopClosingMapper.trajectory` places a scan between two
-        keyframes from both, weighted by where it lies between them (Intel
-        0.021 → 0.020 m, ACES 0.044 m either way); else from the earlier only.
     ekf_jump_m, ekf_jump_rad : float
         An odometry edge is the local motion between the keyframes unless it
         differs from the keyframes' scans matched (point-to-line, the local
@@ -240,7 +232,6 @@ class LoopClosureParams:
     odom_rot_sigma_per_m: float = 0.006
     odom_rot_sigma_per_rad: float = 0.03
     window_sigmas: float = 3.0
-    drift_scale: float = 1.0
     drift_onset_rad: float = 0.02
     min_window_m: float = 0.5
     max_window_m: float = 12.0
@@ -264,7 +255,6 @@ class LoopClosureParams:
     max_pending_closures: int = 10
     odometry_keyframes: int = 3
     ekf_jump_m: float = 0.05
-    interpolate: bool = True
     ekf_jump_rad: float = 0.02
     trim_revisits: bool = True
     fold_revisits: bool = True
@@ -272,7 +262,7 @@ class LoopClosureParams:
 
     def __post_init__(self) -> None:
         positive = ("max_range_m", "keyframe_cell_m", "query_cell_m", "odom_trans_sigma_m", "odom_rot_sigma_rad",
-                    "window_sigmas", "drift_scale", "min_window_m", "max_window_m", "min_window_rad", "max_window_rad",
+                    "window_sigmas", "min_window_m", "max_window_m", "min_window_rad", "max_window_rad",
                     "gate_chi2", "match_cov_scale", "candidate_radius_m")
         require_finite(self, positive, positive=True, what="loop closure ")
         non_negative = ("keyframe_trans_m", "max_scan_step_m", "keyframe_rot_rad", "min_travel_m", "odom_trans_sigma_per_m",
@@ -559,7 +549,7 @@ class LoopClosingMapper:
         kf_scan = np.concatenate((self.keyframe_scans(), np.array([r.scan_index for r in gone], dtype=np.int64)))
         kf_edge = np.concatenate((self.keyframe_local_edges(), np.array([r.local_edge for r in gone], dtype=bool)))
         poses = place_scans(np.array(self._scan_kf, dtype=np.int64), np.array(self._scan_rel, dtype=float),
-                            kf_poses, kf_local, kf_scan[order], kf_edge[order], self.params.interpolate)
+                            kf_poses, kf_local, kf_scan[order], kf_edge[order])
         return np.array(self._stamps, dtype=np.int64), poses
 
     @property
@@ -930,8 +920,8 @@ class LoopClosingMapper:
             rel_cov = rel_cov * (1.0 + rel_cov[2, 2] / p.drift_onset_rad**2)
         sigma_xy = float(np.sqrt(max(np.linalg.eigvalsh(rel_cov[:2, :2])[-1], 0.0)))
         sigma_th = float(np.sqrt(max(rel_cov[2, 2], 0.0)))
-        half_m = float(np.clip(p.window_sigmas * p.drift_scale * sigma_xy, p.min_window_m, p.max_window_m))
-        half_rad = float(np.clip(p.window_sigmas * p.drift_scale * sigma_th, p.min_window_rad, p.max_window_rad))
+        half_m = float(np.clip(p.window_sigmas * sigma_xy, p.min_window_m, p.max_window_m))
+        half_rad = float(np.clip(p.window_sigmas * sigma_th, p.min_window_rad, p.max_window_rad))
         if np.hypot(predicted[0], predicted[1]) > half_m + p.candidate_radius_m:
             return None
         return predicted, rel_cov, half_m, half_rad
@@ -998,7 +988,7 @@ class LoopClosingMapper:
             return None
         cov = p.match_cov_scale * refined.cov
         innovation = relative(predicted, refined.pose)
-        chi2 = float(innovation @ np.linalg.solve(p.drift_scale**2 * rel_cov + cov, innovation))
+        chi2 = float(innovation @ np.linalg.solve(rel_cov + cov, innovation))
         if not chi2 <= p.gate_chi2:
             count["gated"] += 1
             self._observe(k, n, refined.pose, cov, "gated")
@@ -1180,7 +1170,7 @@ def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
 
 
 def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray, kf_local_poses: np.ndarray,
-                kf_first_scan: np.ndarray, kf_local_edge: np.ndarray, interpolate: bool = True) -> np.ndarray:
+                kf_first_scan: np.ndarray, kf_local_edge: np.ndarray) -> np.ndarray:
     """Every scan placed by the (optimised) keyframes: the one way the mapper and a recording's reader do it.
 
     Parameters
@@ -1195,8 +1185,6 @@ def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray,
         Index of the scan that made each keyframe.
     kf_local_edge : ndarray of bool, shape (K,)
         Whether the odometry edge into each keyframe is the local motion.
-    interpolate : bool
-        Blend a scan between two keyframes from both (see below).
 
     Returns
     -------
@@ -1205,11 +1193,11 @@ def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray,
     kf = np.asarray(scan_kf, dtype=np.int64)
     rel = np.asarray(scan_rel, dtype=float).reshape(-1, 3)
     poses = _compose_rows(kf_poses[kf], rel)
-    if not interpolate or kf.size == 0:
+    if kf.size == 0:
         return poses
     # A scan between two keyframes is placed from both, weighted by where it lies between
     # them, so the trajectory does not step at the next keyframe by what the optimisation
-    # changed in between. Not across a jump: the local motion from the scan to the
+    # changed in between (from the earlier one alone: Intel 0.021 m against 0.020, ACES 0.044 m either way). Not across a jump: the local motion from the scan to the
     # next keyframe would hold it.
     nxt = np.minimum(kf + 1, len(kf_poses) - 1)
     blend = (nxt > kf) & np.asarray(kf_local_edge, dtype=bool)[nxt]

@@ -24,8 +24,7 @@ from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_recording
 
 
-def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.MapKeyframes,
-                interpolate: bool = True) -> np.ndarray:
+def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.MapKeyframes) -> np.ndarray:
     """Every scan's local pose corrected by the optimised keyframes, as the mapper places its scans.
 
     Parameters
@@ -36,8 +35,6 @@ def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.Map
         Their poses on the mapper's local trajectory ``(x_m, y_m, theta_rad)``.
     keyframes : MapKeyframes
         Every keyframe of the run (K, their scans' stamps ascending): :meth:`KeyframeHistory.keyframes`.
-    interpolate : bool
-        As the mapper's ``loop_closure.interpolate``.
 
     Returns
     -------
@@ -53,8 +50,7 @@ def final_poses(stamps_ns: np.ndarray, local_poses: np.ndarray, keyframes: t.Map
         kk = k[placed]
         rel = np.asarray(relative(keyframes.local_pose[kk].T, local_poses[placed].T)).T
         first = np.searchsorted(stamps_ns[placed], keyframes.scan_stamp_ns)
-        out[placed] = place_scans(kk, rel, keyframes.map_pose, keyframes.local_pose, first, keyframes.local_edge,
-                                  interpolate)
+        out[placed] = place_scans(kk, rel, keyframes.map_pose, keyframes.local_pose, first, keyframes.local_edge)
     return out
 
 
