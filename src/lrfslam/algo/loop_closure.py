@@ -89,6 +89,7 @@ from lrfslam.algo.geometry import (
     from_frame,
     inverse_with_covariance,
     relative,
+    thin_points,
 )
 from lrfslam.algo.pose_graph import PoseGraph, PoseGraphParams
 from lrfslam.algo.scan_match import ReferenceScan, ScanMatchParams, match
@@ -729,7 +730,7 @@ class LoopClosingMapper:
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < p.max_range_m]
-        pts = _thin(pts, p.keyframe_cell_m)
+        pts = thin_points(pts, p.keyframe_cell_m)
         self._made += 1
         if moved is None:
             self.graph.add_node(local_pose)
@@ -798,7 +799,7 @@ class LoopClosingMapper:
         first = max(0, last - p.odometry_keyframes + 1)
         pts = np.vstack([from_frame(self._keyframes[i].points_xy_m, relative(poses[last], poses[i]))
                          for i in range(first, last + 1)])
-        return ReferenceScan.build(_thin(pts, p.keyframe_cell_m), p.scan_match)
+        return ReferenceScan.build(thin_points(pts, p.keyframe_cell_m), p.scan_match)
 
     def _odometry_cov(self, dist_m: float, turn_rad: float) -> np.ndarray:
         """Covariance (3, 3) of an odometry edge over ``dist_m`` metres and ``turn_rad`` radians."""
@@ -931,7 +932,7 @@ class LoopClosingMapper:
         first = max(0, n - self.params.query_keyframes + 1)
         poses = self.graph.poses
         parts = [from_frame(self._keyframes[i].points_xy_m, relative(poses[n], poses[i])) for i in range(first, n + 1)]
-        return _thin(np.vstack(parts), self.params.query_cell_m)
+        return thin_points(np.vstack(parts), self.params.query_cell_m)
 
     def _submap(self, k: int) -> tuple[LikelihoodGrid, ReferenceScan]:
         """The likelihood grid and line reference of keyframe ``k``'s neighbourhood, in its frame (cached)."""
@@ -956,7 +957,7 @@ class LoopClosingMapper:
         end = int(np.searchsorted(ordinals, last, side="right"))
         pts = np.vstack([from_frame(self._keyframes[i].points_xy_m, relative(poses[k], poses[i]))
                          for i in range(first, end)])
-        pts = _thin(pts, p.keyframe_cell_m)
+        pts = thin_points(pts, p.keyframe_cell_m)
         self._submaps[k] = (last, LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match))
         if len(self._submaps) > p.cached_submaps:
             self._submaps.popitem(last=False)
@@ -1156,17 +1157,6 @@ def _retired_from(prefix: str, arrays) -> list[_Retired]:
         raise InputError(f"mapper snapshot: {prefix} arrays of inconsistent shapes or not finite")
     return [_Retired(int(o), int(st), lp.astype(float), bool(le), int(si), int(ao), int(ast), off.astype(float))
             for o, st, lp, le, si, ao, ast, off in zip(*cols, strict=True)]
-
-
-def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
-    """Mean of the points in each occupied ``cell_m`` square, (M, 2), in cell order (deterministic)."""
-    if points_xy_m.shape[0] == 0:
-        return points_xy_m.reshape(0, 2)
-    cells, inverse = np.unique(np.floor(points_xy_m / cell_m).astype(np.int64), axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    sums = np.zeros((cells.shape[0], 2))
-    np.add.at(sums, inverse, points_xy_m)
-    return sums / np.bincount(inverse, minlength=cells.shape[0])[:, None]
 
 
 def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray, kf_local_poses: np.ndarray,

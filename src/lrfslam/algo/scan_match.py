@@ -106,7 +106,7 @@ import numpy as np
 from lrfslam.algo import _scan_match_kernel as kernel
 from lrfslam.algo.checks import require_finite
 from lrfslam.algo.free_space import FreeSpace, seen_through
-from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.algo.geometry import compose, relative, thin_points, wrap_angle
 from lrfslam.errors import ConfigError, InputError
 
 
@@ -721,7 +721,7 @@ class ScanTracker:
             # filter. Thinned to one point per cell first, or k neighbours of a
             # dense stack of scans would span less than the range noise.
             merged = np.vstack([self.keyframes[i].points_xy_m for i in sorted(chosen)])
-            self._reference = ReferenceScan.build(_thin(merged, p.map_cell_m), p)
+            self._reference = ReferenceScan.build(thin_points(merged, p.map_cell_m), p)
         return self._reference
 
 
@@ -729,15 +729,6 @@ def _to_frame(points_xy_m: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """Points (N, 2) of a robot frame at ``pose`` (3,) in the frame ``pose`` is given in."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
     return points_xy_m @ np.array([[c, s], [-s, c]]) + pose[:2]
-
-
-def _thin(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
-    """Mean of the points in each occupied ``cell_m`` square, (M, 2), in cell order (deterministic)."""
-    cells, inverse = np.unique(np.floor(points_xy_m / cell_m).astype(np.int64), axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    sums = np.zeros((cells.shape[0], 2))
-    np.add.at(sums, inverse, points_xy_m)
-    return sums / np.bincount(inverse, minlength=cells.shape[0])[:, None]
 
 
 def _psd_part(mat: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from lrfslam.algo.geometry import compose, relative
+from lrfslam.algo.geometry import compose, inverse, relative
 from lrfslam.algo.loop_closure import VERDICTS, ClosureAttempt
 from lrfslam.evaluation.relations import Relations, match_stamps, stamp_s
 from lrfslam.runtime import chain
@@ -114,7 +114,7 @@ def judge(attempts: Iterable[ClosureAttempt], relations: Relations, ekf_stamps_s
                 if near_f[best] and forward[best] <= backward[best]:
                     a, b, between = ia[best], ib[best], delta[best]        # a near old, b near new
                 else:
-                    a, b, between = ib[best], ia[best], relative(delta[best], np.zeros(3))
+                    a, b, between = ib[best], ia[best], inverse(delta[best])
                 to_a = relative(ekf_poses[io], ekf_poses[a])       # old keyframe -> relation's first scan
                 from_b = relative(ekf_poses[b], ekf_poses[inew])   # relation's second scan -> new keyframe
                 truth = compose(compose(to_a, between), from_b)

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo.geometry import compose, relative
+from lrfslam.algo.geometry import compose, inverse
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.chain import Chain
@@ -79,7 +79,7 @@ def resume_once(stream: list[Message], kill: int, down_scans: int, folder: Path)
     with Chain(slam, replay=False) as second:
         after = _states(list(second.feed(m for m in inputs[i:] if m.stamp_ns >= back_ns)))
     # SLAM's map frame is its first pose: the truth in it, as lrfslam up scores a run.
-    anchor = compose(truth[before[0].stamp_ns], relative(before[0].pose, np.zeros(3)))
+    anchor = compose(truth[before[0].stamp_ns], inverse(before[0].pose))
     errors = [compose(anchor, s.pose)[:2] - truth[s.stamp_ns][:2] for s in after]
     nees = [float(e @ np.linalg.solve(s.pose_cov[:2, :2], e)) for e, s in zip(errors, after, strict=True)]
     sigma = float(np.sqrt(np.linalg.eigvalsh(after[-1].pose_cov[:2, :2]).max()))

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo.geometry import compose, relative
+from lrfslam.algo.geometry import compose, inverse, relative
 from lrfslam.algo.occupancy_grid import (
     FREE,
     FREE_THRESH,
@@ -182,7 +182,7 @@ def _anchor(stamps_ns: np.ndarray, poses: np.ndarray, others: dict) -> np.ndarra
     first = next((s for s in sorted(others) if s in index), None)
     if first is None:
         return None
-    return compose(others[first], relative(poses[index[first]], np.zeros(3)))
+    return compose(others[first], inverse(poses[index[first]]))
 
 
 def _in_frame(stamps_ns: np.ndarray, poses: np.ndarray, others: dict) -> np.ndarray | None:
@@ -218,7 +218,7 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit
         s = data["seen_ns"].get(int(i), last.stamp_ns)
         k = max(int(np.searchsorted(stamps, s, side="right")) - 1, 0)
         slam = slam_at.get(int(stamps[k]), slam_at[last.stamp_ns])
-        corrections.append(compose(poses[k], relative(slam, np.zeros(3))))
+        corrections.append(compose(poses[k], inverse(slam)))
     xy = np.array([compose(c, (*m, 0.0))[:2] for c, m in zip(corrections, lms.xy_m)]).reshape(-1, 2)
     rots = [np.array([[np.cos(c[2]), -np.sin(c[2])], [np.sin(c[2]), np.cos(c[2])]]) for c in corrections]
     cov = np.array([r @ c @ r.T for r, c in zip(rots, lms.cov_m2)]).reshape(-1, 2, 2)

@@ -39,7 +39,7 @@ import numpy as np
 import zenoh
 
 from lrfslam import services
-from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.algo.geometry import compose, inverse, wrap_angle
 from lrfslam.errors import (
     ConfigError,
     DecodeError,
@@ -262,7 +262,7 @@ class Observer:
             return
         if self._anchor is None:
             # SLAM's map frame is its first pose; express its estimates in the world frame.
-            self._anchor = compose(true, relative(state.pose, np.zeros(3)))
+            self._anchor = compose(true, inverse(state.pose))
         est = compose(self._anchor, state.pose)
         d = float(np.hypot(*(est[:2] - true[:2])))
         self.matched += 1

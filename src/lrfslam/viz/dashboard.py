@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from lrfslam.algo.geometry import compose, polar_to_xy, relative
+from lrfslam.algo.geometry import compose, inverse, polar_to_xy
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
@@ -79,10 +79,6 @@ def rates(before: t.ServiceStatus | None, after: t.ServiceStatus) -> tuple[float
         return None
     a, b = counter_figures(before.counters), counter_figures(after.counters)
     return (b["in"] - a["in"]) / dt, (b["out"] - a["out"]) / dt
-
-
-def inverse(p) -> np.ndarray:
-    return relative(p, np.zeros(3))
 
 
 class Path:

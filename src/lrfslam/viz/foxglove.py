@@ -50,7 +50,7 @@ from typing import Any
 import foxglove.messages as fm
 import numpy as np
 
-from lrfslam.algo.geometry import compose, relative
+from lrfslam.algo.geometry import compose, inverse
 from lrfslam.algo.stream_alignment import interpolate_pose
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
@@ -215,10 +215,6 @@ def transform(stamp_ns: int, parent: str, child: str, p) -> fm.FrameTransform:
     """``child``'s frame placed at pose ``p`` (x m, y m, theta rad) in ``parent``'s."""
     return fm.FrameTransform(timestamp=timestamp(stamp_ns), parent_frame_id=parent, child_frame_id=child,
                              translation=fm.Vector3(x=float(p[0]), y=float(p[1]), z=0.0), rotation=quaternion(float(p[2])))
-
-
-def inverse(p) -> np.ndarray:
-    return relative(p, np.zeros(3))
 
 
 # ---- stateless conversions ---------------------------------------------------------------------
