@@ -1,8 +1,11 @@
 """The processes of the pipeline, one module each (installed as ``lrfslam.services``).
 
 Each module defines ``SPEC``: its config dataclass, input and output topics and
-step. :data:`NAMES` is the pipeline order; :func:`spec` imports one lazily so a
-service never loads the algorithms of another.
+step. :data:`NAMES` is the pipeline order: each service takes its inputs from services before
+it, the recorder (last) everything (``tests/unit/test_services.py`` holds the specs to it).
+``lrfslam up`` starts them in the reverse order, so every consumer listens before its producer
+sends, and stops them in this order, so each drains what the one before it sent.
+:func:`spec` imports one lazily so a service never loads the algorithms of another.
 """
 
 from __future__ import annotations

@@ -58,7 +58,8 @@ from lrfslam.viz.dashboard import counter_figures
 
 log = logging.getLogger("lrfslam.up")
 
-START_ORDER = ("recorder", "mapper", "slam", "features", "denoise", "sensor")
+#: Consumers before producers (``services.NAMES``).
+START_ORDER = tuple(reversed(services.NAMES))
 #: How long the stages before the sensor have to declare their liveliness tokens.
 START_TIMEOUT_S = 30.0
 #: Stages ``--skip`` may leave out (every other one is needed for SLAM to run at all; without the
@@ -520,8 +521,8 @@ def main(argv: list[str] | None = None) -> int:
         else:
             log.info("stopping: draining the pipeline")
         _drain(observer, 5.0)
-        for name in ("denoise", "features", "slam", "mapper", "recorder"):
-            if name in children:
+        for name in services.NAMES:
+            if name != "sensor" and name in children:
                 children[name].stop(15)
         if monitor:
             monitor.stop(10)
