@@ -93,7 +93,7 @@ class RecorderStep(StepBase):
         if self._blocked_until is not None:
             self.counts["drop.unwritable"] += 1
             return ()
-        received = msg.received_ns or time.time_ns()
+        received = msg.received_wall_ns or time.time_ns()
         stamp = msg.stamp_ns or received   # unstamped (an older or foreign publisher): when it arrived
         try:
             self.writer.write(msg.name, msg.schema, msg.value, stamp, received, msg.seq)

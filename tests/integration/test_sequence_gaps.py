@@ -115,7 +115,7 @@ def test_a_batched_consumer_gets_every_message_in_order_stamped_on_arrival(route
             assert msg is not None, f"only {len(got)} of 6 messages arrived"
             got.append(msg)
         assert [m.seq for m in got] == list(range(1, 7))
-        arrived = [m.received_ns for m in got]
+        arrived = [m.received_wall_ns for m in got]
         assert arrived == sorted(arrived) and before <= arrived[0]
         assert arrived[-1] <= time.time_ns()
         # A quarter of the queue (2 of 8) waiting wakes the consumer before its timeout ends.

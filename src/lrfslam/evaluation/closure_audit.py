@@ -97,11 +97,13 @@ def judge(attempts: Iterable[ClosureAttempt], relations: Relations, ekf_stamps_s
     usable = (rel_a >= 0) & (rel_b >= 0)
     t1, t2 = relations.stamp1_s[usable], relations.stamp2_s[usable]
     ia, ib, delta = rel_a[usable], rel_b[usable], relations.delta[usable]
+    attempts = list(attempts)
+    old_all = np.array([stamp_s(a.old_stamp_ns) for a in attempts])
+    new_all = np.array([stamp_s(a.new_stamp_ns) for a in attempts])
+    at_old, _ = match_stamps(ekf_stamps_s, old_all, max_gap_s)
+    at_new, _ = match_stamps(ekf_stamps_s, new_all, max_gap_s)
     judged = []
-    for att in attempts:
-        old_s, new_s = stamp_s(att.old_stamp_ns), stamp_s(att.new_stamp_ns)
-        (io,), _ = match_stamps(ekf_stamps_s, np.array([old_s]), max_gap_s)
-        (inew,), _ = match_stamps(ekf_stamps_s, np.array([new_s]), max_gap_s)
+    for att, old_s, new_s, io, inew in zip(attempts, old_all, new_all, at_old, at_new, strict=True):
         truth = None
         if io >= 0 and inew >= 0:
             forward = np.abs(t1 - old_s) + np.abs(t2 - new_s)
@@ -131,20 +133,19 @@ def judge(attempts: Iterable[ClosureAttempt], relations: Relations, ekf_stamps_s
 def report(judged: list[Judged]) -> str:
     """Counts per verdict (covered, right, errors), false accepts, precision and recall; then every
     covered accepted closure and every false accept."""
+    counts = summary_counts(judged)
     lines = [f"{'verdict':14s} {'tried':>6s} {'covered':>8s} {'right':>6s} {'median err m':>13s} {'max err m':>10s}"]
     for verdict in VERDICTS:
-        of = [j for j in judged if j.attempt.verdict == verdict]
-        covered = [j for j in of if j.covered]
-        errs = [math.hypot(j.error[0], j.error[1]) for j in covered]
-        lines.append(f"{verdict:14s} {len(of):6d} {len(covered):8d} {sum(j.right for j in covered):6d} "
+        errs = [math.hypot(j.error[0], j.error[1]) for j in judged if j.attempt.verdict == verdict and j.covered]
+        lines.append(f"{verdict:14s} {counts[verdict]:6d} {counts[verdict + '.covered']:8d} "
+                     f"{counts[verdict + '.right']:6d} "
                      + (f"{np.median(errs):13.3f} {max(errs):10.3f}" if errs else f"{'-':>13s} {'-':>10s}"))
     accepted = [j for j in judged if j.attempt.verdict == "accepted" and j.covered]
-    right = [j for j in judged if j.right]
-    false = [j for j in judged if j.false_accept]
-    precision = sum(j.right for j in accepted) / len(accepted) if accepted else float("nan")
-    recall = sum(j.attempt.verdict == "accepted" for j in right) / len(right) if right else float("nan")
-    lines.append(f"false accepts (accepted, error's chi2 over its own covariance > {CHI2_99:.2f}): {len(false)} "
-                 f"of {len(accepted)} covered accepted closures")
+    right = sum(counts[v + ".right"] for v in VERDICTS)
+    precision = counts["accepted.right"] / len(accepted) if accepted else float("nan")
+    recall = counts["accepted.right"] / right if right else float("nan")
+    lines.append(f"false accepts (accepted, error's chi2 over its own covariance > {CHI2_99:.2f}): "
+                 f"{counts['false_accepts']} of {len(accepted)} covered accepted closures")
     lines.append(f"precision {precision:.3f} (covered accepted closures within {RIGHT_M} m and "
                  f"{math.degrees(RIGHT_RAD):.0f} deg of the truth), recall {recall:.3f} (of the covered "
                  "attempts that were right, the share accepted)")

@@ -307,8 +307,9 @@ class ZenohBus:
         att = sample.attachment
         att_bytes = att.to_bytes() if att is not None else None
         seq, stamp_ns, producer = parse_attachment(att_bytes)
+        now_ns = time.time_ns()
         item = _Received(key, sample.payload.to_bytes(), str(sample.encoding), seq, stamp_ns, time.monotonic_ns(),
-                         time.time_ns())
+                         now_ns)
         with self._ready:
             if att_bytes is not None:
                 self._tracker.observe(producer, key.removeprefix(self._prefix), seq)
@@ -318,7 +319,7 @@ class ZenohBus:
             self._queue.append(item)
             if key == self._lead:
                 self._lead_newest_ns = stamp_ns   # the last to arrive: data time going back starts afresh
-                self._lead_live = abs(time.time_ns() - stamp_ns) <= LIVE_WITHIN_S * 1e9
+                self._lead_live = abs(now_ns - stamp_ns) <= LIVE_WITHIN_S * 1e9
             if len(self._queue) >= self._wake_at:
                 self._ready.notify()
 

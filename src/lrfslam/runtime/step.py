@@ -27,7 +27,7 @@ class Message:
     schema: str
     name: str = ""      # relative key; the only way a raw service knows what it got
     seq: int = 0
-    received_ns: int = 0   # wall clock (ns) when the bus received it, for raw services; 0: not received live
+    received_wall_ns: int = 0   # wall clock (ns) when the bus received it, for raw services; 0: not received live
 
     @classmethod
     def of(cls, out: Output) -> Message:
