@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -24,6 +25,11 @@ MODES = ("paper", "default")
 class DenoiseConfig:
     mode: str = "default"   # "paper" (literal reading) or "default" (measured improvements); presets histogram.*
     histogram: DenoiseParams = field(default_factory=DenoiseParams.default)
+
+    #: What an operator sets (docs/settings.md); ``mode`` presets the rest of ``histogram``.
+    SETTINGS: ClassVar[tuple[str, ...]] = (
+        "mode", "histogram.max_range_m", "histogram.keep_frac", "histogram.bin_deg", "histogram.period_deg",
+    )
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:

@@ -9,6 +9,7 @@ out: features       Features (robot frame, 2x2 covariance, source beam, scan seq
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -30,6 +31,12 @@ class FeatureConfig:
     corners: FeatureParams = field(default_factory=FeatureParams.default)  # both searches' knobs (key kept)
     wall_direction: bool = True  # publish the dominant wall direction mod 90° (not in the paper)
     walls: WallDirectionParams = field(default_factory=WallDirectionParams)
+
+    #: What an operator sets (docs/settings.md); ``mode`` presets the rest of ``corners``.
+    SETTINGS: ClassVar[tuple[str, ...]] = (
+        "mode", "corners.max_range_m", "corners.arm_dists_m", "corners.corner_tol_deg", "corners.jump_m",
+        "corners.nms_radius_m", "corners.range_sigma_m", "wall_direction", "walls.min_support_frac",
+    )
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:

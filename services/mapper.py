@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -39,24 +40,35 @@ from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepB
 
 log = logging.getLogger("lrfslam.mapper")
 
-#: What the mapper's local trajectory (its odometry edges, and each scan's place between keyframes) is made of.
-LOCAL_TRAJECTORIES = ("slam_motion", "slam_pose")
+#: Slam states held for their scan at most, then placed without one (a lost scan must not hold
+#: the map back: 2 s at the LMS200's 10 Hz).
+MAX_WAITING_STATES = 20
 
 
 @dataclass(frozen=True)
 class MapperConfig:
+    """The mapper stage's configuration; ``SETTINGS`` are the names an operator sets (docs/settings.md)."""
+
     loop_closure: LoopClosureParams = field(default_factory=LoopClosureParams)
-    max_waiting_states: int = 20   # slam states held for their scan at most (then placed without one)
-    # "slam_motion": the chain of the motions that moved the filter (scan-matched, else odometry);
-    # "slam_pose": the filter's poses, landmark corrections included (see docs/slam.md for the choice).
-    local_trajectory: str = "slam_motion"
     checkpoint_path: str = ""              # e.g. checkpoints/mapper.npz; empty = no checkpoints
     checkpoint_every_keyframes: int = 20   # the graph and its keyframes' points: ~2 KB a keyframe
 
+    SETTINGS: ClassVar[tuple[str, ...]] = (
+        "checkpoint_path", "checkpoint_every_keyframes",
+        *(f"loop_closure.{name}" for name in (
+            "keyframe_trans_m", "keyframe_rot_rad", "max_range_m", "min_travel_m", "candidate_radius_m",
+            "max_window_m", "min_score", "max_second_ratio", "gate_chi2", "match_cov_scale",
+            "odom_trans_sigma_per_m", "odom_rot_sigma_per_m", "odom_rot_sigma_per_rad",
+            "fold_revisits", "fold_after_keyframes", "correlative.cell_m")),
+    )
+    RETIRED: ClassVar[dict[str, str]] = {
+        "max_waiting_states": f"fixed at {MAX_WAITING_STATES} (services/mapper.py MAX_WAITING_STATES)",
+        "local_trajectory": "the local trajectory is always the chain of the slam's motions (slam_motion)",
+        "loop_closure.drift_scale": "replaced by the drift model (loop_closure.odom_*); 1 did nothing",
+        "loop_closure.interpolate": "always on: each scan is placed between its keyframes",
+    }
+
     def __post_init__(self) -> None:
-        if self.local_trajectory not in LOCAL_TRAJECTORIES:
-            raise ConfigError(f"mapper.local_trajectory must be one of {', '.join(LOCAL_TRAJECTORIES)}, "
-                              f"not {self.local_trajectory!r}")
         if self.checkpoint_every_keyframes < 1:
             raise ConfigError("mapper.checkpoint_every_keyframes must be >= 1")
 
@@ -69,7 +81,7 @@ class MapperStep(StepBase):
         self.mapper = LoopClosingMapper(cfg.loop_closure, keep_scans=False)
         # A slam state waits for its scan as features do in the slam stage (no odometry here).
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
-            wait_for_odometry=False, max_wait=cfg.max_waiting_states, scans_optional=False))
+            wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))
         self.seq = 0
         self.keyframes_seq = 0
         self.optimisations = 0
@@ -128,10 +140,10 @@ class MapperStep(StepBase):
         return outs
 
     def _local_pose(self, state: t.SlamState) -> tuple[np.ndarray, np.ndarray | None]:
-        """The state's pose on the local trajectory (``local_trajectory``), (3,), and the step the
+        """The state's pose on the local trajectory (the chain of the motions that moved the filter), (3,), and the step the
         mapper checks it against for jumps (3,): the scan-matched motion; None if there is none."""
         matched = state.motion if state.motion is not None and state.motion_matched else None
-        if self.cfg.local_trajectory == "slam_pose" or self._local is None:
+        if self._local is None:
             local, reference = state.pose, matched   # (a chain starts where the filter does)
         elif state.motion is None:
             # A slam state recorded before they carried their motion: follow the filter's pose.

@@ -10,7 +10,7 @@ out: slam/state  SlamState (pose, 3x3 covariance, the landmarks that changed, th
 Features wait for their odometry and scan (``lrfslam.algo.stream_alignment``), so the result does not
 depend on how the streams interleave; then ``lrfslam.algo.corner_slam`` moves the filter (scan-matched
 motion, else odometry), corrects the heading and adds the features. A state carries only the landmarks
-that moved (or whose spread changed) beyond ``landmark_tolerance_m`` since they were last sent, so its
+that moved (or whose spread changed) beyond ``LANDMARK_TOLERANCE_M`` since they were last sent, so its
 size does not grow with the map (``lrfslam.msgs.landmark_map``). With ``checkpoint_path`` set, the
 filter is saved atomically every ``checkpoint_every_scans`` scans and on exit, and a restart resumes.
 """
@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -39,13 +40,22 @@ from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepB
 log = logging.getLogger(__name__)
 
 
+#: A state carries a landmark that moved, or whose spread changed, more than this since it was
+#: last sent (m): below the corners' own spread, so a subscriber's map is as good as the filter's.
+LANDMARK_TOLERANCE_M = 0.005
+#: Features go ahead without newer odometry once this many scans wait for it: a stalled odometry
+#: stream must not hold the map back for long (2 s at the LMS200's 10 Hz).
+MAX_ODOM_WAIT_SCANS = 20
+
+
 @dataclass(frozen=True)
 class SlamConfig:
+    """The slam stage's configuration; ``SETTINGS`` are the names an operator sets (docs/settings.md)."""
+
     ekf: EkfParams = field(default_factory=EkfParams)
     use_backward_features: bool = True   # jump edges as (tentative, viewpoint-checked) landmarks
     use_wall_direction: bool = True      # heading from the walls' direction mod 90° (not in the paper)
     wait_for_odometry: bool = True       # false for a laser without odometry (e.g. a bare LMS200)
-    max_odom_wait_scans: int = 20        # process features without newer odometry after this many pile up
     checkpoint_path: str = ""            # e.g. checkpoints/slam.npz; empty = no checkpoints
     checkpoint_every_scans: int = 50
     scan_matching: bool = True           # predict with the scan-matched motion (not in the paper)
@@ -53,7 +63,24 @@ class SlamConfig:
     no_odometry_sigma_m: float = 0.2     # scan matching without odometry: guess "no motion" +- this per scan
     no_odometry_sigma_rad: float = 0.2
     map_period_s: float = 5.0            # the whole map on slam/map at least this often (data time)
-    landmark_tolerance_m: float = 0.005  # a state carries a landmark that moved (or whose spread changed) more
+
+    SETTINGS: ClassVar[tuple[str, ...]] = (
+        "scan_matching", "use_backward_features", "use_wall_direction", "wait_for_odometry",
+        "no_odometry_sigma_m", "no_odometry_sigma_rad", "map_period_s", "checkpoint_path", "checkpoint_every_scans",
+        "ekf.odom_trans_sigma_per_m", "ekf.odom_rot_sigma_per_rad", "ekf.odom_rot_sigma_per_m",
+        "ekf.corner_range_sigma_m", "ekf.corner_bearing_sigma_rad", "ekf.association", "ekf.gate_assoc_chi2",
+        "ekf.gate_new_chi2", "ekf.min_sightings_to_confirm", "ekf.max_landmarks",
+        "scan_match.max_point_range_m", "scan_match.free_space_check",
+    )
+    RETIRED: ClassVar[dict[str, str]] = {
+        "landmark_tolerance_m": f"fixed at {LANDMARK_TOLERANCE_M} m (services/slam.py LANDMARK_TOLERANCE_M)",
+        "max_odom_wait_scans": f"fixed at {MAX_ODOM_WAIT_SCANS} scans (services/slam.py MAX_ODOM_WAIT_SCANS)",
+        **{f"scan_match.{name}": "the tracker's search of old keyframes was removed (it corrected the drift "
+           "the landmarks correct, twice); it matches the last keyframes only"
+           for name in ("map_radius_m", "map_max_keyframes", "max_keyframes")},
+        **{f"scan_match.drift_{x}_sigma_per_m": "removed with the search of old keyframes, whose snaps it hid; "
+           "the odometry noise is ekf.odom_*" for x in ("trans", "rot")},
+    }
 
 
 class SlamStep(StepBase):
@@ -61,7 +88,7 @@ class SlamStep(StepBase):
         super().__init__()
         self.cfg = cfg
         kernels.prepare()
-        self.align = StreamAligner(AlignmentParams(cfg.wait_for_odometry, cfg.scan_matching, cfg.max_odom_wait_scans))
+        self.align = StreamAligner(AlignmentParams(cfg.wait_for_odometry, cfg.scan_matching, MAX_ODOM_WAIT_SCANS))
         motion = MotionParams(cfg.scan_matching, cfg.scan_match, cfg.no_odometry_sigma_m, cfg.no_odometry_sigma_rad)
         self.slam = CornerSlam(cfg.ekf, motion, cfg.use_backward_features, cfg.use_wall_direction, self.counts)
         self.checkpoint = Path(cfg.checkpoint_path) if cfg.checkpoint_path and not ctx.replay else None
@@ -96,7 +123,7 @@ class SlamStep(StepBase):
             # The map every subscriber holds now (not the filter's exact one: the states that
             # follow carry their changes against it).
             return t.LandmarkMap(self.last_state.stamp_ns, self.maps, self.last_state.seq, self.sent,
-                                 self.cfg.landmark_tolerance_m)
+                                 LANDMARK_TOLERANCE_M)
         return None
 
     def _process(self, a: Aligned[t.Features]) -> list[Output]:
@@ -110,7 +137,7 @@ class SlamStep(StepBase):
         ekf, lm = self.slam.ekf, self.slam.ekf.landmarks()
         self.current = t.Landmarks(lm.ids, lm.xy, lm.cov, np.where(lm.kinds == 0, t.FEATURE_FORWARD, t.FEATURE_BACKWARD),
                                    lm.sightings, lm.confirmed)
-        changed, removed = landmark_map.changes(self.sent, self.current, self.cfg.landmark_tolerance_m)
+        changed, removed = landmark_map.changes(self.sent, self.current, LANDMARK_TOLERANCE_M)
         self.sent = landmark_map.apply(self.sent, changed, removed)
         self.last_state = t.SlamState(
             f.stamp_ns, self.slam.scans, f.scan_seq, ekf.pose, ekf.pose_cov, changed, removed, False,
@@ -131,7 +158,7 @@ class SlamStep(StepBase):
         self.maps += 1
         self.map_sent_ns = self.last_state.stamp_ns
         return Output(topics.SLAM_MAP, t.LandmarkMap(self.last_state.stamp_ns, self.maps, self.last_state.seq,
-                                                     self.sent, self.cfg.landmark_tolerance_m))
+                                                     self.sent, LANDMARK_TOLERANCE_M))
 
     def _motion(self) -> np.ndarray:
         """What moved the filter to this scan, (3,); zero where nothing did (absent only in older recordings)."""

@@ -130,24 +130,17 @@ def test_a_state_waits_for_its_scan_and_one_without_a_scan_is_placed_when_a_newe
     assert [o.value.scan_seq for o in placed if o.topic is topics.MAP_POSE] == [3]
 
 
-@pytest.mark.parametrize("with_motion, local_trajectory", [(True, "slam_pose"), (False, "slam_motion")])
-def test_the_slam_poses_are_the_local_trajectory_when_asked_or_when_states_carry_no_motion(with_motion,
-                                                                                            local_trajectory):
+def test_the_slam_poses_are_the_local_trajectory_when_states_carry_no_motion():
     # States recorded before they carried their motion follow the filter's pose, jumps included.
-    frames = drifting_loop(120, with_motion)
-    step = build_step("mapper", sets=[f"local_trajectory={local_trajectory}"])
+    frames = drifting_loop(120, with_motion=False)
+    step = build_step("mapper")
     outs = []
     for scan, state, _ in frames:
         outs += step.on_message(msg(Output(topics.SCAN, scan)))
         outs += step.on_message(msg(Output(topics.SLAM_STATE, state)))
     local = np.array([o.value.local_pose for o in outs if o.topic is topics.MAP_POSE])
     np.testing.assert_allclose(local, np.array([s.pose for _, s, _ in frames]), atol=1e-6)
-    assert step.counts.get("motion_missing", 0) == (0 if with_motion else len(frames) - 1)
-
-
-def test_an_unknown_local_trajectory_is_a_config_error():
-    with pytest.raises(ConfigError, match="local_trajectory"):
-        build_step("mapper", sets=["local_trajectory=ekf"])
+    assert step.counts["motion_missing"] == len(frames) - 1
 
 
 def frame_messages(frames) -> list[list[Message]]:

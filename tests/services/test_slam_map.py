@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 from lrfslam.services import stage
+from lrfslam.services.slam import LANDMARK_TOLERANCE_M
 
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
@@ -54,8 +55,8 @@ def test_a_recording_rebuilds_the_filters_map_at_every_state(tmp_path):
         np.testing.assert_array_equal(held.ids, want.ids)
         np.testing.assert_array_equal(held.sightings, want.sightings)
         np.testing.assert_array_equal(held.confirmed, want.confirmed)
-        assert np.all(np.hypot(*(held.xy_m - want.xy_m).T) <= slam.cfg.landmark_tolerance_m)
-        assert np.all(np.abs(_sigmas(held.cov_m2) - _sigmas(want.cov_m2)) <= slam.cfg.landmark_tolerance_m)
+        assert np.all(np.hypot(*(held.xy_m - want.xy_m).T) <= LANDMARK_TOLERANCE_M)
+        assert np.all(np.abs(_sigmas(held.cov_m2) - _sigmas(want.cov_m2)) <= LANDMARK_TOLERANCE_M)
         assert value.n_landmarks == len(want)
         checked += 1
     assert checked == len(exact) >= 390 and maps >= 3

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from lrfslam.services import stage
+from lrfslam.services.slam import MAX_ODOM_WAIT_SCANS
 from test_steps import ROBOT, build, msg, run
 
 from lrfslam.algo.geometry import compose, relative
@@ -100,4 +101,4 @@ def test_scans_without_their_features_are_not_kept_forever(poor_run):
     for m in poor_run[0]:
         if m.topic is topics.SCAN:
             step.on_message(m)
-    assert step.align.scans_held == 2 * step.cfg.max_odom_wait_scans + 2
+    assert step.align.scans_held == 2 * MAX_ODOM_WAIT_SCANS + 2

@@ -10,10 +10,10 @@ gives the optimised trajectory of every scan fed (:meth:`LoopClosingMapper.traje
 Design choices
 --------------
 * **The local trajectory** is what the mapper service feeds: the chain of the
-  motions that moved the EKF (its scan-matched motion, else odometry), or the
-  EKF's poses (``services/mapper.py``, ``local_trajectory``). Both are accurate
-  over seconds; the EKF's poses also hold its landmark corrections, as jumps
-  (2.3 m at once on ACES), and a jump is not motion. So the new keyframe's
+  motions that moved the EKF (its scan-matched motion, else odometry;
+  ``services/mapper.py``), not the EKF's poses: those also hold its landmark
+  corrections, as jumps (2.3 m at once on ACES), and a jump is not motion. Older
+  recordings' states carry no motion and give the poses. So the new keyframe's
   scan is matched against the last few keyframes with the local motion as the
   guess (standing still if that fails: a jump beyond the matcher's reach), and
   where the two differ by more than ``ekf_jump_*`` the match is the edge. An

@@ -66,26 +66,17 @@ current scan is matched to the last few keyframes, merged and thinned to one
 point per ``map_cell_m`` cell. Matching to a keyframe instead of the previous
 scan stops the error from accumulating while the robot stands or creeps. The
 normals are fitted on the merged points, so a wall seen twice out of register
-is thick there and drops out instead of dragging the match.
-
-With ``map_radius_m`` > 0 the keyframes near the predicted pose are taken in
-too, old ones included, so coming back snaps the tracker onto what it saw there
-before: a loop closure of the tracker's own. Off by default: under the EKF,
-whose landmarks close the loop themselves, those snaps arrive as motion and
-correct the same drift twice (Intel relation error 0.068 m with them, 0.042 m
-without; docs/slam.md). Optionally ``drift_*_sigma_per_m`` adds a random walk
-per metre travelled to the increments' covariance, for drift the matches do not
-show (off by default; it was needed with the snaps).
+is thick there and drops out instead of dragging the match. Old keyframes near
+the predicted pose are not taken in: under the EKF, whose landmarks close the
+loop themselves, such snaps arrive as motion and correct the same drift twice
+(tried: Intel's relation error 0.068 m with them, 0.042 m without).
 
 The increments' covariances are meant to be summed by a filter as a random
 walk, which matches against keyframes are not (see ``ScanTracker._fresh_cov``):
 the match's error relative to its reference is handed out once, as a running
 maximum, and each change of reference adds the part of a keyframe's error it
-brings; a match that takes in old keyframes again (a loop, with
-``map_radius_m``) jumps by the chain's error since then, so that step carries
-the chain's covariance beyond the old keyframe's (``chain_cov``, kept with each
-keyframe). Naive chaining made the filter's pose NEES 15× overconfident at the
-start and then 2× conservative; these keep it in its band on the simulator.
+brings. Naive chaining made the filter's pose NEES 15× overconfident at the
+start and then 2× conservative; this keeps it in its band on the simulator.
 
 References
 ----------
@@ -177,7 +168,7 @@ class ScanMatchParams:
         :class:`ScanTracker` makes the current scan a keyframe once it is this
         far (m) or turned this much (rad) from the last keyframe.
     recent_keyframes : int
-        The last this many keyframes are always matched against.
+        The last this many keyframes are matched against (and kept).
     map_radius_m : float
         Keyframes whose pose is within this distance of the predicted pose are
         matched against too (m; 0 = only the recent ones).
@@ -185,14 +176,6 @@ class ScanMatchParams:
         At most this many of those, the nearest first.
     map_cell_m : float
         The keyframes' points are merged to one point per square of this side (m).
-    max_keyframes : int
-        Keyframes kept for the map search (``map_radius_m`` > 0); the oldest is forgotten
-        beyond (memory bound of a long run). Without a map search only the recent
-        ``recent_keyframes`` are kept.
-    drift_trans_sigma_per_m, drift_rot_sigma_per_m : float
-        :class:`ScanTracker` adds a random walk of this much position (m) and
-        heading (rad) error per metre travelled to every matched increment's
-        covariance: real-world drift the per-match covariance does not show.
     free_space_check : bool
         :class:`ScanTracker` leaves out of the match, and out of its keyframes, the
         points that lie where one of the last keyframes' beams passed on to farther
@@ -240,12 +223,7 @@ class ScanMatchParams:
     keyframe_trans_m: float = 0.3
     keyframe_rot_rad: float = 0.2
     recent_keyframes: int = 3
-    map_radius_m: float = 0.0
-    map_max_keyframes: int = 10
     map_cell_m: float = 0.05
-    max_keyframes: int = 20_000
-    drift_trans_sigma_per_m: float = 0.0
-    drift_rot_sigma_per_m: float = 0.0
     free_space_check: bool = True
     free_space_margin_m: float = 0.5
     free_space_margin_per_m: float = 0.1
@@ -261,8 +239,7 @@ class ScanMatchParams:
                     "max_normal_angle_rad", "map_cell_m", "free_space_bin_rad")
         require_finite(self, positive, positive=True, what="scan matching ")
         non_negative = ("normal_max_thickness", "converged_trans_m", "converged_rot_rad", "min_inlier_ratio",
-                        "min_information_ratio", "keyframe_trans_m", "keyframe_rot_rad", "map_radius_m",
-                        "drift_trans_sigma_per_m", "drift_rot_sigma_per_m", "free_space_margin_m",
+                        "min_information_ratio", "keyframe_trans_m", "keyframe_rot_rad", "free_space_margin_m",
                         "free_space_margin_per_m", "free_space_lateral_m", "free_space_bearing_rad",
                         "free_space_silent_m")
         require_finite(self, non_negative, positive=False, what="scan matching ")
@@ -270,12 +247,12 @@ class ScanMatchParams:
             raise ConfigError("need 3 <= normal_min_neighbours <= normal_neighbours")
         if self.max_iterations < 1 or self.min_points < 3:
             raise ConfigError("need max_iterations >= 1 and min_points >= 3")
-        if self.wide_gate_iterations < 0 or self.map_max_keyframes < 0:
-            raise ConfigError("wide_gate_iterations and map_max_keyframes must be >= 0")
+        if self.wide_gate_iterations < 0:
+            raise ConfigError("wide_gate_iterations must be >= 0")
         if self.free_space_keyframes < 1:
             raise ConfigError("need free_space_keyframes >= 1")
-        if self.recent_keyframes < 1 or self.max_keyframes < self.recent_keyframes:
-            raise ConfigError("need 1 <= recent_keyframes <= max_keyframes")
+        if self.recent_keyframes < 1:
+            raise ConfigError("need recent_keyframes >= 1")
 
 
 @dataclass(frozen=True, eq=False)
@@ -524,11 +501,10 @@ class TrackStep:
 class _Keyframe:
     pose: np.ndarray  # (3,) in the tracker's frame
     points_xy_m: np.ndarray  # (N, 2) the scan's points in the tracker's frame
-    cov: np.ndarray  # (3, 3) the chain's covariance of ``pose`` when it was taken
 
 
 class ScanTracker:
-    """Laser odometry: each scan matched against nearby keyframes (mutable state).
+    """Laser odometry: each scan matched against the last keyframes (mutable state).
 
     The tracker keeps its own pose chain in a frame fixed at the first scan; the
     caller only uses the increments between consecutive scans. Deterministic:
@@ -556,9 +532,6 @@ class ScanTracker:
         self._reference: ReferenceScan | None = None
         # (reference key, match covariance handed out so far, tracker's frame); see _fresh_cov.
         self._budget: tuple[tuple[int, ...], np.ndarray] | None = None
-        # Covariance of ``pose`` as the sum of the increments handed out (tracker's frame):
-        # what the caller's filter has been told, so the uncertainty a loop closure resolves.
-        self.chain_cov = np.zeros((3, 3))
         # What the last keyframes saw empty (tracker's frame), kept past the recent ones: someone
         # overtaking the robot walks on into space that keyframes from before saw empty.
         self._free: deque[FreeSpace] = deque(maxlen=params.free_space_keyframes)
@@ -590,34 +563,16 @@ class ScanTracker:
         guess = compose(self.pose, u0)
         # The odometry covariance rotated from the previous robot frame into the tracker's frame.
         rot = _rotation3(self.pose[2])
-        before = frozenset(self._active)
         free = FreeSpace.of_scan(guess, returns, p.free_space_bin_rad, p.free_space_silent_m)
         moved = self._moved(pts, free)
         pts = pts[~moved]
-        result = match(self._local_map(guess), pts, guess, self.params, rot @ q0 @ rot.T)
+        result = match(self._local_map(), pts, guess, self.params, rot @ q0 @ rot.T)
         increment = relative(self.pose, result.pose) if result.ok else u0.copy()
-        g = _pose_jacobian(self.pose, increment)
-        chain = g @ self.chain_cov @ g.T
         if result.ok:
-            cov = self._fresh_cov(result)
-            # Drift the fit cannot see (a corridor's along-track guess, real walls
-            # that are not lines), as a random walk per metre travelled.
-            dist = float(np.hypot(increment[0], increment[1]))
-            cov = cov + np.diag([self.params.drift_trans_sigma_per_m**2 * dist] * 2
-                                + [self.params.drift_rot_sigma_per_m**2 * dist])
-            anchor = self._loop_anchor(before, result.pose)
-            if anchor is not None:
-                # Back at an old keyframe: the match jumps by the chain's error since
-                # then, which the increment must carry, and the chain is as sure as there.
-                cov = cov + _psd_part(chain - anchor)
-                self.chain_cov = anchor + result.cov
-            else:
-                self.chain_cov = chain + cov
-            cov = rot.T @ cov @ rot
+            cov = rot.T @ self._fresh_cov(result) @ rot
         else:
             cov = q0.copy()
             self._budget = None
-            self.chain_cov = chain + rot @ cov @ rot.T
         self.pose = compose(self.pose, increment)
         since = relative(self.keyframes[-1].pose, self.pose)
         # After a failure the recent keyframes no longer fit this pose: start afresh from this scan.
@@ -671,20 +626,6 @@ class ScanTracker:
             (key, result.cov if self._budget is None else self._budget[1] + _psd_part(result.cov - self._budget[1]))
         return fresh
 
-    def _loop_anchor(self, before: frozenset[int], pose: np.ndarray) -> np.ndarray | None:
-        """Covariance (tracker's frame) the reference lends ``pose`` if it took in old keyframes, else None.
-
-        Old: not among the recent ones, and not in the previous reference. Of
-        those, the surest (smallest trace) anchors the match.
-        """
-        recent = len(self.keyframes) - self.params.recent_keyframes + self._dropped
-        entered = [i for i in frozenset(self._active) - before if i < recent]
-        if not entered:
-            return None
-        kf = min((self.keyframes[i - self._dropped] for i in entered), key=lambda k: float(np.trace(k.cov)))
-        jac = _pose_jacobian(kf.pose, relative(kf.pose, pose))
-        return jac @ kf.cov @ jac.T
-
     def skip(self, increment) -> None:
         """A scan that will not be matched (lost): move the pose by ``increment`` (3,), e.g. odometry's."""
         self._budget = None
@@ -694,34 +635,22 @@ class ScanTracker:
     def _add_keyframe(self, pts: np.ndarray, free: FreeSpace) -> None:
         """Keep the scan at :attr:`pose`: its points ``pts`` (N, 2; robot frame) and what it saw empty."""
         p = self.params
-        self.keyframes.append(_Keyframe(self.pose.copy(), _to_frame(pts, self.pose), self.chain_cov.copy()))
+        self.keyframes.append(_Keyframe(self.pose.copy(), _to_frame(pts, self.pose)))
         self._free.append(free)
-        # Only a map search (map_radius_m) looks past the recent keyframes; without one, keeping
-        # the rest would only grow the process by a keyframe's points per 0.3 m travelled.
-        keep = p.max_keyframes if p.map_radius_m > 0 and p.map_max_keyframes > 0 else p.recent_keyframes
-        while len(self.keyframes) > keep:
+        while len(self.keyframes) > p.recent_keyframes:
             del self.keyframes[0]
             self._dropped += 1
 
-    def _local_map(self, guess: np.ndarray) -> ReferenceScan:
-        """The recent keyframes and the nearest ones around ``guess`` as one reference (cached while unchanged)."""
-        p = self.params
-        n = len(self.keyframes)
-        chosen = set(range(max(0, n - p.recent_keyframes), n))
-        if p.map_radius_m > 0 and p.map_max_keyframes > 0:
-            xy = np.array([kf.pose[:2] for kf in self.keyframes])
-            dist = np.hypot(xy[:, 0] - guess[0], xy[:, 1] - guess[1])
-            near = np.flatnonzero(dist <= p.map_radius_m)
-            # Stable sort: equal distances keep keyframe order, so the choice is deterministic.
-            chosen |= set(near[np.argsort(dist[near], kind="stable")][: p.map_max_keyframes].tolist())
-        key = tuple(sorted(i + self._dropped for i in chosen))
+    def _local_map(self) -> ReferenceScan:
+        """The recent keyframes as one reference (cached while unchanged)."""
+        key = tuple(range(self._dropped, self._dropped + len(self.keyframes)))
         if key != self._active or self._reference is None:
             self._active = key
             # Normals from the merged points (see ReferenceScan.build): a consistency
             # filter. Thinned to one point per cell first, or k neighbours of a
             # dense stack of scans would span less than the range noise.
-            merged = np.vstack([self.keyframes[i].points_xy_m for i in sorted(chosen)])
-            self._reference = ReferenceScan.build(thin_points(merged, p.map_cell_m), p)
+            merged = np.vstack([kf.points_xy_m for kf in self.keyframes])
+            self._reference = ReferenceScan.build(thin_points(merged, self.params.map_cell_m), self.params)
         return self._reference
 
 
@@ -735,13 +664,6 @@ def _psd_part(mat: np.ndarray) -> np.ndarray:
     """The positive semi-definite part of a symmetric (3, 3) matrix (negative eigenvalues set to 0)."""
     vals, vecs = np.linalg.eigh(0.5 * (mat + mat.T))
     return (vecs * np.clip(vals, 0.0, None)) @ vecs.T
-
-
-def _pose_jacobian(pose: np.ndarray, increment: np.ndarray) -> np.ndarray:
-    """Jacobian (3, 3) of ``compose(pose, increment)`` with respect to ``pose``."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    dx, dy = increment[0], increment[1]
-    return np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
 
 
 def _rotation3(theta: float) -> np.ndarray:

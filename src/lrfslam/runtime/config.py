@@ -1,10 +1,18 @@
 """Layered configuration for frozen config dataclasses.
 
 Precedence, lowest first: dataclass defaults < the config file (TOML) < the
-environment < ``--set name=value`` flags. Unknown keys are errors, so a typo
-fails at start-up instead of silently running defaults. Nested dataclasses are
-addressed with dots (``histogram.bin_deg``), as TOML sub-tables, and in the
-environment with a double underscore (``LRFSLAM_DENOISE_HISTOGRAM__BIN_DEG``).
+environment < ``--set name=value`` flags. Nested dataclasses are addressed with
+dots (``histogram.bin_deg``), as TOML sub-tables, and in the environment with a
+double underscore (``LRFSLAM_DENOISE_HISTOGRAM__BIN_DEG``).
+
+Only a config's *settings* can be set: the dotted names in its ``SETTINGS`` class
+attribute (every leaf field when it has none). The other fields are the
+algorithms' fixed parameters: the effective configuration (``to_json``, kept in
+every recording) shows them, tests construct them, an operator does not tune
+them. Any other name is an error, so a typo fails at start-up instead of
+silently running defaults, in one line: a retired setting's line says what
+replaced it (the class's ``RETIRED``), a fixed parameter's its value, an unknown
+name the nearest setting. ``docs/settings.md`` documents every setting.
 """
 
 from __future__ import annotations
@@ -111,6 +119,37 @@ def _fields(cls: type, prefix: str = "") -> dict[str, tuple[Any, Any]]:
     return out
 
 
+def settings(cls: type) -> dict[str, Any]:
+    """Dotted name -> default of every setting of config class ``cls`` (its ``SETTINGS``, else every leaf field)."""
+    names = getattr(cls, "SETTINGS", None)
+    fields = _fields(cls)
+    missing = [n for n in names or () if n not in fields]
+    if missing:
+        raise ConfigError(f"{cls.__name__}.SETTINGS names no field: {', '.join(missing)}")
+    default = cls()
+    out = {}
+    for name in fields if names is None else names:
+        value = default
+        for part in name.split("."):
+            value = getattr(value, part)
+        out[name] = value
+    return out
+
+
+def _refuse(cls: type, name: str, layer: str) -> ConfigError:
+    """The one-line error for ``name`` (given in ``layer``), which is not a setting of ``cls``."""
+    retired = getattr(cls, "RETIRED", {})
+    fields = _fields(cls)
+    if name in retired:
+        return ConfigError(f"{name!r} ({layer}) is no longer a setting: {retired[name]}")
+    if name in fields:
+        return ConfigError(f"{name!r} ({layer}) is a fixed parameter ({fields[name][1]!r}), not a setting "
+                           "(docs/settings.md lists the settings)")
+    near = difflib.get_close_matches(name, list(settings(cls)), n=1)
+    hint = f"; did you mean {near[0]!r}?" if near else " (docs/settings.md lists the settings)"
+    return ConfigError(f"unknown setting {name!r} ({layer}){hint}")
+
+
 def _build(cls: type, values: Mapping[str, Any], prefix: str = "", base: Any = None) -> Any:
     hints = typing.get_type_hints(cls)
     kwargs = {}
@@ -147,18 +186,18 @@ def load(cls: type[C], *, table: Mapping | None = None, env: Mapping[str, str] |
     base : cls, optional
         Start from this instance instead of the dataclass defaults (e.g. a mode preset).
     """
+    public = settings(cls)
     fields = _fields(cls)
     values: dict[str, Any] = {}
     for layer, items in (("config file", _flatten(table or {}).items()), ("--set", _parse_sets(sets))):
         if layer == "--set" and env is not None and env_prefix:
-            for name in fields:
+            for name in public:
                 var = f"{env_prefix}_{name.replace('.', '__').upper()}"
                 if var in env:
                     values[name] = coerce(env[var], fields[name][0], var)
         for name, raw in items:
-            if name not in fields:
-                raise ConfigError(f"unknown setting {name!r} for {cls.__name__} in {layer}; "
-                                  f"known: {', '.join(sorted(fields))}")
+            if name not in public:
+                raise _refuse(cls, name, layer)
             values[name] = coerce(raw, fields[name][0], name)
     return _build(cls, values, base=base)
 

@@ -493,7 +493,7 @@ def parser() -> argparse.ArgumentParser:
                         "stage's: map/pose, slam/state, features or scan/filtered)")
     p.add_argument("--window", type=int, default=DEFAULT_WINDOW, metavar="N",
                    help=f"with --rate max: scans in flight at most (default {DEFAULT_WINDOW}; keep it below the "
-                        "slam's max_odom_wait_scans, 20, for results independent of timing)")
+                        "scans the slam waits for odometry, 20, for results independent of timing)")
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
                    help=f"seconds without an answer that count as a stall (default {DEFAULT_TIMEOUT_S:g})")
     p.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING, ERROR")
