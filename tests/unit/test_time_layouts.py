@@ -22,7 +22,6 @@ from mcap_protobuf.schema import build_file_descriptor_set
 from lrfslam import cli
 from lrfslam.msgs import topics
 from lrfslam.msgs.codec import CODECS
-from lrfslam.runtime import recording as rec_mod
 from lrfslam.runtime.recording import (
     OLD_LAYOUT,
     RECEIVE,
@@ -33,6 +32,7 @@ from lrfslam.runtime.recording import (
     RecordingWriter,
     read_metadata,
     read_recording,
+    reader,
     recover,
     time_layout,
 )
@@ -63,7 +63,7 @@ def write_old_layout(path: Path, messages: list[RecordedMessage], received: list
     """``messages`` as the recorder wrote them before: ``log_time`` the stamp, no ``lrfslam.times``."""
     with open(path, "wb") as f:
         w = Writer(f)
-        w.start(profile=rec_mod.PROFILE, library="lrfslam-python")
+        w.start(profile=PROFILE, library="lrfslam-python")
         for name, record in metadata.items():
             w.add_metadata(name, record)
         channels: dict[str, int] = {}
@@ -194,9 +194,9 @@ def test_receive_order_is_undone_within_the_window(draws):
     """Messages delayed by less than the window come out in stamp order, each once; ties in receive order."""
     messages = sorted((_message(topic, stamp, stamp + delay) for topic, stamp, delay in draws),
                       key=lambda m: m.log_time_ns)
-    out = list(rec_mod._by_stamp(messages))
+    out = list(reader._by_stamp(messages))
     assert sorted(out, key=id) == sorted(messages, key=id)
     assert [m.stamp_ns for m in out] == sorted(m.stamp_ns for m in messages)
     # Where log time is the stamp (older and offline files), nothing moves.
     stamped = sorted((_message(topic, stamp, stamp) for topic, stamp, _ in draws), key=lambda m: m.log_time_ns)
-    assert [id(m) for m in rec_mod._by_stamp(stamped)] == [id(m) for m in stamped]
+    assert [id(m) for m in reader._by_stamp(stamped)] == [id(m) for m in stamped]
