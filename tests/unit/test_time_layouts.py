@@ -24,6 +24,7 @@ from lrfslam.msgs import topics
 from lrfslam.msgs.codec import CODECS
 from lrfslam.runtime.recording import (
     OLD_LAYOUT,
+    PROFILE,
     RECEIVE,
     REORDER_WINDOW_NS,
     STAMP,
