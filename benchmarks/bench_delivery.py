@@ -23,7 +23,7 @@ import time
 import zenoh
 
 from lrfslam.tools.bench_live import free_port
-from lrfslam.tools.status import client_config, format_table, query_status
+from lrfslam.tools.status import client_config, query_status, status_table
 
 ROBOT = "bench"
 
@@ -76,7 +76,7 @@ def main() -> int:
                 up.kill()
                 up.wait()
     print(f"\nstatus after {args.window:.0f} s more:")
-    print(format_table(second["alive"], list(second["statuses"].values())))
+    print(status_table(second["alive"], list(second["statuses"].values())))
     print(f"\nrates over those {args.window:.0f} s (messages/s on each stage's uptime clock):")
     for name, (r_in, r_out) in sorted(rates(first, second).items()):
         print(f"  {name:10s} in {r_in:7.1f}  out {r_out:7.1f}")

@@ -16,10 +16,10 @@ import pytest
 from lrfslam.algo.geometry import relative
 from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
+from lrfslam.evaluation.recording_relations import evaluate_relations
 from lrfslam.sim.odometry import OdometryNoise
 from lrfslam.sim.simulator import SimConfig, Simulator
 from lrfslam.tools import evaluate
-from lrfslam.tools.evaluate import evaluate_relations
 from lrfslam.tools.importers import import_carmen
 from lrfslam.tools.pipeline import DEFAULT_STAGES, build_stages, run_pipeline
 

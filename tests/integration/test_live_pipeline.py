@@ -20,7 +20,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
-from lrfslam.tools.status import format_table
+from lrfslam.tools.status import status_table
 
 pytestmark = pytest.mark.integration
 
@@ -50,7 +50,7 @@ def test_pipeline_runs_end_to_end_over_zenoh(cluster, monkeypatch):
             assert c["latency.p50_us"] <= c["age.p50_us"] <= c["age.p99_us"] < 60_000_000, (name, c)
             assert c["latency.p99_us"] <= c["age.p99_us"] and "age.ahead" not in c, (name, c)
             assert re.search(rf"\b{name}\b.*\b\d+\.\d/\d+\.\d\s+\d+\.\d/\d+\.\d\b",
-                             format_table(set(), [st[name]])), name
+                             status_table(set(), [st[name]])), name
         assert "latency.p50_us" not in st["sensor"].counters
         assert 0 <= st["sensor"].counters["age.p50_us"] <= st["sensor"].counters["age.p99_us"] < 60_000_000
 
@@ -76,7 +76,7 @@ def test_pipeline_runs_end_to_end_over_zenoh(cluster, monkeypatch):
                                      "restarted features output")
         c = restarted["features"].counters
         assert "latency.p50_us" in c and not any(k.startswith("age.") for k in c), c
-        assert re.search(r"\bfeatures\b.*\b\d+\.\d/\d+\.\d\s+–\s", format_table(set(), [restarted["features"]]))
+        assert re.search(r"\bfeatures\b.*\b\d+\.\d/\d+\.\d\s+–\s", status_table(set(), [restarted["features"]]))
         before = cluster.wait_for(session, lambda a, st: out(st, "slam", "slam/state"), 5, "slam counters")
         cluster.wait_for(session, lambda a, st: out(st, "slam", "slam/state") > before + 5, 30, "slam to continue")
 

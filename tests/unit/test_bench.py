@@ -16,6 +16,7 @@ import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 
 from lrfslam import cli
+from lrfslam.io.textfile import carmen_logs, log_name
 from lrfslam.msgs import topics
 from lrfslam.runtime.pacing import CreditWindow
 from lrfslam.runtime.recording import read_recording
@@ -169,8 +170,8 @@ def test_the_play_figures_are_read_from_plays_own_summary_line():
 def test_the_head_of_a_log_holds_its_first_scans(tmp_path):
     head = bench.head_of_log(DATA / "intel_head.clf", 3, tmp_path / "head.clf")
     assert import_carmen(head, tmp_path / "head.mcap").scans == 3
-    assert [bench.log_name(p) for p in bench.find_logs(DATA)] == ["carmen_mixed", "intel_head"]
-    assert re.fullmatch(r"\w+", bench.log_name(Path("x/intel.clf.bz2")))
+    assert [log_name(p) for p in carmen_logs(DATA)] == ["carmen_mixed", "intel_head"]
+    assert re.fullmatch(r"\w+", log_name(Path("x/intel.clf.bz2")))
 
 
 def test_the_dense_update_timed_against_ours_is_the_same_update():

@@ -8,11 +8,12 @@ import sys
 import numpy as np
 import pytest
 
+from lrfslam.evaluation.recording_relations import evaluate_relations
+from lrfslam.evaluation.relations import stamp_s
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import RecordingWriter, SegmentedWriter, read_recording
 from lrfslam.tools import evaluate
-from lrfslam.tools.evaluate import evaluate_relations, stamp_s
 from lrfslam.tools.importers import stamp_ns
 
 # Unix-epoch stamps like Intel's, 0.2 s apart: where ns -> s conversion must be exact.

@@ -71,3 +71,51 @@ def test_the_checker_sees_lazy_and_package_imports():
               "def f():\n    import lrfslam.tools.up\n"
               "from lrfslam.msgs import topics\n")
     assert rooms_imported(source) == {"services", "tools", "msgs"}
+
+
+def module_name(path: Path) -> str:
+    """``lrfslam.runtime.recording.reader`` for src/lrfslam/runtime/recording/reader.py (services/ too)."""
+    parts = (path.relative_to(SRC).with_suffix("").parts if path.is_relative_to(SRC)
+             else ("services", path.stem))
+    return ".".join(("lrfslam", *parts)).removesuffix(".__init__")
+
+
+def module_imports(source: str, known: set[str]) -> set[str]:
+    """The modules of ``known`` that ``source`` imports at run time (not for type checking only),
+    a name imported from a module counted as it."""
+    tree = ast.parse(source)
+    typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If)
+                   and isinstance(block.test, ast.Name) and block.test.id == "TYPE_CHECKING"
+                   for n in ast.walk(block)}
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+    return found & known
+
+
+def test_no_module_imports_itself_back_through_others():
+    """No import cycle: a cycle (eval_logs <-> evaluate once) means two modules share one idea.
+    A package's own ``__init__`` re-exporting its modules is not one."""
+    paths = dict((module_name(p), p) for _, p in modules())
+    known = set(paths) | {module_name(p) for p in SRC.rglob("__init__.py")}
+    graph = {name: {m for m in module_imports(path.read_text(encoding="utf-8"), known)
+                    if m != name and not name.startswith(m + ".")}
+             for name, path in paths.items()}
+    state: dict[str, int] = {}
+
+    def visit(name: str, trail: list[str]) -> None:
+        state[name] = 1
+        for nxt in sorted(graph.get(name, ())):
+            assert state.get(nxt) != 1, f"import cycle: {' -> '.join([*trail[trail.index(nxt):], nxt])}"
+            if nxt not in state:
+                visit(nxt, [*trail, nxt])
+        state[name] = 2
+
+    for name in sorted(graph):
+        if name not in state:
+            visit(name, [name])

@@ -11,13 +11,14 @@ import pytest
 
 from lrfslam.algo.geometry import compose
 from lrfslam.errors import ConfigError
+from lrfslam.evaluation.recording_relations import evaluate_relations
+from lrfslam.evaluation.relations import stamp_s
 from lrfslam.io.carmen import CarmenReader, LaserRecord
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_metadata, read_recording
 from lrfslam.tools import importers, info
-from lrfslam.tools.evaluate import evaluate_relations, stamp_s
 from lrfslam.tools.importers import import_carmen, stamp_ns
 
 DATA = Path(__file__).resolve().parents[1] / "data"

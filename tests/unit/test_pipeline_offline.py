@@ -13,11 +13,12 @@ from lrfslam import services
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.recording import RecordingWriter, read_metadata, read_recording
 from lrfslam.runtime.runner import replay
 from lrfslam.sim import SimConfig, Simulator
 from lrfslam.tools import pipeline
-from lrfslam.tools.pipeline import build_stages, run_pipeline, stage_names, stage_sets
+from lrfslam.tools.pipeline import build_stages, run_pipeline, stage_names
 
 T0_NS = 1_000_000_000_000
 N_SCANS = 60
@@ -124,12 +125,12 @@ def test_stage_names_and_sets():
     for bad in ("sensor", "recorder", "denoise,nope", "", "slam,slam"):
         with pytest.raises(ConfigError):
             stage_names(bad)
-    assert stage_sets(["features.mode=paper", "slam.ekf.gate_assoc_chi2=4"], ("features", "slam")) == {
+    assert config_mod.by_service(["features.mode=paper", "slam.ekf.gate_assoc_chi2=4"], ("features", "slam")) == {
         "features": ["mode=paper"], "slam": ["ekf.gate_assoc_chi2=4"]}
     with pytest.raises(ConfigError):
-        stage_sets(["mode=paper"], ("features",))
+        config_mod.by_service(["mode=paper"], ("features",))
     with pytest.raises(ConfigError):
-        stage_sets(["slam.ekf.gate_assoc_chi2=4"], ("features",))
+        config_mod.by_service(["slam.ekf.gate_assoc_chi2=4"], ("features",))
 
 
 def test_cli_layers_stage_settings(sim_recording, tmp_path, monkeypatch):

@@ -374,7 +374,7 @@ _COLUMNS = (
 )
 
 
-def format_table(rows: Sequence[tuple[Sequence[str], dict[str, float]]], key_names: Sequence[str]) -> str:
+def features_table(rows: Sequence[tuple[Sequence[str], dict[str, float]]], key_names: Sequence[str]) -> str:
     """Markdown table: the key columns, then every score column."""
     head = list(key_names) + [c[0] for c in _COLUMNS]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -408,14 +408,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         for set_name, scene_list in scenes.items():
             res = evaluate(scene_list, mode_configs(), sigma_mm * 1e-3, args.seed, args.radius_m)
             rows += [((set_name, mode, f"{sigma_mm:g}"), r) for mode, r in res.items()]
-    print(format_table(rows, ("world", "mode", "σ mm")))
+    print(features_table(rows, ("world", "mode", "σ mm")))
     if not args.no_ablation:
         print("\n## Ablation at σ = 10 mm (default with one change)\n")
         rows = []
         for set_name, scene_list in scenes.items():
             res = evaluate(scene_list, ablation_configs(), 0.01, args.seed, args.radius_m)
             rows += [((set_name, name), r) for name, r in res.items()]
-        print(format_table(rows, ("world", "configuration")))
+        print(features_table(rows, ("world", "configuration")))
     return 0
 
 

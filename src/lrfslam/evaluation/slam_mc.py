@@ -48,11 +48,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.stats import chi2
 
+from lrfslam import services
 from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
 from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
 from lrfslam.evaluation.map_trajectory import KeyframeHistory, final_poses
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.chain import Chain, Stage
 from lrfslam.runtime.step import Message, Output
 from lrfslam.services import stage
@@ -141,8 +143,7 @@ class McConfig:
 
     def stage(self, name: str) -> Stage:
         """The ``name`` service configured as the runner layers it: ``stage_sets``, no file, no environment."""
-        return stage(name, sets=[item.partition(".")[2] for item in self.stage_sets
-                                 if item.partition(".")[0] == name])
+        return stage(name, sets=config_mod.by_service(self.stage_sets, services.NAMES)[name])
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,4 +1,4 @@
-"""Open a text log that may be bzip2- or gzip-compressed.
+"""Open a text log that may be bzip2- or gzip-compressed; find the CARMEN logs in a folder.
 
 Kept apart from the pure parsers (:mod:`lrfslam.io.carmen`,
 :mod:`lrfslam.evaluation.relations`), which only ever see lines of text.
@@ -10,6 +10,9 @@ import bz2
 import gzip
 from pathlib import Path
 from typing import TextIO
+
+#: How a CARMEN log file's name ends (plain or compressed).
+CARMEN_SUFFIXES = (".clf", ".clf.gz", ".clf.bz2")
 
 # Detect compression from the content, not the name: datasets get renamed.
 _BZIP2_MAGIC = b"BZh"
@@ -39,3 +42,16 @@ def open_log(path: str | Path) -> TextIO:
     if magic.startswith(_GZIP_MAGIC):
         return gzip.open(path, "rt", encoding="utf-8", errors="replace")
     return path.open("r", encoding="utf-8", errors="replace")
+
+
+def carmen_logs(folder: str | Path) -> list[Path]:
+    """Every CARMEN log file under ``folder`` (``*.clf``, ``.clf.gz``, ``.clf.bz2``, at any depth), in path order."""
+    return sorted(p for p in Path(folder).rglob("*") if p.is_file() and p.name.endswith(CARMEN_SUFFIXES))
+
+
+def log_name(path: str | Path) -> str:
+    """A CARMEN log's file name without its suffix: ``intel.clf.bz2`` -> ``intel``."""
+    name = Path(path).name
+    for suffix in CARMEN_SUFFIXES:
+        name = name.removesuffix(suffix)
+    return name

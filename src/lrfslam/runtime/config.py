@@ -242,6 +242,22 @@ def service_config(spec: Any, *, sets: typing.Iterable[str] = (), file: Mapping 
     return load(spec.config_type, base=base, **layers)
 
 
+def by_service(sets: typing.Iterable[str], names: typing.Iterable[str]) -> dict[str, list[str]]:
+    """Split ``SERVICE.NAME=VALUE`` items by service: ``{"features": ["mode=paper"], ...}``, every name a key.
+
+    The one reading of the commands that configure several services (``up``, ``pipeline``,
+    ``eval``); a service outside ``names`` or a missing prefix is a :class:`ConfigError`.
+    """
+    names = tuple(names)
+    out: dict[str, list[str]] = {n: [] for n in names}
+    for item in sets:
+        service, dot, rest = item.partition(".")
+        if not dot or service not in out:
+            raise ConfigError(f"--set {item!r}: expected SERVICE.NAME=VALUE with SERVICE one of {', '.join(names)}")
+        out[service].append(rest)
+    return out
+
+
 def _parse_sets(sets: typing.Iterable[str]) -> list[tuple[str, str]]:
     out = []
     for item in sets:

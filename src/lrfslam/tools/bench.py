@@ -61,7 +61,7 @@ import numpy as np
 
 from lrfslam.errors import ConfigError
 from lrfslam.io.carmen import LASER_MESSAGES
-from lrfslam.io.textfile import open_log
+from lrfslam.io.textfile import carmen_logs, log_name, open_log
 from lrfslam.tools import bench_cost as cost
 from lrfslam.tools import bench_live as live
 from lrfslam.tools.importers import import_carmen
@@ -76,7 +76,6 @@ STATE_WINDOW = 1000
 DEFAULT_RATES = (75.0, 150.0, 225.0, 300.0, 400.0)
 #: Processes in the order of the memory rows.
 PROCESSES = ("up", "router", "sensor", "denoise", "features", "slam", "mapper", "recorder")
-LOG_SUFFIXES = (".clf", ".clf.bz2", ".clf.gz")
 
 
 @dataclass(frozen=True)
@@ -220,18 +219,6 @@ def search_rates(rates: Sequence[float], refine: int, at: Callable[[float], live
     return tried
 
 
-def find_logs(folder: Path) -> list[Path]:
-    """Every CARMEN log under ``folder`` (``*.clf``, ``.bz2``, ``.gz``), in name order."""
-    return sorted(p for p in folder.rglob("*") if p.is_file() and p.name.endswith(LOG_SUFFIXES))
-
-
-def log_name(path: Path) -> str:
-    name = path.name
-    for suffix in LOG_SUFFIXES:
-        name = name.removesuffix(suffix)
-    return name
-
-
 def head_of_log(path: Path, scans: int, out: Path) -> Path:
     """The lines of CARMEN log ``path`` up to its ``scans``-th laser line, as ``out``."""
     seen = 0
@@ -297,7 +284,7 @@ def run(sections: Sequence[str], s: Settings, datasets: Path, progress: Callable
                 return runs[rate]
             rows += rate_rows(search_rates(s.rates, s.refine, at))
         if "logs" in sections:
-            logs = find_logs(datasets)[:s.max_logs] if datasets.is_dir() else []
+            logs = carmen_logs(datasets)[:s.max_logs] if datasets.is_dir() else []
             if not logs:
                 rows.append(cost.Row("logs, play --rate max", f"no CARMEN logs under {datasets}", float("nan"), ""))
             played, states = [], []

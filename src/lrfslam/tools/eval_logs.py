@@ -38,22 +38,22 @@ from lrfslam import services
 from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.errors import ConfigError
 from lrfslam.evaluation.laser_odometry import scan_matched_trajectory
+from lrfslam.evaluation.recording_relations import MAPPER_FINAL, evaluate_relations
 from lrfslam.evaluation.relations import (
     ErrorSummary,
     RelationStats,
     errors_by_span,
     load_relations,
+    stamp_s,
 )
-from lrfslam.io.textfile import open_log
+from lrfslam.io.textfile import carmen_logs, open_log
 from lrfslam.msgs import topics
 from lrfslam.runtime import chain
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.recording import read_recording
 from lrfslam.tools import pipeline
-from lrfslam.tools.evaluate import MAPPER_FINAL, evaluate_relations, stamp_s
 from lrfslam.tools.importers import import_carmen
 
-LOG_SUFFIXES = (".clf", ".clf.gz", ".clf.bz2")
 SCAN_MATCHING = "scan matching alone"
 
 #: Rows of the table, per log with relations: the mapper's final trajectory (every closure solved
@@ -154,17 +154,16 @@ def nis_mean_band(dof: int, n: int, level: float = 0.95) -> tuple[float, float]:
 
 
 def find_logs(root: Path) -> list[Log]:
-    """The logs under ``root`` (one per sub-folder, sorted by name)."""
-    logs = []
-    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
-        files = sorted(p for p in folder.iterdir() if p.name.endswith(LOG_SUFFIXES))
-        if not files:
-            continue
-        relations = sorted(folder.glob("*.relations*"))
-        logs.append(Log(folder.name, files[0], relations[0] if relations else None))
+    """The logs under ``root``: in each sub-folder, its first CARMEN log and relations file (sorted by name)."""
+    logs: dict[Path, Log] = {}
+    for path in carmen_logs(root):
+        folder = path.parent
+        if folder.parent == root and folder not in logs:
+            relations = sorted(folder.glob("*.relations*"))
+            logs[folder] = Log(folder.name, path, relations[0] if relations else None)
     if not logs:
         raise ConfigError(f"no CARMEN log (*.clf[.gz|.bz2]) in any folder under {root}")
-    return logs
+    return list(logs.values())
 
 
 def run_log(log: Log, work: Path, stages: list[chain.Stage], draw_map: bool = True, trial: Trial = Trial(0)) -> LogResult:

@@ -62,19 +62,6 @@ def stage_names(text: str) -> tuple[str, ...]:
     return tuple(n for n in services.NAMES if n in names)
 
 
-def stage_sets(sets: Iterable[str], names: Iterable[str]) -> dict[str, list[str]]:
-    """Split ``stage.field=value`` overrides by stage: ``{"features": ["mode=paper"], ...}``."""
-    names = tuple(names)
-    out: dict[str, list[str]] = {n: [] for n in names}
-    for item in sets:
-        stage, dot, rest = item.partition(".")
-        if not dot or stage not in out:
-            raise ConfigError(f"--set {item!r}: prefix the setting with a stage ({', '.join(names)}), "
-                              "e.g. features.mode=paper")
-        out[stage].append(rest)
-    return out
-
-
 def run_pipeline(stages: Iterable[chain.Stage], robot: str, in_path: RecordingSource, out_path: str | Path | None,
                  progress: bool = False) -> dict[str, Counter]:
     """Run ``stages`` (in pipeline order) over the recording ``in_path`` (file, folder or files); write ``out_path``.
@@ -97,7 +84,7 @@ def run_pipeline(stages: Iterable[chain.Stage], robot: str, in_path: RecordingSo
 def build_stages(names: Iterable[str], sets: Iterable[str], file: Mapping, env: Mapping[str, str]) -> list[chain.Stage]:
     """The stages ``names``, configured by :func:`~lrfslam.runtime.chain.stage` with their ``sets``."""
     names = tuple(names)
-    per_stage = stage_sets(sets, names)
+    per_stage = config_mod.by_service(sets, names)
     return [services.stage(name, sets=per_stage[name], config_file=file, env=env) for name in names]
 
 

@@ -64,7 +64,7 @@ def latency_cell(counters: dict[str, int], name: str = "latency") -> str:
     return f"{counters[f'{name}.p50_us'] / 1e3:.1f}/{counters[f'{name}.p99_us'] / 1e3:.1f}"
 
 
-def format_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
+def status_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
                  rates: dict[tuple[str, str], tuple[float, float]] | None = None) -> str:
     """One row per service. ``uptime_s`` is on the service's monotonic clock; ``dropped`` counts
     inputs it received but will not handle (``drop.*``), ``gaps``/``dups`` inputs that never reached it / came twice
@@ -158,7 +158,7 @@ def watch(session: zenoh.Session, args: argparse.Namespace, stop: threading.Even
                 rates[(s.robot, s.service)] = r
             before[(s.robot, s.service)] = s
         lines = [f"lrfslam status, every {args.interval:g} s (Ctrl-C stops): {time.strftime('%H:%M:%S')}", ""]
-        lines.append(format_table(alive, statuses, rates) if alive or statuses else "no lrfslam service answered")
+        lines.append(status_table(alive, statuses, rates) if alive or statuses else "no lrfslam service answered")
         lines += ["", *slam_lines(query_latest_states(session, args.robot, args.timeout))]
         print(("\x1b[H\x1b[2J" if clear else "\n") + "\n".join(lines), flush=True)
         stop.wait(args.interval)
@@ -227,5 +227,5 @@ def main(argv: list[str] | None = None) -> int:
         print("no lrfslam service answered")
         return 1
     else:
-        print(format_table(alive, statuses))
+        print(status_table(alive, statuses))
     return 0

@@ -395,12 +395,10 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging("up", "INFO")
 
     order = tuple(n for n in START_ORDER if n not in args.skip)
-    sets: dict[str, list[str]] = {n: [] for n in order}
-    for item in args.sets:
-        service, dot, rest = item.partition(".")
-        if not dot or service not in sets:
-            parser.error(f"--set expects SERVICE.NAME=VALUE with SERVICE in {', '.join(order)}: {item!r}")
-        sets[service].append(rest)
+    try:
+        sets = config_mod.by_service(args.sets, order)
+    except ConfigError as exc:
+        parser.error(str(exc))
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     # One folder for the run: a restarted recorder adds the next segment to it.
     recording = Path(args.recordings) / f"{stamp}_{args.robot}"
