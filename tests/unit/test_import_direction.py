@@ -101,7 +101,7 @@ def module_imports(source: str, known: set[str]) -> set[str]:
 def test_no_module_imports_itself_back_through_others():
     """No import cycle: a cycle (eval_logs <-> evaluate once) means two modules share one idea.
     A package's own ``__init__`` re-exporting its modules is not one."""
-    paths = dict((module_name(p), p) for _, p in modules())
+    paths = {module_name(p): p for _, p in modules()}
     known = set(paths) | {module_name(p) for p in SRC.rglob("__init__.py")}
     graph = {name: {m for m in module_imports(path.read_text(encoding="utf-8"), known)
                     if m != name and not name.startswith(m + ".")}
