@@ -30,7 +30,7 @@ import time
 from dataclasses import dataclass
 
 from lrfslam.errors import ConfigError, InputError, RecordingError
-from lrfslam.msgs import topics
+from lrfslam.msgs import counters, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.recording import SegmentedWriter
@@ -91,7 +91,7 @@ class RecorderStep(StepBase):
         if not self.cfg.include_health and topics.is_health(msg.name):
             return ()
         if self._blocked_until is not None:
-            self.counts["drop.unwritable"] += 1
+            self.counts[counters.DROP_UNWRITABLE] += 1
             return ()
         received = msg.received_wall_ns or time.time_ns()
         stamp = msg.stamp_ns or received   # unstamped (an older or foreign publisher): when it arrived
@@ -99,7 +99,7 @@ class RecorderStep(StepBase):
             self.writer.write(msg.name, msg.schema, msg.value, stamp, received, msg.seq)
         except RecordingError as exc:
             self._failed("write", exc)
-            self.counts["drop.unwritable"] += 1
+            self.counts[counters.DROP_UNWRITABLE] += 1
             return ()
         self.counts["messages"] += 1
         self.counts[f"topic.{msg.name}"] += 1
@@ -146,7 +146,7 @@ class RecorderStep(StepBase):
         self.counts["flushed"] = self.writer.messages_flushed
 
     def _failed(self, what: str, exc: RecordingError) -> None:
-        self.counts[f"error.{what}"] += 1
+        self.counts[f"{counters.ERROR}{what}"] += 1
         self._blocked_until = time.monotonic() + self.cfg.retry_period_s
         cause = exc.__cause__
         self._once.warning(what, str(getattr(cause, "errno", "")), "recording stopped: %s; retrying in a "

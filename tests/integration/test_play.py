@@ -29,7 +29,6 @@ from lrfslam.runtime.bus import parse_attachment
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.sequence import SequenceTracker
 from lrfslam.tools.status import query_status
-from lrfslam.viz.dashboard import total
 
 pytestmark = pytest.mark.integration
 
@@ -165,7 +164,7 @@ def test_rate_max_through_live_stages_equals_the_offline_pipeline(cluster, name,
     assert out.strip().endswith(f"{watched} answered {scans} of {scans} scans; live services dropped 0, gaps 0"), out
     for service in ("recorder", *stages):
         c = counters[service]
-        assert total(c, "drop.", "gap.", "dup.", "restart.", "error.") == 0, (service, c)
+        assert counters.total(c, "drop.", "gap.", "dup.", "restart.", "error.") == 0, (service, c)
     assert counters["denoise"]["in.scan"] == scans and counters["slam"]["out.slam/state"] == scans
     for service in (*stages, "recorder"):   # the stages' last outputs reach the recorder before it stops
         assert cluster.stop(service) == 0, service

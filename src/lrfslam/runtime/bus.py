@@ -45,7 +45,7 @@ from typing import NamedTuple
 import zenoh
 
 from lrfslam.errors import StartupError
-from lrfslam.msgs import topics
+from lrfslam.msgs import counters, topics
 from lrfslam.msgs.codec import parse_encoding
 from lrfslam.msgs.topics import Topic
 from lrfslam.runtime.decoding import LogOnce, decode_message
@@ -329,7 +329,7 @@ class ZenohBus:
         ``late.*``, ``restart.*`` counters: a copy."""
         with self._ready:
             counts = Counter({k: v for k, v in self._tracker.counts.items() if v})
-            counts.update({k: v for k, v in (("drop.queue", self._dropped), ("drop.stop", self._left_at_stop)) if v})
+            counts.update({k: v for k, v in ((counters.DROP_QUEUE, self._dropped), (counters.DROP_STOP, self._left_at_stop)) if v})
             counts.update(self._skipped)
             return counts
 
@@ -365,7 +365,7 @@ class ZenohBus:
                 newer_waits = self._lead_newest_ns is not None and self._lead_newest_ns > item.stamp_ns
                 if not (self._lead_live and newer_waits) or time.time_ns() - item.stamp_ns <= self._max_lag_ns:
                     return item
-                self._skipped[f"skip.{item.key.removeprefix(self._prefix)}"] += 1
+                self._skipped[f"{counters.SKIP}{item.key.removeprefix(self._prefix)}"] += 1
 
     def get(self, timeout_s: float) -> Message | None:
         """The next decodable input, or None after ``timeout_s`` without one."""
@@ -376,12 +376,12 @@ class ZenohBus:
         schema = parse_encoding(encoding)
         if self._raw:
             name = topics.relative(self._robot, key)
-            self._counts["in.raw"] += 1
+            self._counts[counters.IN_RAW] += 1
             return Message(None, payload, stamp_ns, schema, name, seq, received_wall_ns)
         topic = self._by_key.get(key)
         if topic is None:
             return None
-        self._counts[f"in.{topic.name}"] += 1
+        self._counts[f"{counters.IN}{topic.name}"] += 1
         return decode_message(topic, payload, schema, self._counts, self._once, key)
 
     def publish(self, out: Output) -> bytes:
@@ -403,7 +403,7 @@ class ZenohBus:
     def put(self, topic: Topic, payload: bytes, stamp_ns: int, seq: int) -> None:
         """Put ``payload`` on ``topic``'s key; ``seq`` numbers the topic's messages 1, 2, 3, … (gaps are losses)."""
         self.publisher(topic).put(payload, attachment=attachment(seq, stamp_ns, self.producer))
-        self._counts[f"out.{topic.name}"] += 1
+        self._counts[f"{counters.OUT}{topic.name}"] += 1
 
     def close(self) -> None:
         for sub in self._subscribers:

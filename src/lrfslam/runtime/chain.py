@@ -30,7 +30,7 @@ from typing import Any, Self
 from tqdm import tqdm
 
 from lrfslam.errors import InputError
-from lrfslam.msgs import topics
+from lrfslam.msgs import counters, topics
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
 from lrfslam.runtime.decoding import LogOnce, decode_message
@@ -161,7 +161,7 @@ class Chain:
         out = {}
         for lk in self._links:
             c = Counter(lk.counts)
-            c.update({f"step.{k}": v for k, v in lk.step.counts.items()})
+            c.update({f"{counters.STEP}{k}": v for k, v in lk.step.counts.items()})
             out[lk.name] = c
         return out
 
@@ -211,24 +211,24 @@ class Chain:
             out.append(item)
             if lk.raw:
                 msg = item.raw()
-                lk.counts["in.raw"] += 1
+                lk.counts[counters.IN_RAW] += 1
             elif item.msg is not None and item.msg.name in lk.wanted:
                 msg = item.msg
-                lk.counts[f"in.{msg.name}"] += 1
+                lk.counts[f"{counters.IN}{msg.name}"] += 1
             else:
                 continue
             try:
                 produced = list(lk.step.on_message(msg))
             except InputError as exc:
-                lk.counts["error.input"] += 1
-                lk.once.warning("error.input", type(exc).__name__, "%s: skipping bad input on %s: %s",
+                lk.counts[counters.ERROR_INPUT] += 1
+                lk.once.warning(counters.ERROR_INPUT, type(exc).__name__, "%s: skipping bad input on %s: %s",
                                 lk.name, msg.name, exc)
                 continue
             out += [self._item(i, o) for o in produced]
         return out
 
     def _item(self, i: int, out: Output) -> Item:
-        self._links[i].counts[f"out.{out.topic.name}"] += 1
+        self._links[i].counts[f"{counters.OUT}{out.topic.name}"] += 1
         if not self.wire:
             return Item(Message.of(out))
         payload = out.topic.codec.encode(out.value)

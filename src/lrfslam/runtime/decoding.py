@@ -13,6 +13,7 @@ from collections import Counter
 from typing import Any
 
 from lrfslam.errors import DecodeError, SchemaVersionError
+from lrfslam.msgs import counters
 from lrfslam.msgs.topics import Topic
 from lrfslam.runtime.step import Message
 
@@ -55,9 +56,9 @@ def decode_message(topic: Topic, payload: bytes, schema: str, counts: Counter, o
         value = topic.codec.decode(payload, schema)
     except DecodeError as exc:
         if isinstance(exc, SchemaVersionError) or not schema:
-            kind = "error.schema"
+            kind = counters.ERROR_SCHEMA
         else:
-            kind = "error.oversize" if len(payload) > MAX_PAYLOAD_BYTES else "error.decode"
+            kind = counters.ERROR_OVERSIZE if len(payload) > MAX_PAYLOAD_BYTES else counters.ERROR_DECODE
         counts[kind] += 1
         once.warning(kind, f"{topic.name}:{exc.schema}", "skipping a message on %s: %s", where, exc)
         return None

@@ -28,7 +28,7 @@ from typing import Any
 import zenoh
 
 from lrfslam.errors import ConfigError, InputError, LrfSlamError, StartupError
-from lrfslam.msgs import codec, topics
+from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime import health_file
@@ -221,7 +221,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             level, message = step.health()
             merged = Counter(counts)
             merged.update(bus.receive_counts())
-            merged.update({f"step.{k}": v for k, v in step.counts.items()})
+            merged.update({f"{counters.STEP}{k}": v for k, v in step.counts.items()})
             merged.update(latency.counters())
             # A gauge, not a count: inputs received and not yet handled (lrfslam play --rate max holds back on it).
             merged[BACKLOG] = bus.pending()
@@ -267,8 +267,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                         spec.name, robot, st.level, st.message, st.wall_stamp_ns, bus_cfg.health_period_s,
                         connected(session), st.pid))
                 except OSError as exc:
-                    counts["error.health_file"] += 1
-                    once.warning("error.health_file", str(exc.errno), "cannot write the health file: %s", exc)
+                    counts[counters.ERROR_HEALTH_FILE] += 1
+                    once.warning(counters.ERROR_HEALTH_FILE, str(exc.errno), "cannot write the health file: %s", exc)
 
         def handle(msg) -> None:
             last_data[0] = max(last_data[0], int(msg.stamp_ns))
@@ -278,8 +278,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                 if outs:
                     latency.add(time.monotonic_ns() - bus.received_ns)
             except InputError as exc:
-                counts["error.input"] += 1
-                once.warning("error.input", type(exc).__name__, "skipping bad input on %s: %s", msg.name, exc)
+                counts[counters.ERROR_INPUT] += 1
+                once.warning(counters.ERROR_INPUT, type(exc).__name__, "skipping bad input on %s: %s", msg.name, exc)
             if slow_s:
                 time.sleep(slow_s)
 

@@ -29,6 +29,8 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
+from lrfslam.msgs import counters
+
 #: Skipped numbers remembered per stream, so one arriving late can be taken back off the gaps.
 #: Older ones stay counted as lost.
 MISSING_WINDOW = 1024
@@ -88,7 +90,7 @@ class SequenceTracker:
             known.add(producer)
             self._streams[(producer, topic)] = _Stream(seq, seq)
             if len(known) > 1:
-                self.counts[f"restart.{topic}"] += 1
+                self.counts[f"{counters.RESTART}{topic}"] += 1
                 return RESTART
             return FIRST
         if seq == stream.high + 1:
@@ -100,13 +102,13 @@ class SequenceTracker:
             return GAP
         if seq in stream.missing:
             del stream.missing[seq]
-            self.counts[f"gap.{topic}"] -= 1
+            self.counts[f"{counters.GAP}{topic}"] -= 1
             self.counts[f"late.{topic}"] += 1
             return LATE
         if not producer and seq <= 1 < stream.high:
             # The origin again after higher numbers: without an id, the one sign of a new run.
             self._streams[(producer, topic)] = _Stream(seq, seq)
-            self.counts[f"restart.{topic}"] += 1
+            self.counts[f"{counters.RESTART}{topic}"] += 1
             return RESTART
         if seq < stream.low:
             # Sent before the first one this consumer got, arriving after it: the stream starts
@@ -115,14 +117,14 @@ class SequenceTracker:
             stream.low = seq
             self.counts[f"late.{topic}"] += 1
             return LATE
-        self.counts[f"dup.{topic}"] += 1
+        self.counts[f"{counters.DUP}{topic}"] += 1
         return DUP
 
     def _skip(self, stream: _Stream, topic: str, first: int, end: int) -> None:
         """Numbers ``first`` … ``end - 1`` were skipped."""
         if end <= first:
             return
-        self.counts[f"gap.{topic}"] += end - first
+        self.counts[f"{counters.GAP}{topic}"] += end - first
         for s in range(max(first, end - self.window), end):
             stream.missing[s] = None
         while len(stream.missing) > self.window:

@@ -34,6 +34,7 @@ import numpy as np
 import zenoh
 
 from lrfslam.errors import StartupError
+from lrfslam.msgs import counters
 from lrfslam.msgs import types as t
 from lrfslam.runtime.runner import BACKLOG
 from lrfslam.tools.status import client_config, query_status
@@ -288,8 +289,8 @@ def run_up(rate_hz: float, duration_s: float, workdir: Path, seed: int = 1) -> L
         for name, st in snap.items():
             pending.setdefault(name, []).append(int(st.counters.get(BACKLOG, 0)))
     last = sampler.snapshots[-1] if sampler.snapshots else {}
-    age = {name: (st.counters["age.p50_us"], st.counters["age.p99_us"]) for name, st in last.items()
-           if "age.p50_us" in st.counters}
+    age = {name: (st.counters[counters.AGE + "p50_us"], st.counters[counters.AGE + "p99_us"]) for name, st in last.items()
+           if counters.AGE + "p50_us" in st.counters}
     return LiveRun(rate_hz, duration_s, up.returncode, stages, published, recorded, lost, pending, age,
                    dict(sampler.peak_kb), dict(sampler.cpu_s))
 

@@ -47,7 +47,7 @@ from lrfslam.evaluation.relations import (
     stamp_s,
 )
 from lrfslam.io.textfile import carmen_logs, open_log
-from lrfslam.msgs import topics
+from lrfslam.msgs import counters, topics
 from lrfslam.runtime import chain
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.recording import read_recording
@@ -124,8 +124,8 @@ class LogResult:
     @property
     def closure_nis(self) -> tuple[float, int]:
         """Mean NIS of the loop closures that passed verification (3 if consistent), and how many."""
-        n = self.mapper_counts.get("step.closures_verified", 0)
-        return (self.mapper_counts.get("step.closure_nis_milli", 0) / 1000.0 / n if n else float("nan")), n
+        n = self.mapper_counts.get(counters.STEP + "closures_verified", 0)
+        return (self.mapper_counts.get(counters.STEP + "closure_nis_milli", 0) / 1000.0 / n if n else float("nan")), n
 
     @property
     def closure_nis_band(self) -> tuple[float, float]:
@@ -137,11 +137,11 @@ class LogResult:
     def matched_nis(self) -> tuple[float, float, int]:
         """Mean NIS of the EKF's matched observations (2 if consistent), the share inside the
         95 % bound (0.95 if consistent), and how many there were."""
-        n = self.slam_counts.get("step.matched", 0)
+        n = self.slam_counts.get(counters.STEP + "matched", 0)
         if not n:
             return float("nan"), float("nan"), 0
-        return (self.slam_counts.get("step.nis_matched_milli", 0) / 1000.0 / n,
-                self.slam_counts.get("step.nis_matched_within_95", 0) / n, n)
+        return (self.slam_counts.get(counters.STEP + "nis_matched_milli", 0) / 1000.0 / n,
+                self.slam_counts.get(counters.STEP + "nis_matched_within_95", 0) / n, n)
 
 
 def nis_mean_band(dof: int, n: int, level: float = 0.95) -> tuple[float, float]:

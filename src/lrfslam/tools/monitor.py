@@ -42,7 +42,7 @@ import zenoh
 from foxglove.websocket import Capability
 
 from lrfslam.errors import DecodeError, InputError, LrfSlamError, StartupError
-from lrfslam.msgs import codec, topics
+from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.codec import parse_encoding
 from lrfslam.runtime import health_file
@@ -197,8 +197,8 @@ class Monitor:
                 "monitor", self.bus_cfg.robot, t.HEALTH_OK, f"{self.counts['handed_on']} messages handed on",
                 time.time_ns(), self.bus_cfg.health_period_s, connected(session), os.getpid()))
         except OSError as exc:
-            self.counts["error.health_file"] += 1
-            self._once.warning("error.health_file", str(exc.errno), "cannot write the health file: %s", exc)
+            self.counts[counters.ERROR_HEALTH_FILE] += 1
+            self._once.warning(counters.ERROR_HEALTH_FILE, str(exc.errno), "cannot write the health file: %s", exc)
 
     def catch_up(self, session: zenoh.Session, timeout_s: float = 2.0) -> None:
         """The state before the first message: every service's status, then the newest of the outputs

@@ -58,7 +58,7 @@ import zenoh
 
 from lrfslam import services
 from lrfslam.errors import ConfigError, DecodeError, LrfSlamError, StartupError
-from lrfslam.msgs import codec, topics
+from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.topics import Topic
 from lrfslam.runtime.bus import BusConfig, ZenohBus, parse_attachment
@@ -77,7 +77,6 @@ from lrfslam.runtime.recording import (
 )
 from lrfslam.runtime.runner import BACKLOG, live_services, setup_logging
 from lrfslam.tools.status import client_config, query_status
-from lrfslam.viz.dashboard import total
 
 log = logging.getLogger("lrfslam.play")
 
@@ -193,8 +192,8 @@ def losses(before: Sequence[t.ServiceStatus], after: Sequence[t.ServiceStatus]) 
     out = {}
     for s in after:
         c0 = first.get((s.service, s.pid, s.host), {})
-        out[s.service] = (total(s.counters, "drop.") - total(c0, "drop."),
-                          total(s.counters, "gap.") - total(c0, "gap."))
+        out[s.service] = (counters.total(s.counters, counters.DROP) - counters.total(c0, counters.DROP),
+                          counters.total(s.counters, counters.GAP) - counters.total(c0, counters.GAP))
     return out
 
 
@@ -379,7 +378,7 @@ class Player:
             self._drain()
         finally:
             self.summary.seconds = (time.monotonic_ns() - started) / 1e9
-            if notes := {k: v for k, v in self.counts.items() if not k.startswith("out.")}:
+            if notes := {k: v for k, v in self.counts.items() if not k.startswith(counters.OUT)}:
                 log.info("also: %s", ", ".join(f"{k} {v}" for k, v in sorted(notes.items())))
         return self.summary
 

@@ -19,12 +19,11 @@ import zenoh
 
 from lrfslam import services
 from lrfslam.errors import DecodeError
-from lrfslam.msgs import codec, topics
+from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import health_file
 from lrfslam.runtime.bus import base_config
 from lrfslam.viz.dashboard import rates as status_rates
-from lrfslam.viz.dashboard import total
 
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
 
@@ -87,10 +86,10 @@ def status_table(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus],
         c = s.counters
         row = [s.robot, s.service, "yes" if (s.robot, s.service) in alive else "no",
                LEVELS.get(s.level, str(s.level)), f"{s.uptime_s:.0f}",
-               str(total(c, "in.")), str(total(c, "out.")), latency_cell(c), latency_cell(c, "age"),
-               str(total(c, "drop.")),
-               str(total(c, "gap.")), str(total(c, "dup.")), str(total(c, "restart.")),
-               str(total(c, "error.", "step.error")),
+               str(counters.total(c, counters.IN)), str(counters.total(c, counters.OUT)), latency_cell(c), latency_cell(c, "age"),
+               str(counters.total(c, counters.DROP)),
+               str(counters.total(c, counters.GAP)), str(counters.total(c, counters.DUP)), str(counters.total(c, counters.RESTART)),
+               str(counters.total(c, counters.ERROR, counters.STEP_ERROR)),
                f"{s.pid}@{s.host}"]
         if rates is not None:
             r = rates.get((s.robot, s.service))

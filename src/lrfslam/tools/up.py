@@ -47,7 +47,7 @@ from lrfslam.errors import (
     RecordingError,
     StartupError,
 )
-from lrfslam.msgs import codec, topics
+from lrfslam.msgs import codec, counters, topics
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
@@ -546,8 +546,8 @@ class LiveLine:
         """The line at monotonic time ``now_s``."""
         observer.process()
         # Without a sensor (--skip sensor), the scans played in, as the first stage took them.
-        scans = (observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0)
-                 or observer.counters("denoise").get(f"in.{topics.SCAN.name}", 0))
+        scans = (observer.counters("sensor").get(f"{counters.OUT}{topics.SCAN.name}", 0)
+                 or observer.counters("denoise").get(f"{counters.IN}{topics.SCAN.name}", 0))
         rate = (scans - self.last_scans) / (now_s - self.last_s) if now_s > self.last_s else 0.0
         self.last_s, self.last_scans = now_s, scans
         parts = [f"[{now_s - self.started_s:6.1f} s] scans {scans} ({rate:.1f}/s)"]
@@ -673,7 +673,7 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
                      f"({err['confirmed']:.0f} confirmed)")
         lines.append(f"      final pose error {err['final_xy_m'] * 100:.1f} cm, {err['final_heading_deg']:.2f} deg; "
                      f"trajectory RMSE {err['ate_rmse_m'] * 100:.1f} cm (first pose anchored)")
-    lines += recording_lines(recording, observer.counters("sensor").get(f"out.{topics.SCAN.name}", 0)
+    lines += recording_lines(recording, observer.counters("sensor").get(f"{counters.OUT}{topics.SCAN.name}", 0)
                              if "sensor" in children else None)
     lines += unrecorded_lines(observer, recording, children.get("recorder"))
     lines += restart_lines(([router] if router else []) + list(children.values()) + ([monitor] if monitor else []))

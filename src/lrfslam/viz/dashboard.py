@@ -22,6 +22,7 @@ import numpy as np
 
 from lrfslam.algo.geometry import compose, inverse, polar_to_xy
 from lrfslam.errors import ConfigError
+from lrfslam.msgs import counters as names
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
@@ -47,25 +48,20 @@ class DashboardConfig:
             raise ConfigError(f"path_step_m must be ≥ 0 and max_path_poses ≥ 2: {self}")
 
 
-def total(counters: dict[str, int], *prefixes: str) -> int:
-    """Sum of the counters whose names start with one of ``prefixes``."""
-    return sum(v for k, v in counters.items() if k.startswith(prefixes))
-
-
 def counter_figures(counters: dict[str, int]) -> dict[str, int]:
     """A service's totals: inputs, outputs (health not counted), dropped (``drop.*``), gaps (``gap.*``),
     skipped (``skip.*``: stale inputs a stage behind skipped, lrfslam/runtime/bus.py), errors;
     its latency percentiles (ms) from receiving an input to publishing its outputs, when it has inputs; and
     the age percentiles (ms) of what it published, from the scan's sensor stamp on the wall clock, when it
     reports them (lrfslam/runtime/latency.py)."""
-    figures = {"in": total(counters, "in."), "out": total(counters, "out.") - total(counters, "out.health"),
-               "dropped": total(counters, "drop."), "gaps": total(counters, "gap."), "skipped": total(counters, "skip."),
-               "errors": total(counters, "error.", "step.error")}
-    if "latency.p50_us" in counters:
-        figures |= {"latency_p50_ms": counters["latency.p50_us"] / 1e3,
-                    "latency_p99_ms": counters["latency.p99_us"] / 1e3}
-    if "age.p50_us" in counters:
-        figures |= {"age_p50_ms": counters["age.p50_us"] / 1e3, "age_p99_ms": counters["age.p99_us"] / 1e3}
+    def total(*prefixes: str) -> int:
+        return names.total(counters, *prefixes)
+
+    figures = {"in": total(names.IN), "out": total(names.OUT) - total(names.OUT_HEALTH), "dropped": total(names.DROP),
+               "gaps": total(names.GAP), "skipped": total(names.SKIP), "errors": total(names.ERROR, names.STEP_ERROR)}
+    for kind, label in ((names.LATENCY, "latency"), (names.AGE, "age")):
+        if kind + "p50_us" in counters:
+            figures |= {f"{label}_p50_ms": counters[kind + "p50_us"] / 1e3, f"{label}_p99_ms": counters[kind + "p99_us"] / 1e3}
     return figures
 
 
