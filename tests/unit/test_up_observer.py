@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from lrfslam.services.sensor import SensorConfig, SimSource
 
 from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.evaluation.truth import MAX_PENDING_TRUTH
 from lrfslam.msgs import codec
 from lrfslam.msgs import types as t
 from lrfslam.tools import up
@@ -57,10 +58,10 @@ def test_running_errors_equal_matching_everything_at_the_end(seed, lost):
 def test_truth_without_states_is_bounded():
     """A dead or stalled slam: truth keeps coming and nothing matches it."""
     obs = up.Observer()
-    for i in range(up.MAX_PENDING_TRUTH * 3):
+    for i in range(MAX_PENDING_TRUTH * 3):
         obs.add_truth(i + 1, 10**15 + i, np.zeros(3))
-    assert len(obs.truth) == up.MAX_PENDING_TRUTH
-    assert len(obs.published.ranges) == 1 and len(obs.published) == up.MAX_PENDING_TRUTH * 3
+    assert len(obs.errors.pending) == MAX_PENDING_TRUTH
+    assert len(obs.published.ranges) == 1 and len(obs.published) == MAX_PENDING_TRUTH * 3
 
 
 def test_truth_is_released_as_states_come():
@@ -69,7 +70,7 @@ def test_truth_is_released_as_states_come():
         obs.add_truth(i + 1, 10**15 + i, np.zeros(3))
         if i % 3 == 0:   # two of three states lost
             obs.add_state(state(10**15 + i, i + 1, np.zeros(3)))
-        assert len(obs.truth) <= 3
+        assert len(obs.errors.pending) <= 3
 
 
 @given(st.lists(st.integers(0, 300), max_size=200))

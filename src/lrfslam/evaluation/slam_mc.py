@@ -52,6 +52,7 @@ from lrfslam import services
 from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
 from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
 from lrfslam.evaluation.map_trajectory import KeyframeHistory, final_poses
+from lrfslam.evaluation.truth import ate_rmse
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
@@ -213,11 +214,6 @@ def pose_nees(true_poses: np.ndarray, est_poses: np.ndarray, covs: np.ndarray) -
     err = true_poses - est_poses
     err[:, 2] = wrap_angle(err[:, 2])
     return np.einsum("ti,ti->t", err, np.linalg.solve(covs, err[..., None])[..., 0])
-
-
-def ate_rmse(true_poses: np.ndarray, est_poses: np.ndarray) -> float:
-    """Absolute trajectory error of the positions, RMSE in metres (no alignment)."""
-    return float(np.sqrt(np.mean(np.sum((true_poses[:, :2] - est_poses[:, :2]) ** 2, axis=1))))
 
 
 def nees_band(n_runs: int, dof: int, prob: float = 0.95) -> tuple[float, float]:

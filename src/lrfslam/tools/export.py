@@ -40,6 +40,7 @@ from lrfslam.algo.occupancy_grid import (
     build_grid,
 )
 from lrfslam.errors import DecodeError, MissingExtraError, RecordingError
+from lrfslam.evaluation import truth as trajectory_error
 from lrfslam.evaluation.map_trajectory import FinalTrajectoryBuilder
 from lrfslam.extras import require
 from lrfslam.msgs import topics
@@ -180,9 +181,7 @@ def _anchor(stamps_ns: np.ndarray, poses: np.ndarray, others: dict) -> np.ndarra
     """Transform from the frame of ``poses`` to that of ``others`` (stamp -> pose), by the first stamp both have."""
     index = {int(s): i for i, s in enumerate(stamps_ns)}
     first = next((s for s in sorted(others) if s in index), None)
-    if first is None:
-        return None
-    return compose(others[first], inverse(poses[index[first]]))
+    return None if first is None else trajectory_error.anchor(others[first], poses[index[first]])
 
 
 def _in_frame(stamps_ns: np.ndarray, poses: np.ndarray, others: dict) -> np.ndarray | None:
@@ -191,16 +190,6 @@ def _in_frame(stamps_ns: np.ndarray, poses: np.ndarray, others: dict) -> np.ndar
     if anchor is None:
         return None
     return np.array([relative(anchor, others[s]) for s in sorted(others)])
-
-
-def _rmse(stamps_ns: np.ndarray, poses: np.ndarray, ref_stamps: list[int], ref: np.ndarray) -> float | None:
-    """Position RMSE (m) of ``poses`` against ``ref`` at the stamps both have; None when none."""
-    index = {int(s): i for i, s in enumerate(stamps_ns)}
-    pairs = [(index[s], k) for k, s in enumerate(ref_stamps) if s in index]
-    if not pairs:
-        return None
-    i, k = np.array(pairs).T
-    return float(np.sqrt(np.mean(np.sum((poses[i, :2] - ref[k, :2]) ** 2, axis=1))))
 
 
 def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit: bool = False) -> Scene:
@@ -265,14 +254,14 @@ def _figures(sc: Scene, data: dict) -> dict:
            "landmarks": int(sc.landmark_xy.shape[0]), "confirmed_landmarks": int(sc.landmark_confirmed.sum()),
            "trajectory": sc.trajectory_label}
     if sc.truth is not None:
-        fig["rmse_vs_truth_m"] = _rmse(sc.stamps_ns, sc.estimate, truth_stamps, sc.truth)
+        fig["rmse_vs_truth_m"] = trajectory_error.matched_ate_rmse(sc.stamps_ns, sc.estimate, truth_stamps, sc.truth)
         if sc.odometry is not None:
             odom_stamps = sorted(data["odom"])
             odom_at = {s: sc.odometry[k] for k, s in enumerate(odom_stamps)}
             common = [s for s in truth_stamps if s in odom_at]
             if common:
-                fig["odometry_rmse_vs_truth_m"] = _rmse(np.array(common), np.array([odom_at[s] for s in common]),
-                                                        truth_stamps, sc.truth)
+                fig["odometry_rmse_vs_truth_m"] = trajectory_error.matched_ate_rmse(
+                    np.array(common), np.array([odom_at[s] for s in common]), truth_stamps, sc.truth)
     if sc.grid is not None:
         tri = trinary(sc.grid)
         h, w = sc.grid.shape

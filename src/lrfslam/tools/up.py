@@ -31,7 +31,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections import Counter, OrderedDict, deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,7 +39,6 @@ import numpy as np
 import zenoh
 
 from lrfslam import services
-from lrfslam.algo.geometry import compose, inverse, wrap_angle
 from lrfslam.errors import (
     ConfigError,
     DecodeError,
@@ -47,6 +46,7 @@ from lrfslam.errors import (
     RecordingError,
     StartupError,
 )
+from lrfslam.evaluation.truth import RunningTruthError
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import parse_attachment
@@ -67,9 +67,6 @@ START_TIMEOUT_S = 30.0
 OPTIONAL = ("mapper", "sensor")
 #: How often the supervisor looks for dead children, s (a restart is that much late at most).
 POLL_S = 0.05
-#: Ground truth waiting for its SLAM state, at most (over two minutes at 75 Hz): a stalled or
-#: dead slam cannot make ``up`` grow without bound.
-MAX_PENDING_TRUTH = 10_000
 #: Messages heard but not yet looked at by the supervisor's loop, at most.
 MAX_INBOX = 100_000
 #: The checkpoint files ``up`` gives the stages that keep state, unless one is configured: in the
@@ -174,15 +171,14 @@ class Observer:
 
     Zenoh's callbacks only queue what arrives; :meth:`process` (the supervisor's loop)
     decodes it and matches each SLAM state to the ground truth of its stamp as it
-    comes, keeping running error sums, so memory stays bounded however long ``up`` runs:
-    truth waits for its state (at most ``MAX_PENDING_TRUTH`` of it), a state is kept
-    only until the next. ``health`` holds the last health of every run of a service (keyed by
+    comes (``errors``, :class:`~lrfslam.evaluation.truth.RunningTruthError`), so memory
+    stays bounded however long ``up`` runs; a state is kept only until the next. ``health`` holds the last health of every run of a service (keyed by
     service and the producer id of its process), so the summary adds up a restarted service's runs.
     """
 
     def __init__(self) -> None:
         self._inbox: deque = deque(maxlen=MAX_INBOX)
-        self.truth: OrderedDict[int, np.ndarray] = OrderedDict()   # stamp ns -> true pose, awaiting its state
+        self.errors = RunningTruthError()
         self.published = SeqRanges()          # sequence numbers of the truth heard (one per scan published)
         self.first_truth: tuple[int, int] | None = None   # (seq, stamp ns)
         self.last_truth_stamp = 0
@@ -191,10 +187,6 @@ class Observer:
         self.health: dict[tuple[str, bytes], bytes] = {}   # (service, producer id) -> last health
         self.alive_events: deque = deque(maxlen=MAX_INBOX)   # (service, present, monotonic s)
         self.lock = threading.Lock()
-        self._anchor: np.ndarray | None = None
-        self.matched = 0
-        self.sum_sq_m2 = 0.0
-        self.final: tuple[float, float] = (0.0, 0.0)   # xy m, heading rad of the last matched state
 
     # -- Zenoh callbacks: queue only
     def on_truth(self, sample: zenoh.Sample) -> None:
@@ -248,27 +240,12 @@ class Observer:
             self.first_truth = (seq, stamp_ns)
         self.published.add(seq)
         self.last_truth_stamp = max(self.last_truth_stamp, stamp_ns)
-        self.truth[stamp_ns] = np.asarray(pose, dtype=float)
-        while len(self.truth) > MAX_PENDING_TRUTH:
-            self.truth.popitem(last=False)
+        self.errors.add_truth(stamp_ns, pose)
 
     def add_state(self, data: bytes) -> None:
         state = codec.SLAM_STATE.decode(data)
         self.last_state, self.last_state_stamp = data, state.stamp_ns
-        # States come in stamp order: truth older than this one will never be matched (its state was lost).
-        while self.truth and next(iter(self.truth)) < state.stamp_ns:
-            self.truth.popitem(last=False)
-        true = self.truth.pop(state.stamp_ns, None)
-        if true is None:
-            return
-        if self._anchor is None:
-            # SLAM's map frame is its first pose; express its estimates in the world frame.
-            self._anchor = compose(true, inverse(state.pose))
-        est = compose(self._anchor, state.pose)
-        d = float(np.hypot(*(est[:2] - true[:2])))
-        self.matched += 1
-        self.sum_sq_m2 += d * d
-        self.final = (d, abs(wrap_angle(est[2] - true[2])))
+        self.errors.add_estimate(state.stamp_ns, state.pose)
 
     def epoch_ns(self, rate_hz: float) -> int | None:
         """Wall-clock time of the simulated run's first frame (a restarted sensor continues from it), if known."""
@@ -557,8 +534,8 @@ class LiveLine:
                 parts.append(f"landmarks {state.n_landmarks} ({state.n_confirmed} confirmed)")
             except DecodeError:
                 pass
-        if observer.matched:
-            parts.append(f"pose error {observer.final[0] * 100:.1f} cm, {np.degrees(observer.final[1]):.2f} deg")
+        if (errors := observer.errors).matched:
+            parts.append(f"pose error {errors.final[0] * 100:.1f} cm, {np.degrees(errors.final[1]):.2f} deg")
         return "  ".join(parts)
 
 
@@ -634,14 +611,15 @@ def _drain(observer: Observer, timeout_s: float) -> None:
 
 def pose_errors(observer: Observer) -> dict[str, float] | None:
     """Final-pose and trajectory errors of SLAM against truth, both anchored at SLAM's first pose."""
-    if not observer.matched:
+    errors = observer.errors
+    if not errors.matched:
         return None
     last = codec.SLAM_STATE.decode(observer.last_state)
     return {
-        "scans": float(observer.matched),
-        "final_xy_m": observer.final[0],
-        "final_heading_deg": float(np.degrees(observer.final[1])),
-        "ate_rmse_m": float(np.sqrt(observer.sum_sq_m2 / observer.matched)),
+        "scans": float(errors.matched),
+        "final_xy_m": errors.final[0],
+        "final_heading_deg": float(np.degrees(errors.final[1])),
+        "ate_rmse_m": errors.ate_rmse_m,
         "landmarks": float(last.n_landmarks),
         "confirmed": float(last.n_confirmed),
     }
