@@ -78,8 +78,7 @@ def test_a_static_world_seen_from_two_poses_has_no_moved_point(x, y, heading, dx
 @pytest.mark.parametrize("check", [True, False])
 def test_people_walking_in_the_corridors_do_not_drag_the_tracked_motion(check):
     # The first 400 scans (40 s) of the simulated building with people, run 1: a person walks
-    # towards the robot down a corridor from about scan 137 (docs/slam.md, "Worlds that break
-    # the filter"). The tracker alone, chained, against the truth.
+    # towards the robot down a corridor from about scan 137 (docs/slam.md, "On the simulator").. The tracker alone, chained, against the truth.
     sim = Simulator(SimConfig(world_name="large_building_people", seed=1))
     tracker = ScanTracker(ScanMatchParams(free_space_check=check))
     est, errors, moved = None, [], 0

@@ -3,8 +3,8 @@
 A static world never puts a return where an earlier beam passed on to a farther
 one. A person walking towards the robot does, in every scan: matched as if it
 stood still, it drags the estimate along a corridor at walking speed (the
-simulator's ``large_building_people``; docs/slam.md, "Worlds that break the
-filter"). :class:`FreeSpace` keeps what one scan saw as empty, the nearest
+simulator's ``large_building_people``; docs/slam.md, "On the
+simulator"). :class:`FreeSpace` keeps what one scan saw as empty, the nearest
 return in each bearing bin, and :meth:`FreeSpace.contains` names the points of
 another scan that lie well inside it.
 

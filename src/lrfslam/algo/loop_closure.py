@@ -35,7 +35,7 @@ Design choices
   loop or right after a closure, growing with the square of the loop past the onset;
   the optimisation does not. It replaced a constant factor (window and gate on 9 × the
   covariance), which was three times too wide for short loops and
-  still overconfident for long ones (docs/slam.md, "Every log, one configuration").
+  still overconfident for long ones (docs/slam.md, "The mapper").
   (Loose edges, 2.5 cm and 0.9° per half metre, with no model: Intel 0.028 m relation
   error against 0.022 m, ACES 0.051 m either way.)
 * **Search window from the graph.** A candidate is an old keyframe (at least

@@ -34,7 +34,7 @@ Design choices
   return where an earlier beam went on to a farther one, so :class:`ScanTracker` leaves out the
   points that lie where one of its last keyframes saw through, and drops from its recent
   keyframes the points the current scan sees through (:mod:`lrfslam.algo.free_space`;
-  docs/slam.md, "People: leaving out what moved").
+  docs/slam.md, "On the simulator").
 * **Degenerate geometry.** In a featureless corridor the motion along it leaves
   every residual unchanged: the information matrix (rotation scaled to metres of
   arc at the rms range, divided by the total weight) has a near-zero eigenvalue.
