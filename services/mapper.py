@@ -119,7 +119,7 @@ class MapperStep(StepBase):
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
         local, reference = self._local_pose(state)
-        pose = self.mapper.add_scan(state.stamp_ns, local, points, reference)
+        pose = self.mapper.add_scan(state.stamp_ns, local, points, reference, online_pose=state.pose)
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats
         verified, nis_sum = self.mapper.closure_nis

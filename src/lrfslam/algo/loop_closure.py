@@ -45,6 +45,16 @@ Design choices
   loop without a closure the window is metres wide, right after one it is small.
   The search is only worth it if the candidate's map can overlap the query
   anywhere in the window (``candidate_radius_m``).
+* **Where the online estimate puts it.** The EKF closes loops of its own when it
+  re-observes old landmarks; the local trajectory, a chain of motions, never does,
+  so after a long loop (MIT Killian's, 2 km) the graph may hold the robot tens of
+  metres from where it is, beyond any window. Each scan therefore also brings the
+  online estimator's pose (``add_scan(online_pose=...)``, the slam stage's). After
+  the candidates near the new keyframe in the graph, up to ``max_candidates`` more
+  are taken near it in the online estimate (apart from those: other places), and
+  searched around the online relative pose, with the window and every check of the
+  others: the gate stays against the graph's own prediction, drift model included.
+  The online poses only say where to look; a closure is still the scans' match.
 * **Submaps.** The candidate and its ``submap_keyframes`` neighbours on each
   side, placed by their graph poses in the candidate's frame, make the map
   (likelihood grid, :mod:`lrfslam.algo.correlative_match`); the new keyframe
@@ -366,6 +376,7 @@ class _Keyframe:
     stamp_ns: int  # that scan's stamp
     ordinal: int  # keyframes made before it (its graph node, until keyframes are retired)
     revisit: bool = False  # it closed a loop into an older part of the map
+    online_pose: np.ndarray | None = None  # (3,) the online estimator's pose of it, in its own frame
 
 
 @dataclass(frozen=True, eq=False)
@@ -475,7 +486,7 @@ class LoopClosingMapper:
         """Keyframes in the graph (made, less the retired)."""
         return len(self._keyframes)
 
-    def add_scan(self, stamp_ns: int, local_pose, points_xy_m, reference_step=None) -> np.ndarray:
+    def add_scan(self, stamp_ns: int, local_pose, points_xy_m, reference_step=None, online_pose=None) -> np.ndarray:
         """Take one scan; returns its corrected pose (3,), as known now.
 
         Parameters
@@ -491,14 +502,20 @@ class LoopClosingMapper:
             (dx m, dy m, dtheta rad), if it was: an odometry edge whose every step
             has one is checked against their chain (``ekf_jump_*``), the others
             against the keyframes' scans matched.
+        online_pose : array_like, shape (3,), optional
+            The online estimator's pose of this scan (the EKF's, in its own map frame): the
+            closure search also looks where it puts the robot (module notes).
         """
         pose = np.asarray(local_pose, dtype=float)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             raise InputError("local_pose must be (3,) and finite")
         p = self.params
         stamp_ns = int(stamp_ns)
+        online = None if online_pose is None else np.asarray(online_pose, dtype=float)
+        if online is not None and (online.shape != (3,) or not np.all(np.isfinite(online))):
+            raise InputError("online_pose must be (3,) and finite")
         if not self._keyframes:
-            self._add_keyframe(pose, points_xy_m, None, stamp_ns)
+            self._add_keyframe(pose, points_xy_m, None, stamp_ns, online)
         else:
             if self._reference is not None and reference_step is not None:
                 self._reference = compose(self._reference, np.asarray(reference_step, dtype=float))
@@ -508,7 +525,7 @@ class LoopClosingMapper:
             moved = relative(last.local_pose, pose)
             jumped = np.hypot(*(pose[:2] - self._last_local_pose[:2])) > p.max_scan_step_m
             if jumped or np.hypot(moved[0], moved[1]) >= p.keyframe_trans_m or abs(moved[2]) >= p.keyframe_rot_rad:
-                self._add_keyframe(pose, points_xy_m, moved, stamp_ns)
+                self._add_keyframe(pose, points_xy_m, moved, stamp_ns, online)
                 self._reference = np.zeros(3)
                 self._close_loops()
         self._last_local_pose = pose
@@ -620,6 +637,9 @@ class LoopClosingMapper:
             "keyframe_stamp_ns": np.array([k.stamp_ns for k in kfs], dtype=np.int64),
             "keyframe_revisit": np.array([k.revisit for k in kfs], dtype=bool),
             "keyframe_ordinal": np.array([k.ordinal for k in kfs], dtype=np.int64),
+            # NaN rows: keyframes made without an online pose.
+            "keyframe_online_pose": np.array([np.full(3, np.nan) if k.online_pose is None else k.online_pose
+                                              for k in kfs], dtype=float).reshape(-1, 3),
             "keyframes_made": np.int64(self._made),
             **_retired_arrays("retired", self._retired),
             **_retired_arrays("retired_kept", self._retired_kept),
@@ -672,6 +692,9 @@ class LoopClosingMapper:
             ordinal = np.array(arrays["keyframe_ordinal"], dtype=np.int64) if "keyframe_ordinal" in arrays \
                 else np.arange(k, dtype=np.int64)
             mapper._made = int(arrays["keyframes_made"]) if "keyframes_made" in arrays else k
+            # A snapshot from before the online poses has none.
+            online = np.array(arrays["keyframe_online_pose"], dtype=float).reshape(-1, 3) \
+                if "keyframe_online_pose" in arrays else np.full((k, 3), np.nan)
             mapper._retired = _retired_from("retired", arrays)
             mapper._retired_kept = _retired_from("retired_kept", arrays)
             # A snapshot from before revisits were folded has none queued.
@@ -680,12 +703,14 @@ class LoopClosingMapper:
             if not (counts.shape == travel.shape == edge.shape == scan_index.shape == stamps.shape == revisit.shape
                     == ordinal.shape == (k,) and np.all((queue >= 0) & (queue < k))
                     and np.all(np.diff(ordinal) > 0) and (k == 0 or 0 <= ordinal[0] and ordinal[-1] < mapper._made)
-                    and local.shape == (k, 3) and np.all(counts >= 0) and counts.sum() == points.shape[0]):
+                    and local.shape == online.shape == (k, 3) and np.all(counts >= 0)
+                    and counts.sum() == points.shape[0]):
                 raise InputError("mapper snapshot: keyframe arrays disagree with the graph")
             for i, pts in enumerate(np.split(points, np.cumsum(counts)[:-1]) if k else []):
                 mapper._keyframes.append(_Keyframe(local[i], pts, float(travel[i]), bool(edge[i]),
                                                    int(scan_index[i]), int(stamps[i]), int(ordinal[i]),
-                                                   bool(revisit[i])))
+                                                   bool(revisit[i]),
+                                                   None if np.isnan(online[i]).any() else online[i]))
             mapper._fold_queue = queue.tolist()
             mapper._scans_fed = int(arrays["scans_fed"])
             if mapper._keep_scans:
@@ -725,7 +750,8 @@ class LoopClosingMapper:
 
     # -- keyframes and odometry edges -----------------------------------------------------------
 
-    def _add_keyframe(self, local_pose: np.ndarray, points_xy_m, moved: np.ndarray | None, stamp_ns: int) -> None:
+    def _add_keyframe(self, local_pose: np.ndarray, points_xy_m, moved: np.ndarray | None, stamp_ns: int,
+                      online_pose: np.ndarray | None) -> None:
         p = self.params
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
@@ -735,7 +761,7 @@ class LoopClosingMapper:
         if moved is None:
             self.graph.add_node(local_pose)
             self._keyframes.append(_Keyframe(local_pose.copy(), pts, 0.0, True, self._scans_fed, stamp_ns,
-                                             self._made - 1))
+                                             self._made - 1, online_pose=online_pose))
             return
         prev = len(self._keyframes) - 1
         dist = float(np.hypot(moved[0], moved[1]))
@@ -747,7 +773,8 @@ class LoopClosingMapper:
         node = self.graph.add_node(compose(self.graph.poses[prev], step))
         self.graph.add_edge(prev, node, step, np.linalg.inv(cov))
         self._keyframes.append(_Keyframe(local_pose.copy(), pts, self._keyframes[-1].travel_m + dist,
-                                         step is moved, self._scans_fed, stamp_ns, self._made - 1))
+                                         step is moved, self._scans_fed, stamp_ns, self._made - 1,
+                                         online_pose=online_pose))
         self._trim(len(self._keyframes) - 1 - self._recent_keyframes)
 
     @property
@@ -826,21 +853,32 @@ class LoopClosingMapper:
         old = np.flatnonzero(older)
         if old.size == 0:
             return
-        dist = np.hypot(poses[old, 0] - poses[n, 0], poses[old, 1] - poses[n, 1])
         reach = p.max_window_m + p.candidate_radius_m
-        order = np.argsort(dist, kind="stable")
-        order = order[dist[order] <= reach]
-        chosen: list[int] = []
         ordinal = [kf.ordinal for kf in self._keyframes]
-        for k in old[order].tolist():
-            if all(abs(ordinal[k] - ordinal[c]) > 2 * p.submap_keyframes for c in chosen):
-                chosen.append(k)
-            if len(chosen) == p.max_candidates:
-                break
+        chosen: list[tuple[int, bool]] = []   # (keyframe, found by the online estimate)
+
+        def choose(near: np.ndarray, dist: np.ndarray, online: bool) -> None:
+            # Apart from every one chosen before, so their maps differ.
+            taken = 0
+            for i in np.argsort(dist, kind="stable").tolist():
+                if dist[i] > reach or taken == p.max_candidates:
+                    break
+                k = int(near[i])
+                if all(abs(ordinal[k] - ordinal[c]) > 2 * p.submap_keyframes for c, _ in chosen):
+                    chosen.append((k, online))
+                    taken += 1
+
+        choose(old, np.hypot(poses[old, 0] - poses[n, 0], poses[old, 1] - poses[n, 1]), False)
+        online_n = self._keyframes[n].online_pose
+        if online_n is not None:
+            near = old[[self._keyframes[k].online_pose is not None for k in old]]
+            if near.size:
+                xy = np.array([self._keyframes[k].online_pose[:2] for k in near])
+                choose(near, np.hypot(xy[:, 0] - online_n[0], xy[:, 1] - online_n[1]), True)
         query = None
         found: list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]] = []
-        for k in chosen:
-            window = self._window(k, n)
+        for k, online in chosen:
+            window = self._window(k, n, online)
             if window is None:
                 continue
             wide = window[2] > p.wide_window_m
@@ -905,11 +943,14 @@ class LoopClosingMapper:
         diff = relative(via_first, via_second)
         return bool(np.hypot(diff[0], diff[1]) <= p.confirm_m and abs(diff[2]) <= p.confirm_rad)
 
-    def _window(self, k: int, n: int) -> tuple[np.ndarray, np.ndarray, float, float] | None:
-        """Prediction of ``n`` in ``k``'s frame, its covariance and the search half-widths (m, rad).
+    def _window(self, k: int, n: int, online: bool = False
+                ) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray] | None:
+        """Where to search ``n`` in ``k``'s frame, with the graph's prediction and its covariance.
 
-        None when keyframe ``k`` lies farther from the prediction than the
-        window plus ``candidate_radius_m``: its map could not overlap the query.
+        Returns ``(centre, covariance, half-width m, half-width rad, prediction)``: the centre is
+        the graph's prediction, or with ``online`` the online estimator's relative pose. None when
+        keyframe ``k`` lies farther from the centre than the window plus ``candidate_radius_m``:
+        its map could not overlap the query.
         """
         p = self.params
         predicted = relative(self.graph.poses[k], self.graph.poses[n])
@@ -923,9 +964,10 @@ class LoopClosingMapper:
         sigma_th = float(np.sqrt(max(rel_cov[2, 2], 0.0)))
         half_m = float(np.clip(p.window_sigmas * sigma_xy, p.min_window_m, p.max_window_m))
         half_rad = float(np.clip(p.window_sigmas * sigma_th, p.min_window_rad, p.max_window_rad))
-        if np.hypot(predicted[0], predicted[1]) > half_m + p.candidate_radius_m:
+        centre = relative(self._keyframes[k].online_pose, self._keyframes[n].online_pose) if online else predicted
+        if np.hypot(centre[0], centre[1]) > half_m + p.candidate_radius_m:
             return None
-        return predicted, rel_cov, half_m, half_rad
+        return centre, rel_cov, half_m, half_rad, predicted
 
     def _query(self, n: int) -> np.ndarray:
         """The last ``query_keyframes`` keyframes' points in keyframe ``n``'s frame (graph poses), thinned."""
@@ -962,18 +1004,18 @@ class LoopClosingMapper:
         if len(self._submaps) > p.cached_submaps:
             self._submaps.popitem(last=False)
 
-    def _try_closure(self, k: int, n: int, query: np.ndarray, predicted: np.ndarray, rel_cov: np.ndarray,
-                     half_m: float, half_rad: float):
-        """Search keyframe ``n`` in ``k``'s submap and verify what it finds.
+    def _try_closure(self, k: int, n: int, query: np.ndarray, centre: np.ndarray, rel_cov: np.ndarray,
+                     half_m: float, half_rad: float, predicted: np.ndarray):
+        """Search keyframe ``n`` in ``k``'s submap around ``centre`` and verify what it finds.
 
-        Returns ``(k, n, measurement (3,), covariance (3, 3), innovation (3,))``
-        of a closure that passed, None if none did.
+        Returns ``(k, n, measurement (3,), covariance (3, 3), innovation (3,))`` of a closure
+        that passed — the innovation against the graph's ``predicted`` pose — None if none did.
         """
         p = self.params
         count = self._counts
         grid, reference = self._submap(k)
         count["searched"] += 1
-        found = search(grid, query, predicted, half_m, half_rad, p.min_score)
+        found = search(grid, query, centre, half_m, half_rad, p.min_score)
         if found.score < p.min_score:
             count["low_score"] += 1
             self._observe(k, n, found.pose, None, "low_score")
@@ -988,16 +1030,18 @@ class LoopClosingMapper:
             self._observe(k, n, found.pose, None, "refine_failed")
             return None
         cov = p.match_cov_scale * refined.cov
+        # Gated against the graph's own prediction, wherever the search looked: the online
+        # estimate only says where to look (in a building of look-alike corridors, a window round
+        # it gated on it alone took neighbouring doors for the place). Chi-squared with 3 dof if
+        # both covariances were right, so its mean is the closures' NIS (the consistency report).
         innovation = relative(predicted, refined.pose)
         chi2 = float(innovation @ np.linalg.solve(rel_cov + cov, innovation))
         if not chi2 <= p.gate_chi2:
             count["gated"] += 1
             self._observe(k, n, refined.pose, cov, "gated")
             return None
-        # Its NIS without the drift factor (with the drift model): chi-squared with 3 dof if the
-        # predicted and the match's covariances were both right (kept for the consistency report).
         count, total = self._closure_nis
-        self._closure_nis = (count + 1, total + float(innovation @ np.linalg.solve(rel_cov + cov, innovation)))
+        self._closure_nis = (count + 1, total + chi2)
         return k, n, refined.pose, cov, innovation
 
     def _optimise(self) -> None:
