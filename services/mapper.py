@@ -7,7 +7,9 @@ out: map/pose       MapPose (per slam state: the pose corrected by every closure
                     keyframes, and those retired from it since the last, once)
 
 The EKF with corner landmarks stays the online estimator; this stage (``lrfslam.algo.loop_closure``)
-closes the loops it cannot, from a large prior error. A slam state waits for its scan (or for a newer
+closes the loops it cannot, from a large prior error. The EKF's pose of each scan tells the closure
+search where else to look: after a long loop the EKF, having re-observed its landmarks, may know
+where the robot is when the mapper's chain of motions has drifted beyond its search window. A slam state waits for its scan (or for a newer
 scan: its own was lost), so the result does not depend on how the two streams interleave. The final
 trajectory of a recording is every slam state placed by the last ``map/keyframes``
 (``lrfslam.evaluation.map_trajectory``).

@@ -49,7 +49,6 @@ from lrfslam.runtime import config as config_mod
 DELEGATED = {"features": "lrfslam.evaluation.features", "slam": "lrfslam.evaluation.slam_mc"}
 
 
-
 def audit_closures(recording: str, relations_path: str, work: Path, sets: list[str], max_gap_s: float) -> int:
     """``lrfslam eval closures``: run the pipeline with the mapper observed; print the audit."""
     from lrfslam.evaluation import closure_audit
