@@ -24,7 +24,7 @@ import pytest
 from conftest import free_port
 
 from lrfslam import services
-from lrfslam.msgs import codec, topics
+from lrfslam.msgs import codec, counters, topics
 from lrfslam.runtime.bus import parse_attachment
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.sequence import SequenceTracker
@@ -158,14 +158,14 @@ def test_rate_max_through_live_stages_equals_the_offline_pipeline(cluster, name,
         proc = play(cluster, str(source), "--rate", "max")
         out, err = proc.communicate(timeout=600)
         assert proc.returncode == 0, (out, err)
-        counters = stage_counters(session, cluster)
+        by_service = stage_counters(session, cluster)
     scans = sum(1 for _ in read_recording(source, ["scan"]))
     watched = "map/pose" if "mapper" in stages else "slam/state"
     assert out.strip().endswith(f"{watched} answered {scans} of {scans} scans; live services dropped 0, gaps 0"), out
     for service in ("recorder", *stages):
-        c = counters[service]
+        c = by_service[service]
         assert counters.total(c, "drop.", "gap.", "dup.", "restart.", "error.") == 0, (service, c)
-    assert counters["denoise"]["in.scan"] == scans and counters["slam"]["out.slam/state"] == scans
+    assert by_service["denoise"]["in.scan"] == scans and by_service["slam"]["out.slam/state"] == scans
     for service in (*stages, "recorder"):   # the stages' last outputs reach the recorder before it stops
         assert cluster.stop(service) == 0, service
 
