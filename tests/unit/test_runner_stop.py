@@ -1,4 +1,5 @@
-"""A service whose stop hangs says where, before the engine's SIGKILL leaves only exit code 137."""
+"""A service whose stop hangs says where, before the engine's SIGKILL leaves only exit code 137;
+one whose bus does not confirm its close still exits cleanly."""
 
 from __future__ import annotations
 
@@ -9,8 +10,10 @@ import threading
 import time
 
 import pytest
+import zenoh
 
 from lrfslam.runtime import runner
+from lrfslam.runtime.bus import closing
 
 
 @pytest.fixture
@@ -49,3 +52,32 @@ def test_a_prompt_stop_prints_nothing(sigtermed, capfd):
     runner.stopped_cleanly("test")
     time.sleep(0.6)
     assert "most recent call first" not in capfd.readouterr().err
+
+
+class _CloseTimesOut:
+    """A session whose close raises as Zenoh's does when the router goes at the same moment
+    (podman-compose stops every container at once; zenoh issue #2675 is the same symptom).
+    The real timeout could not be brought about on demand here, so its error is raised as is."""
+
+    closed = False
+
+    def close(self) -> None:
+        self.closed = True
+        raise zenoh.ZError("close operation timed out! at /somewhere/close.rs:135.")
+
+
+def test_a_close_the_router_does_not_confirm_is_one_warning_not_an_exit_code(caplog):
+    session = _CloseTimesOut()
+    with closing(session) as inside:
+        assert inside is session
+    assert session.closed
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert warnings == ["the bus did not confirm the session's close (close operation timed out!); "
+                        "nothing was pending"], warnings
+
+
+def test_an_error_inside_still_closes_and_is_not_hidden():
+    session = _CloseTimesOut()
+    with pytest.raises(KeyError), closing(session):
+        raise KeyError("x")
+    assert session.closed

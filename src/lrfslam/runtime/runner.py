@@ -36,6 +36,7 @@ from lrfslam.runtime.bus import (
     BusConfig,
     ZenohBus,
     attachment,
+    closing,
     connected,
     open_session,
     zenoh_config,
@@ -195,7 +196,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
     session = open_session(zenoh_config(bus_cfg), stop, bus_cfg.connect)
     if session is None:
         return 0
-    with session:
+    with closing(session):
         if not bus_cfg.join and not wait_until_free(session, robot, spec.name, stop):
             return 0
         # Built once the bus is known to be ours: a recorder opens its segment here, a slam reads its checkpoint.

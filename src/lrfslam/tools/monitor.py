@@ -49,6 +49,7 @@ from lrfslam.runtime import health_file
 from lrfslam.runtime.bus import (
     BusConfig,
     ZenohBus,
+    closing,
     connected,
     open_session,
     parse_attachment,
@@ -156,7 +157,7 @@ class Monitor:
         session = open_session(zenoh_config(self.bus_cfg), stop, self.bus_cfg.connect)
         if session is None:
             return 0
-        with session:
+        with closing(session):
             robot = self.bus_cfg.robot
             bus = ZenohBus(session, robot, (), True, self.bus_cfg.queue_size, self.counts)
             changes: deque[tuple[str, bool]] = deque(maxlen=10_000)   # filled by Zenoh's callback thread

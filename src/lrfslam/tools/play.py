@@ -61,7 +61,7 @@ from lrfslam.errors import ConfigError, DecodeError, LrfSlamError, StartupError
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.topics import Topic
-from lrfslam.runtime.bus import BusConfig, ZenohBus, parse_attachment
+from lrfslam.runtime.bus import BusConfig, ZenohBus, closing, parse_attachment
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.pacing import (
     CreditWindow,
@@ -525,7 +525,7 @@ def main(argv: list[str] | None = None) -> int:
         stop.set()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
-    with session:
+    with closing(session):
         alive = set(live_services(session, robot))
         check_collisions(played, alive)
         watched = choose_watched(args.wait_for, played, alive)

@@ -13,7 +13,7 @@ import threading
 
 import zenoh
 
-from lrfslam.runtime.bus import base_config, listen_error
+from lrfslam.runtime.bus import base_config, closing, listen_error
 from lrfslam.runtime.runner import install_signal_handlers, setup_logging
 
 log = logging.getLogger("lrfslam.router")
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     except zenoh.ZError as exc:
         log.error("%s", listen_error(exc) or f"cannot start the router: {str(exc).split(' at /')[0]}")
         return 2
-    with session:
+    with closing(session):
         log.info("router listening on %s", ", ".join(args.listen or ["tcp/127.0.0.1:7447"]))
         stop.wait()
     log.info("router stopped")

@@ -22,7 +22,7 @@ from lrfslam.errors import DecodeError
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime import health_file
-from lrfslam.runtime.bus import base_config
+from lrfslam.runtime.bus import base_config, closing
 from lrfslam.viz.dashboard import rates as status_rates
 
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     except zenoh.ZError as exc:
         print(f"lrfslam status: cannot reach {','.join(endpoints)}: {exc}", file=sys.stderr)
         return 2
-    with session:
+    with closing(session):
         if args.watch:
             stop = threading.Event()
             for sig in (signal.SIGINT, signal.SIGTERM):

@@ -49,7 +49,7 @@ from lrfslam.errors import (
 from lrfslam.evaluation.truth import RunningTruthError
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.runtime import config as config_mod
-from lrfslam.runtime.bus import parse_attachment
+from lrfslam.runtime.bus import closing, parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
 from lrfslam.tools.info import segment_lines
@@ -415,7 +415,7 @@ def main(argv: list[str] | None = None) -> int:
         if router:
             router.stop(5)
         raise
-    with session:
+    with closing(session):
         subs = [session.declare_subscriber(topics.key(args.robot, topics.TRUTH.name), observer.on_truth),
                 session.declare_subscriber(topics.key(args.robot, topics.SLAM_STATE.name), observer.on_state),
                 session.declare_subscriber(topics.health_key(args.robot, topics.ANY), observer.on_health),
