@@ -15,6 +15,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -42,8 +43,8 @@ class SensorConfig:
     speedup: float = 1.0                # simulated seconds per wall second; 0 = as fast as possible
     range_sigma_m: float = 0.01
     mixed_pixel_prob: float = 0.3
-    odom_trans_sigma_per_m: float = 0.02
-    odom_rot_sigma_per_rad: float = 0.02
+    odom_trans_sigma_per_sqrt_m: float = 0.02   # the simulated odometry's random walks (σ·√m, σ·√rad)
+    odom_rot_sigma_per_sqrt_rad: float = 0.02
     max_scans: int = 0                  # stop producing after this many (0 = endless)
     # Wall-clock ns of the run's first frame; 0: now. A sensor restarted with its run's epoch
     # continues where the simulated robot is by now (lrfslam up passes it), skipping what it missed.
@@ -51,6 +52,10 @@ class SensorConfig:
     # -- LMS200
     device: str = ""                    # serial port, e.g. /dev/ttyUSB0 or an emulator's pty
     baud: int = 38400                   # 9600, 19200, 38400 or 500000
+
+    RETIRED: ClassVar[dict[str, str]] = {
+        old: f"renamed {old.replace('_per_', '_per_sqrt_')}: a random walk, its sigma grows with the square root "
+             "of the motion" for old in ("odom_trans_sigma_per_m", "odom_rot_sigma_per_rad")}
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -68,8 +73,8 @@ class SimSource(StepBase):
         super().__init__()
         self.cfg = cfg
         lidar = LidarModel(range_sigma_m=cfg.range_sigma_m, mixed_pixel_prob=cfg.mixed_pixel_prob)
-        odom = OdometryNoise(trans_sigma_per_m=cfg.odom_trans_sigma_per_m,
-                             rot_sigma_per_rad=cfg.odom_rot_sigma_per_rad)
+        odom = OdometryNoise(trans_sigma_per_sqrt_m=cfg.odom_trans_sigma_per_sqrt_m,
+                             rot_sigma_per_sqrt_rad=cfg.odom_rot_sigma_per_sqrt_rad)
         self.sim = Simulator(SimConfig(world_name=cfg.world, lidar=lidar, odometry=odom, speed_mps=cfg.speed_mps,
                                        rate_hz=cfg.rate_hz, seed=cfg.seed))
         self.frames = iter(self.sim)

@@ -48,6 +48,12 @@ LANDMARK_TOLERANCE_M = 0.005
 MAX_ODOM_WAIT_SCANS = 20
 
 
+#: Odometry noise settings renamed after their model (a random walk: σ·√distance, σ·√angle).
+RENAMED_ODOMETRY = {"odom_trans_sigma_per_m": "odom_trans_sigma_per_sqrt_m",
+                    "odom_rot_sigma_per_rad": "odom_rot_sigma_per_sqrt_rad",
+                    "odom_rot_sigma_per_m": "odom_rot_sigma_per_sqrt_m"}
+
+
 @dataclass(frozen=True)
 class SlamConfig:
     """The slam stage's configuration; ``SETTINGS`` are the names an operator sets (docs/settings.md)."""
@@ -67,7 +73,7 @@ class SlamConfig:
     SETTINGS: ClassVar[tuple[str, ...]] = (
         "scan_matching", "use_backward_features", "use_wall_direction", "wait_for_odometry",
         "no_odometry_sigma_m", "no_odometry_sigma_rad", "map_period_s", "checkpoint_path", "checkpoint_every_scans",
-        "ekf.odom_trans_sigma_per_m", "ekf.odom_rot_sigma_per_rad", "ekf.odom_rot_sigma_per_m",
+        "ekf.odom_trans_sigma_per_sqrt_m", "ekf.odom_rot_sigma_per_sqrt_rad", "ekf.odom_rot_sigma_per_sqrt_m",
         "ekf.corner_range_sigma_m", "ekf.corner_bearing_sigma_rad", "ekf.association", "ekf.gate_assoc_chi2",
         "ekf.gate_new_chi2", "ekf.min_sightings_to_confirm", "ekf.max_landmarks",
         "scan_match.max_point_range_m", "scan_match.free_space_check",
@@ -80,6 +86,8 @@ class SlamConfig:
            for name in ("map_radius_m", "map_max_keyframes", "max_keyframes")},
         **{f"scan_match.drift_{x}_sigma_per_m": "removed with the search of old keyframes, whose snaps it hid; "
            "the odometry noise is ekf.odom_*" for x in ("trans", "rot")},
+        **{f"ekf.{old}": f"renamed ekf.{new}: a random walk, its sigma grows with the square root of the motion"
+           for old, new in RENAMED_ODOMETRY.items()},
     }
 
 

@@ -31,7 +31,7 @@ def drifting_loop(n: int, with_motion: bool = True):
     with a jump (:data:`JUMP`, as an EKF correcting itself) every 97 frames.
     """
     cfg = SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3,
-                    odometry=OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02))
+                    odometry=OdometryNoise(trans_sigma_per_sqrt_m=0.02, rot_sigma_per_sqrt_rad=0.03, rot_sigma_per_sqrt_m=0.02))
     lidar = cfg.lidar
     out = []
     previous, jumps = None, np.zeros(3)

@@ -37,7 +37,7 @@ def position_errors(states, truth):
 
 
 # Wheel odometry five times worse than the simulator's default: 10 cm and 0.1 rad per metre / radian.
-POOR_ODOMETRY = ("odom_trans_sigma_per_m=0.1", "odom_rot_sigma_per_rad=0.1")
+POOR_ODOMETRY = ("odom_trans_sigma_per_sqrt_m=0.1", "odom_rot_sigma_per_sqrt_rad=0.1")
 
 
 @pytest.fixture(scope="module")

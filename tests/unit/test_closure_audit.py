@@ -26,7 +26,7 @@ def hallway():
     """The simulator's hallway loop, once and a third, drifting odometry fed as the EKF pose: the
     mapper's closure attempts, the truth per scan and the stamps (s)."""
     cfg = SimConfig(speed_mps=1.0, rate_hz=RATE_HZ, seed=3,
-                    odometry=OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02))
+                    odometry=OdometryNoise(trans_sigma_per_sqrt_m=0.02, rot_sigma_per_sqrt_rad=0.03, rot_sigma_per_sqrt_m=0.02))
     mapper = LoopClosingMapper()
     attempts: list[ClosureAttempt] = []
     mapper.observer = attempts.append

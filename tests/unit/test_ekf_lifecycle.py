@@ -29,7 +29,7 @@ def see(f, world_xy, pose, kind=FORWARD):
 
 def test_forward_corner_confirms_on_second_sighting_and_only_then_corrects_pose():
     # Odometry noise large enough for the 5 cm shortfall below to stay inside the gate.
-    f = EkfSlam(EkfParams(min_sightings_to_confirm=3, odom_trans_sigma_per_m=0.05), pose0_cov=POSE_COV)
+    f = EkfSlam(EkfParams(min_sightings_to_confirm=3, odom_trans_sigma_per_sqrt_m=0.05), pose0_cov=POSE_COV)
     rep = see(f, [3.0, 1.0], (0, 0, 0))
     assert rep.status[0] == ObsStatus.NEW and not f.landmarks().confirmed[0]
     f.predict([0.2, 0.0, 0.0])
@@ -204,7 +204,7 @@ def test_restore_rejects_broken_snapshots(edit):
     "kwargs",
     [
         {"association": "hungarian"},
-        {"odom_trans_sigma_per_m": -0.1},
+        {"odom_trans_sigma_per_sqrt_m": -0.1},
         {"corner_range_sigma_m": 0.0},
         {"gate_new_chi2": 5.0},
         {"backward_sigma_scale": 0.5},
@@ -236,7 +236,7 @@ def test_wall_direction_pins_the_heading_against_odometry_drift():
     # Odometry under-reports every turn by 2 %: the heading error grows without bound
     # unless the walls (at psi = 0.2 rad mod 90° in the map) are observed.
     rng = np.random.default_rng(4)
-    params = EkfParams(odom_rot_sigma_per_rad=0.05)
+    params = EkfParams(odom_rot_sigma_per_sqrt_rad=0.05)
     with_walls, without = EkfSlam(params), EkfSlam(params)
     truth = np.zeros(3)
     for _ in range(200):

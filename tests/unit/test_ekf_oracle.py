@@ -176,9 +176,9 @@ def test_predict_matches_dense_linearisation(seed):
     # Random-walk noise: wheel-scale error along the motion, the heading walk and the sideways
     # drift it integrates to (variance v d²/3, covariance v d/2 with the heading), isotropic floor.
     along, left = u[:2] / d, np.array([-u[1], u[0]]) / d
-    v = params.odom_rot_sigma_per_rad**2 * abs(u[2]) + params.odom_rot_sigma_per_m**2 * d
+    v = params.odom_rot_sigma_per_sqrt_rad**2 * abs(u[2]) + params.odom_rot_sigma_per_sqrt_m**2 * d
     q_u = np.zeros((3, 3))
-    q_u[:2, :2] = (params.odom_trans_sigma_per_m**2 * d * np.outer(along, along) + v * d**2 / 3 * np.outer(left, left)
+    q_u[:2, :2] = (params.odom_trans_sigma_per_sqrt_m**2 * d * np.outer(along, along) + v * d**2 / 3 * np.outer(left, left)
                    + 0.01**2 * np.eye(2))
     q_u[:2, 2] = q_u[2, :2] = v * d / 2 * left
     q_u[2, 2] = 0.02**2 + v
@@ -288,8 +288,8 @@ def test_first_wall_direction_initialises_psi_with_theta_cross_covariances(seed)
 def test_predict_noise_does_not_depend_on_the_step_size(length_m, n, trans_per_m, rot_per_m, rot_per_rad):
     """Random-walk odometry noise along a straight line: one step and n steps over the same
     length agree, sideways drift included (what lets a resumed filter bridge many scans at once)."""
-    params = EkfParams(odom_trans_sigma_per_m=trans_per_m, odom_rot_sigma_per_m=rot_per_m,
-                       odom_rot_sigma_per_rad=rot_per_rad, odom_trans_sigma_floor_m=0.0, odom_rot_sigma_floor_rad=0.0)
+    params = EkfParams(odom_trans_sigma_per_sqrt_m=trans_per_m, odom_rot_sigma_per_sqrt_m=rot_per_m,
+                       odom_rot_sigma_per_sqrt_rad=rot_per_rad, odom_trans_sigma_floor_m=0.0, odom_rot_sigma_floor_rad=0.0)
     one, many = EkfSlam(params), EkfSlam(params)
     one.predict([length_m, 0.0, 0.0])
     for _ in range(n):

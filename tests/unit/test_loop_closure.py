@@ -47,7 +47,7 @@ def closures_are_right(mapper: LoopClosingMapper, truth_per_scan: np.ndarray, to
 def hallway_frames():
     """Two laps of the simulator's hallway loop: per scan (stamp ns, drifting odometry pose, points), truth."""
     cfg = SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3,
-                    odometry=OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02))
+                    odometry=OdometryNoise(trans_sigma_per_sqrt_m=0.02, rot_sigma_per_sqrt_rad=0.03, rot_sigma_per_sqrt_m=0.02))
     lap_s = 62.0  # the loop is about 62 m long
     frames = list(zip(Simulator(cfg), range(int(2 * lap_s * cfg.rate_hz / cfg.speed_mps)), strict=False))
     return ([(int(f.t_s * 1e9), f.odom_pose, points(f.scan.ranges_m, f.scan.angles_rad)) for f, _ in frames],
@@ -348,7 +348,7 @@ def test_laps_of_the_same_loop_leave_the_graph_the_size_of_the_place(fold):
     # Four laps, a keyframe a scan: folded, every lap after the first adds leaves on the first
     # lap's keyframes and no node the optimisation works on; unfolded, a lap of nodes each time.
     cfg = SimConfig(speed_mps=1.0, rate_hz=2.0, seed=5,
-                    odometry=OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.03, rot_sigma_per_m_rad=0.02))
+                    odometry=OdometryNoise(trans_sigma_per_sqrt_m=0.02, rot_sigma_per_sqrt_rad=0.03, rot_sigma_per_sqrt_m=0.02))
     lap = 124
     mapper = LoopClosingMapper(LoopClosureParams(fold_revisits=fold))
     truth, cores = [], {}

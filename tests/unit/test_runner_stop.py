@@ -72,8 +72,8 @@ def test_a_close_the_router_does_not_confirm_is_one_warning_not_an_exit_code(cap
         assert inside is session
     assert session.closed
     warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
-    assert warnings == ["the bus did not confirm the session's close (close operation timed out!); "
-                        "nothing was pending"], warnings
+    expected = "the bus did not confirm the session's close (close operation timed out!); nothing was pending"
+    assert warnings == [expected], warnings
 
 
 def test_an_error_inside_still_closes_and_is_not_hidden():

@@ -127,14 +127,14 @@ def _straight_run_errors(noise, n_runs, n_steps, step_m, seed):
 
 @pytest.mark.parametrize("n_steps", [4, 40])
 def test_translation_drift_is_a_random_walk_independent_of_the_step_size(n_steps):
-    noise = OdometryNoise(trans_sigma_per_m=0.02, rot_sigma_per_rad=0.0, rot_sigma_per_m_rad=0.0)
+    noise = OdometryNoise(trans_sigma_per_sqrt_m=0.02, rot_sigma_per_sqrt_rad=0.0, rot_sigma_per_sqrt_m=0.0)
     err = _straight_run_errors(noise, n_runs=400, n_steps=n_steps, step_m=4.0 / n_steps, seed=n_steps)
     assert np.std(err[:, 0]) == pytest.approx(0.02 * np.sqrt(4.0), rel=0.15)
     np.testing.assert_allclose(err[:, 1:], 0.0, atol=1e-12)
 
 
 def test_heading_drift_from_turning_in_place():
-    noise = OdometryNoise(trans_sigma_per_m=0.0, rot_sigma_per_rad=0.02, rot_sigma_per_m_rad=0.0)
+    noise = OdometryNoise(trans_sigma_per_sqrt_m=0.0, rot_sigma_per_sqrt_rad=0.02, rot_sigma_per_sqrt_m=0.0)
     rng = np.random.default_rng(4)
     step = 2 * np.pi / 36
     errs = [sum(noisy_increment((0.0, 0.0, step), noise, rng)[2] - step for _ in range(36)) for _ in range(400)]
@@ -167,4 +167,4 @@ def test_increment_noise_keeps_direction_and_is_reproducible(dx, dy, dtheta, see
 
 def test_negative_sigma_is_a_config_error():
     with pytest.raises(ConfigError):
-        OdometryNoise(trans_sigma_per_m=-0.1)
+        OdometryNoise(trans_sigma_per_sqrt_m=-0.1)

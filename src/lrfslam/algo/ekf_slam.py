@@ -117,11 +117,11 @@ class EkfParams:
 
     Attributes
     ----------
-    odom_trans_sigma_per_m : float
+    odom_trans_sigma_per_sqrt_m : float
         Along-track distance error accumulated over 1 m travelled (m).
-    odom_rot_sigma_per_rad : float
+    odom_rot_sigma_per_sqrt_rad : float
         Heading error accumulated over 1 rad turned (rad).
-    odom_rot_sigma_per_m : float
+    odom_rot_sigma_per_sqrt_m : float
         Heading error accumulated over 1 m travelled (rad); integrated along the
         way, it also drifts the position sideways.
     odom_trans_sigma_floor_m, odom_rot_sigma_floor_rad : float
@@ -171,9 +171,9 @@ class EkfParams:
 
     # The simulator's default odometry noise (lrfslam.sim.odometry.OdometryNoise),
     # so that the filter is matched at "default noise"; raise them for a real robot.
-    odom_trans_sigma_per_m: float = 0.02
-    odom_rot_sigma_per_rad: float = 0.02
-    odom_rot_sigma_per_m: float = 0.005
+    odom_trans_sigma_per_sqrt_m: float = 0.02
+    odom_rot_sigma_per_sqrt_rad: float = 0.02
+    odom_rot_sigma_per_sqrt_m: float = 0.005
     odom_trans_sigma_floor_m: float = 1e-4
     odom_rot_sigma_floor_rad: float = 1e-4
     # Small: the extractor's own covariance of a refined corner is already
@@ -204,7 +204,7 @@ class EkfParams:
 
     def __post_init__(self) -> None:
         sigmas = (
-            "odom_trans_sigma_per_m", "odom_rot_sigma_per_rad", "odom_rot_sigma_per_m",
+            "odom_trans_sigma_per_sqrt_m", "odom_rot_sigma_per_sqrt_rad", "odom_rot_sigma_per_sqrt_m",
             "odom_trans_sigma_floor_m", "odom_rot_sigma_floor_rad", "corner_range_sigma_m",
             "corner_bearing_sigma_rad", "backward_min_view_change_rad", "min_feature_range_m",
             "wall_model_sigma_rad",
@@ -427,13 +427,13 @@ class EkfSlam:
             raise InputError(f"delta must be 3 finite numbers, got {delta!r}")
         p = self.params
         dist = float(np.hypot(u[0], u[1]))
-        heading_walk = p.odom_rot_sigma_per_rad**2 * abs(u[2]) + p.odom_rot_sigma_per_m**2 * dist
+        heading_walk = p.odom_rot_sigma_per_sqrt_rad**2 * abs(u[2]) + p.odom_rot_sigma_per_sqrt_m**2 * dist
         q_u = np.diag([p.odom_trans_sigma_floor_m**2, p.odom_trans_sigma_floor_m**2,
                        p.odom_rot_sigma_floor_rad**2 + heading_walk])
         if dist > 0:
             along = u[:2] / dist
             left = np.array([-along[1], along[0]])
-            q_u[:2, :2] += (p.odom_trans_sigma_per_m**2 * dist * np.outer(along, along)
+            q_u[:2, :2] += (p.odom_trans_sigma_per_sqrt_m**2 * dist * np.outer(along, along)
                             + heading_walk * dist**2 / 3.0 * np.outer(left, left))
             q_u[:2, 2] = q_u[2, :2] = heading_walk * dist / 2.0 * left
         return q_u

@@ -97,7 +97,7 @@ import numpy as np
 from lrfslam.algo import _scan_match_kernel as kernel
 from lrfslam.algo.checks import require_finite
 from lrfslam.algo.free_space import FreeSpace, seen_through
-from lrfslam.algo.geometry import compose, relative, thin_points, wrap_angle
+from lrfslam.algo.geometry import compose, from_frame, relative, thin_points, wrap_angle
 from lrfslam.errors import ConfigError, InputError
 
 
@@ -590,7 +590,7 @@ class ScanTracker:
         if not p.free_space_check:
             return np.zeros(pts.shape[0], dtype=bool)
         margins = (p.free_space_margin_m, p.free_space_margin_per_m, p.free_space_lateral_m, p.free_space_bearing_rad)
-        moved = seen_through(self._free, _to_frame(pts, free.pose), *margins)
+        moved = seen_through(self._free, from_frame(pts, free.pose), *margins)
         # Something walking away hides behind its old place from this side, and matched there
         # it would pull the robot after it; but this scan sees through where it was.
         recent = range(max(0, len(self.keyframes) - p.recent_keyframes), len(self.keyframes))
@@ -635,7 +635,7 @@ class ScanTracker:
     def _add_keyframe(self, pts: np.ndarray, free: FreeSpace) -> None:
         """Keep the scan at :attr:`pose`: its points ``pts`` (N, 2; robot frame) and what it saw empty."""
         p = self.params
-        self.keyframes.append(_Keyframe(self.pose.copy(), _to_frame(pts, self.pose)))
+        self.keyframes.append(_Keyframe(self.pose.copy(), from_frame(pts, self.pose)))
         self._free.append(free)
         while len(self.keyframes) > p.recent_keyframes:
             del self.keyframes[0]
@@ -652,12 +652,6 @@ class ScanTracker:
             merged = np.vstack([kf.points_xy_m for kf in self.keyframes])
             self._reference = ReferenceScan.build(thin_points(merged, self.params.map_cell_m), self.params)
         return self._reference
-
-
-def _to_frame(points_xy_m: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Points (N, 2) of a robot frame at ``pose`` (3,) in the frame ``pose`` is given in."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    return points_xy_m @ np.array([[c, s], [-s, c]]) + pose[:2]
 
 
 def _psd_part(mat: np.ndarray) -> np.ndarray:

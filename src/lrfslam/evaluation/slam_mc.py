@@ -126,9 +126,9 @@ class McConfig:
         are at the simulator's default noise) and the association as configured.
         """
         odometry = {
-            "odom_trans_sigma_per_m": self.odometry.trans_sigma_per_m,
-            "odom_rot_sigma_per_rad": self.odometry.rot_sigma_per_rad,
-            "odom_rot_sigma_per_m": self.odometry.rot_sigma_per_m_rad,
+            "odom_trans_sigma_per_sqrt_m": self.odometry.trans_sigma_per_sqrt_m,
+            "odom_rot_sigma_per_sqrt_rad": self.odometry.rot_sigma_per_sqrt_rad,
+            "odom_rot_sigma_per_sqrt_m": self.odometry.rot_sigma_per_sqrt_m,
             "association": self.association,
         }
         if self.features == "extractor":
@@ -529,8 +529,8 @@ def main(argv=None) -> int:
         association=args.association, range_sigma_m=args.range_sigma_m, bearing_sigma_rad=args.bearing_sigma_rad,
         truth_wall_sigma_rad=args.truth_wall_sigma_rad,
         seed=args.seed, stage_sets=tuple(args.sets), mapper=args.mapper,
-        odometry=OdometryNoise(base.trans_sigma_per_m * args.odom_scale, base.rot_sigma_per_rad * args.odom_scale,
-                               base.rot_sigma_per_m_rad * args.odom_scale),
+        odometry=OdometryNoise(base.trans_sigma_per_sqrt_m * args.odom_scale, base.rot_sigma_per_sqrt_rad * args.odom_scale,
+                               base.rot_sigma_per_sqrt_m * args.odom_scale),
     )
     print(format_summary(summarise(run_many(cfg, args.jobs), cfg.final_lap_frac), cfg))
     return 0

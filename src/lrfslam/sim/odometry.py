@@ -29,20 +29,20 @@ class OdometryNoise:
 
     Attributes
     ----------
-    trans_sigma_per_m : float
+    trans_sigma_per_sqrt_m : float
         Along-track distance error accumulated over 1 m travelled, metres.
-    rot_sigma_per_rad : float
+    rot_sigma_per_sqrt_rad : float
         Heading error accumulated over 1 rad turned, radians.
-    rot_sigma_per_m_rad : float
+    rot_sigma_per_sqrt_m : float
         Heading error accumulated over 1 m travelled, radians (wheel slip on straights).
     """
 
-    trans_sigma_per_m: float = 0.02
-    rot_sigma_per_rad: float = 0.02
-    rot_sigma_per_m_rad: float = 0.005
+    trans_sigma_per_sqrt_m: float = 0.02
+    rot_sigma_per_sqrt_rad: float = 0.02
+    rot_sigma_per_sqrt_m: float = 0.005
 
     def __post_init__(self) -> None:
-        if min(self.trans_sigma_per_m, self.rot_sigma_per_rad, self.rot_sigma_per_m_rad) < 0:
+        if min(self.trans_sigma_per_sqrt_m, self.rot_sigma_per_sqrt_rad, self.rot_sigma_per_sqrt_m) < 0:
             raise ConfigError(f"odometry sigmas must be >= 0, got {self}")
 
 
@@ -67,8 +67,8 @@ def noisy_increment(delta_true, noise: OdometryNoise, rng: np.random.Generator) 
     dx, dy, dtheta = (float(v) for v in delta_true)
     dist_m = np.hypot(dx, dy)
     z_trans, z_rot = rng.standard_normal(2)
-    trans_err_m = z_trans * noise.trans_sigma_per_m * np.sqrt(dist_m)
-    rot_var = noise.rot_sigma_per_rad**2 * abs(dtheta) + noise.rot_sigma_per_m_rad**2 * dist_m
+    trans_err_m = z_trans * noise.trans_sigma_per_sqrt_m * np.sqrt(dist_m)
+    rot_var = noise.rot_sigma_per_sqrt_rad**2 * abs(dtheta) + noise.rot_sigma_per_sqrt_m**2 * dist_m
     rot_err_rad = z_rot * np.sqrt(rot_var)
     scale = 1.0 + trans_err_m / dist_m if dist_m > 0 else 1.0
     return np.array([dx * scale, dy * scale, dtheta + rot_err_rad])
