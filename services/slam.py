@@ -81,10 +81,10 @@ class SlamConfig:
     RETIRED: ClassVar[dict[str, str]] = {
         "landmark_tolerance_m": f"fixed at {LANDMARK_TOLERANCE_M} m (services/slam.py LANDMARK_TOLERANCE_M)",
         "max_odom_wait_scans": f"fixed at {MAX_ODOM_WAIT_SCANS} scans (services/slam.py MAX_ODOM_WAIT_SCANS)",
-        **{f"scan_match.{name}": "the tracker's search of old keyframes was removed (it corrected the drift "
-           "the landmarks correct, twice); it matches the last keyframes only"
+        **{f"scan_match.{name}": "the tracker's search of old reference scans was removed (it corrected the drift "
+           "the landmarks correct, twice); it matches the last reference scans only"
            for name in ("map_radius_m", "map_max_keyframes", "max_keyframes")},
-        **{f"scan_match.drift_{x}_sigma_per_m": "removed with the search of old keyframes, whose snaps it hid; "
+        **{f"scan_match.drift_{x}_sigma_per_m": "removed with the search of old reference scans, whose snaps it hid; "
            "the odometry noise is ekf.odom_*" for x in ("trans", "rot")},
         **{f"ekf.{old}": f"renamed ekf.{new}: a random walk, its sigma grows with the square root of the motion"
            for old, new in RENAMED_ODOMETRY.items()},

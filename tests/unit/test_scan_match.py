@@ -146,8 +146,8 @@ def test_the_tracker_beats_its_noisy_odometry_and_is_deterministic():
     assert sum(m for _, _, m in first) >= 290
     # Along a corridor the scans leave the motion to odometry, so its scale error still shows.
     assert max(err_sm) < 0.2 * max(err_odo) and max(err_sm) < 0.2, (max(err_sm), max(err_odo))
-    # Without a map search only the recent keyframes are kept (memory of a long run); more were made.
-    assert len(tracker.keyframes) == P.recent_keyframes and tracker._dropped >= 5
+    # Only the recent reference scans are kept (memory of a long run); more were made.
+    assert len(tracker.reference_scans) == P.references_kept and tracker._dropped >= 5
 
 
 def test_the_tracker_falls_back_to_odometry_and_skip_moves_its_pose():
@@ -171,7 +171,7 @@ def test_bad_inputs_and_params_are_rejected():
     with pytest.raises(InputError):
         ScanTracker(P).step(np.zeros((0, 2)), np.zeros(3), np.eye(2))
     for bad in ({"robust_scale_m": 0.0}, {"normal_neighbours": 2}, {"min_inlier_ratio": -0.1},
-                {"recent_keyframes": 0}, {"cov_scale": float("nan")}):
+                {"references_kept": 0}, {"cov_scale": float("nan")}):
         with pytest.raises(ConfigError):
             ScanMatchParams(**bad)
 

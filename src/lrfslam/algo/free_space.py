@@ -95,7 +95,7 @@ def seen_through(spaces: Sequence[FreeSpace], points_xy_m, margin_m: float, marg
     """Which points (N, 2; the common frame, m) any of ``spaces`` contains, bool (N,).
 
     The same as OR-ing :meth:`FreeSpace.contains` over ``spaces`` (K of them, one bin width), in
-    one pass over a (K, N) array: the tracker asks ten keyframes about every scan.
+    one pass over a (K, N) array: the tracker asks its ten last reference scans about every scan.
     """
     pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
     if not spaces:

@@ -1,7 +1,7 @@
 """The motion between consecutive scans that moves the filter: scan-matched, else odometry.
 
 With scan matching on, the motion is the one found by matching each scan
-against the last keyframes (:class:`~lrfslam.algo.scan_match.ScanTracker`),
+against the last reference scans (:class:`~lrfslam.algo.scan_match.ScanTracker`),
 the odometry increment being the initial guess; where the match fails, or the
 scan never arrived, it is the odometry increment, as without scan matching.
 Without odometry at all, the guess is "no motion" with the

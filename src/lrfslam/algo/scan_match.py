@@ -32,8 +32,8 @@ Design choices
   towards the robot down a corridor: matched as if they stood still, they give the along-corridor
   direction its only constraint and drag the motion at walking speed. A static world never puts a
   return where an earlier beam went on to a farther one, so :class:`ScanTracker` leaves out the
-  points that lie where one of its last keyframes saw through, and drops from its recent
-  keyframes the points the current scan sees through (:mod:`lrfslam.algo.free_space`;
+  points that lie where one of its last reference scans saw through, and drops from its recent
+  reference scans the points the current scan sees through (:mod:`lrfslam.algo.free_space`;
   docs/slam.md, "On the simulator").
 * **Degenerate geometry.** In a featureless corridor the motion along it leaves
   every residual unchanged: the information matrix (rotation scaled to metres of
@@ -61,22 +61,24 @@ Design choices
   inliers, a correction larger than any plausible guess error. The caller then
   uses odometry.
 
-:class:`ScanTracker` chains matches into odometry against *keyframes*: the
-current scan is matched to the last few keyframes, merged and thinned to one
-point per ``map_cell_m`` cell. Matching to a keyframe instead of the previous
+:class:`ScanTracker` chains matches into odometry against *reference scans*: the
+current scan is matched to the last few reference scans, merged and thinned to one
+point per ``map_cell_m`` cell. Matching to a reference scan instead of the previous
 scan stops the error from accumulating while the robot stands or creeps. The
 normals are fitted on the merged points, so a wall seen twice out of register
-is thick there and drops out instead of dragging the match. Old keyframes near
+is thick there and drops out instead of dragging the match. Old reference scans near
 the predicted pose are not taken in: under the EKF, whose landmarks close the
-loop themselves, such snaps arrive as motion and correct the same drift twice
-(tried: Intel's relation error 0.068 m with them, 0.042 m without).
+loop themselves, such snaps arrive as motion and correct the same drift twice.
+(A scan tracker's *reference scans* are not the mapper's *keyframes*, the nodes
+of its pose graph published on ``map/keyframes``.)
 
 The increments' covariances are meant to be summed by a filter as a random
-walk, which matches against keyframes are not (see ``ScanTracker._fresh_cov``):
+walk, which matches against reference scans are not (see ``ScanTracker._fresh_cov``):
 the match's error relative to its reference is handed out once, as a running
-maximum, and each change of reference adds the part of a keyframe's error it
-brings. Naive chaining made the filter's pose NEES 15× overconfident at the
-start and then 2× conservative; this keeps it in its band on the simulator.
+maximum, and each change of reference adds the part of a reference scan's error it
+brings. Naive chaining would hand the same reference error out again with every
+scan matched against it: overconfident while the reference stays, then too
+conservative.
 
 References
 ----------
@@ -164,23 +166,18 @@ class ScanMatchParams:
         near-perfect fit must not make the scan infinitely certain.
     cov_scale : float
         Factor on the scan's Gauss–Newton covariance (see **Covariance** in the module docstring).
-    keyframe_trans_m, keyframe_rot_rad : float
-        :class:`ScanTracker` makes the current scan a keyframe once it is this
-        far (m) or turned this much (rad) from the last keyframe.
-    recent_keyframes : int
-        The last this many keyframes are matched against (and kept).
-    map_radius_m : float
-        Keyframes whose pose is within this distance of the predicted pose are
-        matched against too (m; 0 = only the recent ones).
-    map_max_keyframes : int
-        At most this many of those, the nearest first.
+    reference_trans_m, reference_rot_rad : float
+        :class:`ScanTracker` makes the current scan a reference scan once it is this
+        far (m) or turned this much (rad) from the last reference scan.
+    references_kept : int
+        The last this many reference scans are kept and matched against.
     map_cell_m : float
-        The keyframes' points are merged to one point per square of this side (m).
+        The reference scans' points are merged to one point per square of this side (m).
     free_space_check : bool
-        :class:`ScanTracker` leaves out of the match, and out of its keyframes, the
-        points that lie where one of the last keyframes' beams passed on to farther
+        :class:`ScanTracker` leaves out of the match, and out of its reference scans, the
+        points that lie where one of the last reference scans' beams passed on to farther
         returns (or to none: ``free_space_silent_m``), and drops
-        from the recent keyframes the points the current scan sees through:
+        from the recent reference scans the points the current scan sees through:
         things that moved (:mod:`lrfslam.algo.free_space`).
     free_space_margin_m, free_space_margin_per_m : float
         A point must be nearer than those returns by ``margin_m + margin_per_m * r``
@@ -193,17 +190,16 @@ class ScanMatchParams:
     free_space_silent_m : float
         A bin without a return inside a scan's field of view saw empty space to this
         range (m; 0: unknown).
-    free_space_keyframes : int
-        The free space of this many last keyframes is kept and checked (>= 1).
+    free_space_scans : int
+        The free space of this many last reference scans is kept and checked (>= 1).
     """
 
-    # Intel log, scan matching alone (lrfslam eval relations --scan-matching): 4 m (the
-    # paper's cut) 2.77 m relation error, 8 m 1.46 m.
+    # Farther than the paper's 4 m: scan matching needs the long walls that pin its heading.
     max_point_range_m: float = 8.0
     normal_neighbours: int = 10
     normal_radius_m: float = 0.3
     normal_min_neighbours: int = 4
-    # Intel (cluttered): 0.15 leaves too few line points (2.2 m relation error), 0.35 0.94 m, 0.5 1.0 m.
+    # Loose enough for cluttered walls to keep their line points, tight enough to drop corners.
     normal_max_thickness: float = 0.35
     wide_gate_m: float = 0.5
     narrow_gate_m: float = 0.15
@@ -219,10 +215,10 @@ class ScanMatchParams:
     max_correction_trans_m: float = 0.5
     max_correction_rot_rad: float = 0.35
     min_residual_sigma_m: float = 0.005
-    cov_scale: float = 1.6  # mean NEES 3.0 over 170 simulated matches (4.8 with 1.0)
-    keyframe_trans_m: float = 0.3
-    keyframe_rot_rad: float = 0.2
-    recent_keyframes: int = 3
+    cov_scale: float = 1.6  # makes the matches' NEES consistent on the simulator (**Covariance** above)
+    reference_trans_m: float = 0.3
+    reference_rot_rad: float = 0.2
+    references_kept: int = 3
     map_cell_m: float = 0.05
     free_space_check: bool = True
     free_space_margin_m: float = 0.5
@@ -231,7 +227,7 @@ class ScanMatchParams:
     free_space_bearing_rad: float = 0.0175
     free_space_bin_rad: float = 0.0175
     free_space_silent_m: float = 8.0
-    free_space_keyframes: int = 10
+    free_space_scans: int = 10
 
     def __post_init__(self) -> None:
         positive = ("max_point_range_m", "normal_radius_m", "wide_gate_m", "narrow_gate_m", "robust_scale_m",
@@ -239,7 +235,7 @@ class ScanMatchParams:
                     "max_normal_angle_rad", "map_cell_m", "free_space_bin_rad")
         require_finite(self, positive, positive=True, what="scan matching ")
         non_negative = ("normal_max_thickness", "converged_trans_m", "converged_rot_rad", "min_inlier_ratio",
-                        "min_information_ratio", "keyframe_trans_m", "keyframe_rot_rad", "free_space_margin_m",
+                        "min_information_ratio", "reference_trans_m", "reference_rot_rad", "free_space_margin_m",
                         "free_space_margin_per_m", "free_space_lateral_m", "free_space_bearing_rad",
                         "free_space_silent_m")
         require_finite(self, non_negative, positive=False, what="scan matching ")
@@ -249,10 +245,10 @@ class ScanMatchParams:
             raise ConfigError("need max_iterations >= 1 and min_points >= 3")
         if self.wide_gate_iterations < 0:
             raise ConfigError("wide_gate_iterations must be >= 0")
-        if self.free_space_keyframes < 1:
-            raise ConfigError("need free_space_keyframes >= 1")
-        if self.recent_keyframes < 1:
-            raise ConfigError("need recent_keyframes >= 1")
+        if self.free_space_scans < 1:
+            raise ConfigError("need free_space_scans >= 1")
+        if self.references_kept < 1:
+            raise ConfigError("need references_kept >= 1")
 
 
 @dataclass(frozen=True, eq=False)
@@ -283,7 +279,7 @@ class ReferenceScan:
             return cls(np.zeros((0, 2)), np.zeros((0, 2)))
         # Up to k neighbours within the radius: near the sensor the beams are dense and k spans
         # enough wall for the line to stand out of the range noise. Over several scans, a wall
-        # seen twice out of register is thick here and drops out, so a misaligned old keyframe
+        # seen twice out of register is thick here and drops out, so a misaligned old reference scan
         # cannot drag the match.
         line, normals = kernel.line_normals(pts, params.normal_neighbours, params.normal_radius_m,
                                             params.normal_min_neighbours, params.normal_max_thickness)
@@ -498,13 +494,13 @@ class TrackStep:
 
 
 @dataclass(frozen=True, eq=False)
-class _Keyframe:
+class _KeptScan:
     pose: np.ndarray  # (3,) in the tracker's frame
     points_xy_m: np.ndarray  # (N, 2) the scan's points in the tracker's frame
 
 
 class ScanTracker:
-    """Laser odometry: each scan matched against the last keyframes (mutable state).
+    """Laser odometry: each scan matched against the last reference scans (mutable state).
 
     The tracker keeps its own pose chain in a frame fixed at the first scan; the
     caller only uses the increments between consecutive scans. Deterministic:
@@ -518,23 +514,23 @@ class ScanTracker:
     ----------
     pose : ndarray, shape (3,), or None
         Pose of the last scan in the tracker's frame; None before the first scan.
-    keyframes : list
-        The keyframes kept, oldest first; each has ``pose`` (3,) and
+    reference_scans : list
+        The reference scans kept, oldest first; each has ``pose`` (3,) and
         ``points_xy_m`` (N, 2) in the tracker's frame.
     """
 
     def __init__(self, params: ScanMatchParams) -> None:
         self.params = params
         self.pose: np.ndarray | None = None
-        self.keyframes: list[_Keyframe] = []
-        self._dropped = 0  # keyframes forgotten so far: keeps the local map's cache key unique
+        self.reference_scans: list[_KeptScan] = []
+        self._dropped = 0  # reference scans forgotten so far: keeps the local map's cache key unique
         self._active: tuple[int, ...] = ()  # cache key of _reference
         self._reference: ReferenceScan | None = None
         # (reference key, match covariance handed out so far, tracker's frame); see _fresh_cov.
         self._budget: tuple[tuple[int, ...], np.ndarray] | None = None
-        # What the last keyframes saw empty (tracker's frame), kept past the recent ones: someone
-        # overtaking the robot walks on into space that keyframes from before saw empty.
-        self._free: deque[FreeSpace] = deque(maxlen=params.free_space_keyframes)
+        # What the last reference scans saw empty (tracker's frame), kept past the recent ones: someone
+        # overtaking the robot walks on into space that reference scans from before saw empty.
+        self._free: deque[FreeSpace] = deque(maxlen=params.free_space_scans)
 
     def step(self, points_xy_m, odom_increment, odom_cov) -> TrackStep:
         """Match one scan; returns the increment from the previous scan.
@@ -557,7 +553,7 @@ class ScanTracker:
         p = self.params
         if self.pose is None:
             self.pose = np.zeros(3)
-            self._add_keyframe(pts, FreeSpace.of_scan(self.pose, returns, p.free_space_bin_rad, p.free_space_silent_m))
+            self._add_reference_scan(pts, FreeSpace.of_scan(self.pose, returns, p.free_space_bin_rad, p.free_space_silent_m))
             return TrackStep(u0.copy(), q0.copy(), MatchResult(MatchStatus.NO_REFERENCE, u0.copy(),
                                                                np.full((3, 3), np.nan)))
         guess = compose(self.pose, u0)
@@ -574,17 +570,17 @@ class ScanTracker:
             cov = q0.copy()
             self._budget = None
         self.pose = compose(self.pose, increment)
-        since = relative(self.keyframes[-1].pose, self.pose)
-        # After a failure the recent keyframes no longer fit this pose: start afresh from this scan.
-        if not result.ok or np.hypot(since[0], since[1]) >= self.params.keyframe_trans_m \
-                or abs(since[2]) >= self.params.keyframe_rot_rad:
-            self._add_keyframe(pts, replace(free, pose=self.pose.copy()))
+        since = relative(self.reference_scans[-1].pose, self.pose)
+        # After a failure the recent reference scans no longer fit this pose: start afresh from this scan.
+        if not result.ok or np.hypot(since[0], since[1]) >= self.params.reference_trans_m \
+                or abs(since[2]) >= self.params.reference_rot_rad:
+            self._add_reference_scan(pts, replace(free, pose=self.pose.copy()))
         return TrackStep(increment, 0.5 * (cov + cov.T), result, int(np.count_nonzero(moved)))
 
     def _moved(self, pts: np.ndarray, free: FreeSpace) -> np.ndarray:
-        """Which of the scan's points (N, 2; robot frame at ``free.pose``) the last keyframes saw through, bool (N,).
+        """Which of the scan's points (N, 2; robot frame at ``free.pose``) the last reference scans saw through, bool (N,).
 
-        Also drops from the recent keyframes the points this scan (``free``) sees through.
+        Also drops from the recent reference scans the points this scan (``free``) sees through.
         """
         p = self.params
         if not p.free_space_check:
@@ -593,12 +589,12 @@ class ScanTracker:
         moved = seen_through(self._free, from_frame(pts, free.pose), *margins)
         # Something walking away hides behind its old place from this side, and matched there
         # it would pull the robot after it; but this scan sees through where it was.
-        recent = range(max(0, len(self.keyframes) - p.recent_keyframes), len(self.keyframes))
-        kept = [self.keyframes[k].points_xy_m for k in recent]
+        recent = range(max(0, len(self.reference_scans) - p.references_kept), len(self.reference_scans))
+        kept = [self.reference_scans[k].points_xy_m for k in recent]
         gone = np.split(free.contains(np.concatenate(kept), *margins), np.cumsum([len(x) for x in kept])[:-1])
         for k, points, out in zip(recent, kept, gone):
             if out.any():
-                self.keyframes[k] = replace(self.keyframes[k], points_xy_m=points[~out])
+                self.reference_scans[k] = replace(self.reference_scans[k], points_xy_m=points[~out])
                 self._reference = None
         return moved
 
@@ -609,9 +605,9 @@ class ScanTracker:
         the caller sums the increments' covariances as a random walk. Matches
         against the same reference are independent draws around it, so the
         match's part is handed out once, as a running maximum (``_budget``), not
-        once per scan. A new reference of ``m`` keyframes mostly shares them with
+        once per scan. A new reference of ``m`` reference scans mostly shares them with
         the last one: replacing one moves their merged points by about one
-        keyframe's error over ``m``, so it adds ``cov / m``. A match that took
+        reference scan's error over ``m``, so it adds ``cov / m``. A match that took
         directions from the odometry guess (a corridor) accumulates there, so it
         counts whole and starts the budget afresh.
         """
@@ -632,24 +628,24 @@ class ScanTracker:
         if self.pose is not None:
             self.pose = compose(self.pose, np.asarray(increment, dtype=float))
 
-    def _add_keyframe(self, pts: np.ndarray, free: FreeSpace) -> None:
+    def _add_reference_scan(self, pts: np.ndarray, free: FreeSpace) -> None:
         """Keep the scan at :attr:`pose`: its points ``pts`` (N, 2; robot frame) and what it saw empty."""
         p = self.params
-        self.keyframes.append(_Keyframe(self.pose.copy(), from_frame(pts, self.pose)))
+        self.reference_scans.append(_KeptScan(self.pose.copy(), from_frame(pts, self.pose)))
         self._free.append(free)
-        while len(self.keyframes) > p.recent_keyframes:
-            del self.keyframes[0]
+        while len(self.reference_scans) > p.references_kept:
+            del self.reference_scans[0]
             self._dropped += 1
 
     def _local_map(self) -> ReferenceScan:
-        """The recent keyframes as one reference (cached while unchanged)."""
-        key = tuple(range(self._dropped, self._dropped + len(self.keyframes)))
+        """The recent reference scans as one reference (cached while unchanged)."""
+        key = tuple(range(self._dropped, self._dropped + len(self.reference_scans)))
         if key != self._active or self._reference is None:
             self._active = key
             # Normals from the merged points (see ReferenceScan.build): a consistency
             # filter. Thinned to one point per cell first, or k neighbours of a
             # dense stack of scans would span less than the range noise.
-            merged = np.vstack([kf.points_xy_m for kf in self.keyframes])
+            merged = np.vstack([kf.points_xy_m for kf in self.reference_scans])
             self._reference = ReferenceScan.build(thin_points(merged, self.params.map_cell_m), self.params)
         return self._reference
 
