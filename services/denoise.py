@@ -64,9 +64,9 @@ class DenoiseStep(StepBase):
         self.counts["points_kept"] += kept.size
         self.counts["points_removed"] += int(result.valid.sum()) - kept.size
         self.seq += 1
-        yield Output(topics.SCAN_FILTERED, t.FilteredScan(scan.stamp_ns, self.seq, cut, kept,
-                                                          result.points_xy[kept], params.max_range_m,
-                                                          self.cfg.mode))
+        yield Output(topics.SCAN_FILTERED, t.FilteredScan(stamp_ns=scan.stamp_ns, seq=self.seq, scan=cut,
+                                                          kept_beams=kept, points_xy_m=result.points_xy[kept],
+                                                          max_range_m=params.max_range_m, mode=self.cfg.mode))
 
 
 SPEC = ServiceSpec(

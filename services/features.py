@@ -67,8 +67,10 @@ class FeatureStep(StepBase):
         wall_rad, wall_sigma = (wall.direction_rad, wall.sigma_rad) if wall is not None else (np.nan, np.nan)
         self.counts["wall_direction"] += int(wall is not None)
         self.seq += 1
-        yield Output(topics.FEATURES, t.Features(fs.stamp_ns, self.seq, fs.scan.seq, kinds, found.xy_m,
-                                                 found.cov_m2, found.beam, found.angle_deg, wall_rad, wall_sigma))
+        yield Output(topics.FEATURES, t.Features(stamp_ns=fs.stamp_ns, seq=self.seq, scan_seq=fs.scan.seq, kind=kinds,
+                                                 xy_m=found.xy_m, cov_m2=found.cov_m2, beam=found.beam,
+                                                 angle_deg=found.angle_deg, wall_direction_rad=wall_rad,
+                                                 wall_direction_sigma_rad=wall_sigma))
 
 
 SPEC = ServiceSpec(

@@ -129,10 +129,11 @@ class MapperStep(StepBase):
         self.counts["closure_nis_milli"] = round(1000.0 * nis_sum)
         self.counts["scans"] += 1
         self.seq += 1
+        rejected = stats.ambiguous + stats.refine_failed + stats.gated + stats.removed
         outs = [Output(topics.MAP_POSE, t.MapPose(
-            state.stamp_ns, self.seq, state.scan_seq, pose, compose(pose, relative(state.pose, np.zeros(3))),
-            self.mapper.keyframe_count, stats.accepted - stats.removed,
-            stats.ambiguous + stats.refine_failed + stats.gated + stats.removed, local))]
+            stamp_ns=state.stamp_ns, seq=self.seq, scan_seq=state.scan_seq, pose=pose,
+            map_from_slam=compose(pose, relative(state.pose, np.zeros(3))), keyframes=self.mapper.keyframe_count,
+            closures=stats.accepted - stats.removed, closures_rejected=rejected, local_pose=local))]
         if stats.optimisations != self.optimisations:
             self.optimisations = stats.optimisations
             outs.append(self._keyframes(state.stamp_ns))
@@ -170,9 +171,11 @@ class MapperStep(StepBase):
         self.counts["keyframe_updates"] += 1
         self.counts["keyframes_retired"] += len(retired)
         return Output(topics.MAP_KEYFRAMES, t.MapKeyframes(
-            stamp_ns, self.keyframes_seq, stamps, local_poses, self.mapper.keyframe_poses(),
-            self.mapper.keyframe_local_edges(), retired.stamp_ns, retired.local_pose, retired.local_edge,
-            retired.anchor_stamp_ns, retired.offset))
+            stamp_ns=stamp_ns, seq=self.keyframes_seq, scan_stamp_ns=stamps, local_pose=local_poses,
+            map_pose=self.mapper.keyframe_poses(), local_edge=self.mapper.keyframe_local_edges(),
+            retired_scan_stamp_ns=retired.stamp_ns, retired_local_pose=retired.local_pose,
+            retired_local_edge=retired.local_edge, retired_anchor_stamp_ns=retired.anchor_stamp_ns,
+            retired_offset=retired.offset))
 
     def _save(self, path: Path) -> None:
         arrays = self.mapper.snapshot()

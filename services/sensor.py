@@ -116,8 +116,8 @@ class SimSource(StepBase):
         self.counts["scans"] += 1
         return (
             Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose)),
-            Output(topics.TRUTH, t.GroundTruth(stamp, seq, frame.true_pose, ids, self.corners_xy[ids],
-                                               self.cfg.world)),
+            Output(topics.TRUTH, t.GroundTruth(stamp_ns=stamp, seq=seq, pose=frame.true_pose, corner_ids=ids,
+                                               corners_xy_m=self.corners_xy[ids], world=self.cfg.world)),
             Output(topics.SCAN, scan),
         )
 
@@ -168,9 +168,9 @@ class Lms200Source(StepBase):
         wire_s = (tg.ranges_m.size * 2 + 10) * 10 / self.driver.baud
         self.seq += 1
         self.counts["scans"] += 1
-        scan = t.LaserScan(read_ns - int(wire_s * 1e9), self.seq, tg.ranges_m, _STATUS_LUT[tg.status],
-                           math.radians(tg.start_angle_deg - 90.0), math.radians(tg.resolution_deg),
-                           range_max_m=8.183, source="lms200")
+        scan = t.LaserScan(stamp_ns=read_ns - int(wire_s * 1e9), seq=self.seq, ranges_m=tg.ranges_m,
+                           status=_STATUS_LUT[tg.status], angle_min_rad=math.radians(tg.start_angle_deg - 90.0),
+                           angle_increment_rad=math.radians(tg.resolution_deg), range_max_m=8.183, source="lms200")
         return (Output(topics.SCAN, scan),)
 
     def health(self) -> tuple[int, str]:

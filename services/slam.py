@@ -130,8 +130,8 @@ class SlamStep(StepBase):
         if topic is topics.SLAM_MAP and self.last_state is not None:
             # The map every subscriber holds now (not the filter's exact one: the states that
             # follow carry their changes against it).
-            return t.LandmarkMap(self.last_state.stamp_ns, self.maps, self.last_state.seq, self.sent,
-                                 LANDMARK_TOLERANCE_M)
+            return t.LandmarkMap(stamp_ns=self.last_state.stamp_ns, seq=self.maps, state_seq=self.last_state.seq,
+                                 landmarks=self.sent, tolerance_m=LANDMARK_TOLERANCE_M)
         return None
 
     def _process(self, a: Aligned[t.Features]) -> list[Output]:
@@ -143,15 +143,17 @@ class SlamStep(StepBase):
         if self.checkpoint is not None and self.slam.scans % self.cfg.checkpoint_every_scans == 0:
             self._save(self.checkpoint)
         ekf, lm = self.slam.ekf, self.slam.ekf.landmarks()
-        self.current = t.Landmarks(lm.ids, lm.xy, lm.cov, np.where(lm.kinds == 0, t.FEATURE_FORWARD, t.FEATURE_BACKWARD),
-                                   lm.sightings, lm.confirmed)
+        self.current = t.Landmarks(ids=lm.ids, xy_m=lm.xy, cov_m2=lm.cov,
+                                   kind=np.where(lm.kinds == 0, t.FEATURE_FORWARD, t.FEATURE_BACKWARD),
+                                   sightings=lm.sightings, confirmed=lm.confirmed)
         changed, removed = landmark_map.changes(self.sent, self.current, LANDMARK_TOLERANCE_M)
         self.sent = landmark_map.apply(self.sent, changed, removed)
-        self.last_state = t.SlamState(
-            f.stamp_ns, self.slam.scans, f.scan_seq, ekf.pose, ekf.pose_cov, changed, removed, False,
-            len(self.current), int(np.count_nonzero(lm.confirmed)),
-            report.n_matched, report.n_new, report.n_ambiguous + report.n_rejected, self._motion(),
-            self.slam.last_update.motion_matched)
+        self.last_state = t.SlamState(stamp_ns=f.stamp_ns, seq=self.slam.scans, scan_seq=f.scan_seq, pose=ekf.pose,
+                                      pose_cov=ekf.pose_cov, landmarks=changed, removed_landmark_ids=removed,
+                                      landmarks_complete=False, n_landmarks=len(self.current),
+                                      n_confirmed=int(np.count_nonzero(lm.confirmed)), associated=report.n_matched,
+                                      added=report.n_new, rejected=report.n_ambiguous + report.n_rejected,
+                                      motion=self._motion(), motion_matched=self.slam.last_update.motion_matched)
         outs = [Output(topics.SLAM_STATE, self.last_state)]
         since = None if self.map_sent_ns is None else f.stamp_ns - self.map_sent_ns
         # A first state (of the run, or after a restart) is followed by the whole map, so late
@@ -165,8 +167,9 @@ class SlamStep(StepBase):
         self.sent = landmark_map.by_id(self.current)
         self.maps += 1
         self.map_sent_ns = self.last_state.stamp_ns
-        return Output(topics.SLAM_MAP, t.LandmarkMap(self.last_state.stamp_ns, self.maps, self.last_state.seq,
-                                                     self.sent, LANDMARK_TOLERANCE_M))
+        return Output(topics.SLAM_MAP, t.LandmarkMap(stamp_ns=self.last_state.stamp_ns, seq=self.maps,
+                                                     state_seq=self.last_state.seq, landmarks=self.sent,
+                                                     tolerance_m=LANDMARK_TOLERANCE_M))
 
     def _motion(self) -> np.ndarray:
         """What moved the filter to this scan, (3,); zero where nothing did (absent only in older recordings)."""

@@ -193,3 +193,21 @@ def test_keyframes_whose_poses_are_not_k_by_3_are_a_decode_error():
     bad = map_pb2.MapKeyframes(scan_stamp_ns=[1, 2], local_pose=[0.0] * 6, map_pose=[0.0] * 5)
     with pytest.raises(DecodeError):
         codec.MAP_KEYFRAMES.decode(bad.SerializeToString())
+
+
+def test_messages_are_built_by_keyword():
+    """A message of many fields built by position breaks silently when a field is added or moved
+    (two of the same type swap unnoticed), so outside the tests none is built with more than three."""
+    import ast
+    import dataclasses
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    classes = {name for name in dir(t) if dataclasses.is_dataclass(getattr(t, name))}
+    found = []
+    for path in sorted([*(root / "src").rglob("*.py"), *(root / "services").rglob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and len(node.args) > 3:
+                name = getattr(node.func, "attr", getattr(node.func, "id", None))
+                if name in classes:
+                    found.append(f"{path.relative_to(root)}:{node.lineno} {name}")
+    assert not found, found

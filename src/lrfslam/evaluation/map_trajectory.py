@@ -92,9 +92,11 @@ class KeyframeHistory:
         except InputError as exc:
             raise InputError(f"map/keyframes: {exc}") from None
         order = np.argsort(np.concatenate((last.scan_stamp_ns, stamps)), kind="stable")
-        return t.MapKeyframes(last.stamp_ns, last.seq, np.concatenate((last.scan_stamp_ns, stamps))[order],
-                              np.vstack((last.local_pose, local))[order], np.vstack((last.map_pose, placed))[order],
-                              np.concatenate((last.local_edge, edge))[order])
+        return t.MapKeyframes(stamp_ns=last.stamp_ns, seq=last.seq,
+                              scan_stamp_ns=np.concatenate((last.scan_stamp_ns, stamps))[order],
+                              local_pose=np.vstack((last.local_pose, local))[order],
+                              map_pose=np.vstack((last.map_pose, placed))[order],
+                              local_edge=np.concatenate((last.local_edge, edge))[order])
 
 
 class FinalTrajectoryBuilder:

@@ -169,11 +169,10 @@ def _scan_from(p) -> t.LaserScan:
     ranges = np.array(p.ranges_m, np.float64)
     if np.any(ranges < 0) or np.any(np.isfinite(ranges) & (ranges > MAX_ABS)):
         raise ValueError(f"a range is negative or beyond {MAX_ABS:g} m (no return is +inf)")
-    return t.LaserScan(
-        p.header.stamp_ns, p.header.seq, ranges, status.astype(np.uint8),
-        p.angle_min_rad, p.angle_increment_rad, p.range_max_m, p.range_min_m, p.header.frame_id,
-        p.scan_time_s, p.source,
-    )
+    return t.LaserScan(stamp_ns=p.header.stamp_ns, seq=p.header.seq, ranges_m=ranges, status=status.astype(np.uint8),
+                       angle_min_rad=p.angle_min_rad, angle_increment_rad=p.angle_increment_rad,
+                       range_max_m=p.range_max_m, range_min_m=p.range_min_m, frame_id=p.header.frame_id,
+                       scan_time_s=p.scan_time_s, source=p.source)
 
 
 def _odom_to(m: t.Odometry):
@@ -188,7 +187,8 @@ def _odom_to(m: t.Odometry):
 def _odom_from(p) -> t.Odometry:
     pose = _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad))
     _bounded("velocity", (p.linear_mps, p.angular_radps))
-    return t.Odometry(p.header.stamp_ns, p.header.seq, pose, p.linear_mps, p.angular_radps, p.header.frame_id)
+    return t.Odometry(stamp_ns=p.header.stamp_ns, seq=p.header.seq, pose=pose, linear_mps=p.linear_mps,
+                      angular_radps=p.angular_radps, frame_id=p.header.frame_id)
 
 
 def _filtered_to(m: t.FilteredScan):
@@ -212,7 +212,8 @@ def _filtered_from(p) -> t.FilteredScan:
     if k and (kept.max() >= scan.ranges_m.size or np.any(np.diff(kept) <= 0)):
         raise ValueError("kept_beams must be ascending indices into the scan")
     points = _bounded("points", np.column_stack((p.x_m, p.y_m))) if k else np.zeros((0, 2))
-    return t.FilteredScan(p.header.stamp_ns, p.header.seq, scan, kept, points, p.max_range_m, p.mode)
+    return t.FilteredScan(stamp_ns=p.header.stamp_ns, seq=p.header.seq, scan=scan, kept_beams=kept,
+                          points_xy_m=points, max_range_m=p.max_range_m, mode=p.mode)
 
 
 def _features_to(m: t.Features):
@@ -243,12 +244,11 @@ def _features_from(p) -> t.Features:
         # An angle modulo 90°: within [-pi/4, pi/4] (with rounding), and a sigma no wider than a turn.
         if not (abs(wall) <= np.pi / 4 * (1 + 1e-9) and 0 < wall_sigma <= 2 * np.pi):
             raise ValueError("wall_direction needs a direction within ±pi/4 and a sigma in (0, 2 pi]")
-    return t.Features(
-        p.header.stamp_ns, p.header.seq, p.scan_seq,
-        [f.kind for f in fs], _bounded("feature xy", [(f.x_m, f.y_m) for f in fs]),
-        _covariances("feature covariance", [list(f.covariance_m2) for f in fs], len(fs)),
-        [f.beam for f in fs], [f.angle_deg for f in fs], wall, wall_sigma,
-    )
+    return t.Features(stamp_ns=p.header.stamp_ns, seq=p.header.seq, scan_seq=p.scan_seq, kind=[f.kind for f in fs],
+                      xy_m=_bounded("feature xy", [(f.x_m, f.y_m) for f in fs]),
+                      cov_m2=_covariances("feature covariance", [list(f.covariance_m2) for f in fs], len(fs)),
+                      beam=[f.beam for f in fs], angle_deg=[f.angle_deg for f in fs], wall_direction_rad=wall,
+                      wall_direction_sigma_rad=wall_sigma)
 
 
 def _landmarks_to(target, lms: t.Landmarks) -> None:
@@ -269,9 +269,9 @@ def _landmarks_from(lms) -> t.Landmarks:
     if len(set(ids)) != len(ids):
         raise ValueError("a landmark id appears twice")
     return t.Landmarks(
-        ids, _bounded("landmark xy", [(lm.x_m, lm.y_m) for lm in lms]).reshape(-1, 2),
-        _bounded("landmark covariance", [list(lm.covariance_m2) for lm in lms], MAX_ABS ** 2).reshape(-1, 2, 2),
-        [lm.kind for lm in lms], [lm.sightings for lm in lms], [lm.confirmed for lm in lms])
+        ids=ids, xy_m=_bounded("landmark xy", [(lm.x_m, lm.y_m) for lm in lms]).reshape(-1, 2),
+        cov_m2=_bounded("landmark covariance", [list(lm.covariance_m2) for lm in lms], MAX_ABS ** 2).reshape(-1, 2, 2),
+        kind=[lm.kind for lm in lms], sightings=[lm.sightings for lm in lms], confirmed=[lm.confirmed for lm in lms])
 
 
 def _pose_covariance(p) -> np.ndarray:
@@ -300,21 +300,24 @@ def _slam_from(p) -> t.SlamState:
     changed = _landmarks_from(p.changed_landmarks)
     if np.intersect1d(changed.ids, np.asarray(p.removed_landmark_ids, np.int64)).size:
         raise ValueError("a landmark is both changed and removed")
-    return t.SlamState(
-        p.header.stamp_ns, p.header.seq, p.scan_seq, _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
-        _pose_covariance(p), changed, list(p.removed_landmark_ids), False, p.landmarks, p.confirmed_landmarks,
-        p.associated, p.added, p.rejected, _pose2d_or_none(p, "motion"), p.motion_matched,
-    )
+    return t.SlamState(stamp_ns=p.header.stamp_ns, seq=p.header.seq, scan_seq=p.scan_seq,
+                       pose=_bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
+                       pose_cov=_pose_covariance(p), landmarks=changed,
+                       removed_landmark_ids=list(p.removed_landmark_ids), landmarks_complete=False,
+                       n_landmarks=p.landmarks, n_confirmed=p.confirmed_landmarks, associated=p.associated,
+                       added=p.added, rejected=p.rejected, motion=_pose2d_or_none(p, "motion"),
+                       motion_matched=p.motion_matched)
 
 
 def _slam_from_v1(p) -> t.SlamState:
     """A v1 state: every message held the whole map."""
     lms = _landmarks_from(p.landmarks)
-    return t.SlamState(
-        p.header.stamp_ns, p.header.seq, p.scan_seq, _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
-        _pose_covariance(p), lms, (), True, len(lms), int(np.count_nonzero(lms.confirmed)),
-        p.associated, p.added, p.rejected, _pose2d_or_none(p, "motion"), p.motion_matched,
-    )
+    return t.SlamState(stamp_ns=p.header.stamp_ns, seq=p.header.seq, scan_seq=p.scan_seq,
+                       pose=_bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
+                       pose_cov=_pose_covariance(p), landmarks=lms, removed_landmark_ids=(), landmarks_complete=True,
+                       n_landmarks=len(lms), n_confirmed=int(np.count_nonzero(lms.confirmed)),
+                       associated=p.associated, added=p.added, rejected=p.rejected,
+                       motion=_pose2d_or_none(p, "motion"), motion_matched=p.motion_matched)
 
 
 def _landmark_map_to(m: t.LandmarkMap):
@@ -327,7 +330,8 @@ def _landmark_map_to(m: t.LandmarkMap):
 def _landmark_map_from(p) -> t.LandmarkMap:
     if not 0 <= p.tolerance_m <= MAX_ABS:
         raise ValueError("tolerance_m must be finite and not negative")
-    return t.LandmarkMap(p.header.stamp_ns, p.header.seq, p.state_seq, _landmarks_from(p.landmarks), p.tolerance_m)
+    return t.LandmarkMap(stamp_ns=p.header.stamp_ns, seq=p.header.seq, state_seq=p.state_seq,
+                         landmarks=_landmarks_from(p.landmarks), tolerance_m=p.tolerance_m)
 
 
 def _pose2d(target, pose) -> None:
@@ -356,8 +360,9 @@ def _map_pose_to(m: t.MapPose):
 def _map_pose_from(p) -> t.MapPose:
     pose = _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad))
     t_map = _bounded("map_from_slam", (p.map_from_slam.x_m, p.map_from_slam.y_m, p.map_from_slam.theta_rad))
-    return t.MapPose(p.header.stamp_ns, p.header.seq, p.scan_seq, pose, t_map, p.keyframes, p.closures,
-                     p.closures_rejected, _pose2d_or_none(p, "local_pose"))
+    return t.MapPose(stamp_ns=p.header.stamp_ns, seq=p.header.seq, scan_seq=p.scan_seq, pose=pose,
+                     map_from_slam=t_map, keyframes=p.keyframes, closures=p.closures,
+                     closures_rejected=p.closures_rejected, local_pose=_pose2d_or_none(p, "local_pose"))
 
 
 def _keyframes_to(m: t.MapKeyframes):
@@ -382,12 +387,14 @@ def _keyframes_from(p) -> t.MapKeyframes:
     if not (len(p.retired_local_pose) == len(p.retired_offset) == 3 * r
             and len(p.retired_local_edge) == len(p.retired_anchor_stamp_ns) == r):
         raise ValueError("retired keyframes' arrays are not R and R x 3")
-    return t.MapKeyframes(p.header.stamp_ns, p.header.seq, list(p.scan_stamp_ns),
-                          _bounded("local_pose", p.local_pose).reshape(k, 3),
-                          _bounded("map_pose", p.map_pose).reshape(k, 3), list(p.local_edge),
-                          list(p.retired_scan_stamp_ns), _bounded("retired_local_pose", p.retired_local_pose),
-                          list(p.retired_local_edge), list(p.retired_anchor_stamp_ns),
-                          _bounded("retired_offset", p.retired_offset))
+    return t.MapKeyframes(stamp_ns=p.header.stamp_ns, seq=p.header.seq, scan_stamp_ns=list(p.scan_stamp_ns),
+                          local_pose=_bounded("local_pose", p.local_pose).reshape(k, 3),
+                          map_pose=_bounded("map_pose", p.map_pose).reshape(k, 3), local_edge=list(p.local_edge),
+                          retired_scan_stamp_ns=list(p.retired_scan_stamp_ns),
+                          retired_local_pose=_bounded("retired_local_pose", p.retired_local_pose),
+                          retired_local_edge=list(p.retired_local_edge),
+                          retired_anchor_stamp_ns=list(p.retired_anchor_stamp_ns),
+                          retired_offset=_bounded("retired_offset", p.retired_offset))
 
 
 def _truth_to(m: t.GroundTruth):
@@ -403,8 +410,10 @@ def _truth_to(m: t.GroundTruth):
 
 def _truth_from(p) -> t.GroundTruth:
     cs = p.visible_corners
-    return t.GroundTruth(p.header.stamp_ns, p.header.seq, _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
-                         [c.id for c in cs], _bounded("corners", [(c.x_m, c.y_m) for c in cs]), p.world)
+    return t.GroundTruth(stamp_ns=p.header.stamp_ns, seq=p.header.seq,
+                         pose=_bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad)),
+                         corner_ids=[c.id for c in cs],
+                         corners_xy_m=_bounded("corners", [(c.x_m, c.y_m) for c in cs]), world=p.world)
 
 
 def _status_to(m: t.ServiceStatus):
@@ -419,9 +428,10 @@ def _status_to(m: t.ServiceStatus):
 
 
 def _status_from(p) -> t.ServiceStatus:
-    return t.ServiceStatus(p.service, p.robot, p.level, p.message, p.wall_stamp_ns, p.uptime_s,
-                           dict(p.counters), p.last_data_stamp_ns, p.config_json, tuple(p.schemas),
-                           p.pid, p.host)
+    return t.ServiceStatus(service=p.service, robot=p.robot, level=p.level, message=p.message,
+                           wall_stamp_ns=p.wall_stamp_ns, uptime_s=p.uptime_s, counters=dict(p.counters),
+                           last_data_stamp_ns=p.last_data_stamp_ns, config_json=p.config_json,
+                           schemas=tuple(p.schemas), pid=p.pid, host=p.host)
 
 
 LASER_SCAN: Codec[t.LaserScan] = Codec(laser_scan_pb2.LaserScan, _scan_to, _scan_from)

@@ -244,8 +244,8 @@ class Landmarks:
 
     def take(self, rows) -> Landmarks:
         """The landmarks at ``rows`` (an index array or a boolean mask over the rows)."""
-        return Landmarks(self.ids[rows], self.xy_m[rows], self.cov_m2[rows], self.kind[rows],
-                         self.sightings[rows], self.confirmed[rows])
+        return Landmarks(ids=self.ids[rows], xy_m=self.xy_m[rows], cov_m2=self.cov_m2[rows], kind=self.kind[rows],
+                         sightings=self.sightings[rows], confirmed=self.confirmed[rows])
 
 
 @dataclass(frozen=True, eq=False)

@@ -228,10 +228,12 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             merged[BACKLOG] = bus.pending()
             if age is not None:
                 merged.update(age.counters())
-            return t.ServiceStatus(
-                spec.name, robot, level, message, time.time_ns(), time.monotonic() - started,
-                dict(merged), last_data[0], config_mod.to_json(cfg),
-                tuple(tp.schema for tp in spec.inputs + spec.outputs), os.getpid(), socket.gethostname())
+            return t.ServiceStatus(service=spec.name, robot=robot, level=level, message=message,
+                                   wall_stamp_ns=time.time_ns(), uptime_s=time.monotonic() - started,
+                                   counters=dict(merged), last_data_stamp_ns=last_data[0],
+                                   config_json=config_mod.to_json(cfg),
+                                   schemas=tuple(tp.schema for tp in spec.inputs + spec.outputs), pid=os.getpid(),
+                                   host=socket.gethostname())
 
         def publish(outs) -> None:
             newest_stamp = None
