@@ -174,7 +174,7 @@ def anchored_poses(known_ids: np.ndarray, known_poses: np.ndarray, ids: np.ndarr
     """Poses given on anchors ((R, 3)): each its anchor's pose composed with its offset.
 
     An anchor is a known pose or an earlier (smaller id) anchored one: the mapper's retired
-    keyframes, each on the older keyframe it was folded into (src/lrfslam/algo/loop_closure.py).
+    keyframes, each on the older keyframe it was folded into (src/lrfslam/algo/loop_closure/keyframes.py).
 
     Parameters
     ----------

@@ -64,7 +64,13 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from lrfslam.algo.checks import require_finite
-from lrfslam.algo.geometry import wrap_angle
+from lrfslam.algo.geometry import (
+    compose,
+    compose_with_covariance,
+    inverse_with_covariance,
+    relative,
+    wrap_angle,
+)
 from lrfslam.errors import ConfigError, InputError
 
 
@@ -292,6 +298,60 @@ class PoseGraph:
     def edge_count(self) -> int:
         """Edges in the problem (removed ones not counted)."""
         return int(np.count_nonzero(self._alive[: self._m]))
+
+    def fold(self, n: int, anchor_edge: int, weights: np.ndarray) -> list[int]:
+        """Make node ``n`` a leaf on the node its robust edge ``anchor_edge`` comes from.
+
+        ``n = k ⊕ z_L``: every other edge of ``n`` is re-expressed as an edge of ``k`` through
+        ``z_L``, its covariance grown by the anchor's (``Σ_L / w``, its information as the last
+        optimisation weighed it, ``weights`` (E,) as :meth:`loop_weights` gives), and merged with
+        an edge already between the same nodes (:meth:`merge_measurement`). ``n`` keeps only
+        ``anchor_edge``, so its pose follows ``k``'s. The anchor is set to where the optimisation
+        put ``n``, not where the edge alone did: the optimum weighed it against the rest, and
+        the re-expressed edges are to keep that optimum.
+
+        Returns the edges that were ``n``'s other edges (now re-expressed, merged or removed).
+        """
+        k = self.edge_nodes(anchor_edge)[0]
+        z_l = relative(self.poses[k], self.poses[n])
+        info_l = self.edge_information(anchor_edge)
+        self.set_edge(anchor_edge, k, n, z_l, info_l, robust=True)
+        cov_l = np.linalg.inv(info_l) / max(float(weights[anchor_edge]), 1e-9)
+        z_l_inv, cov_l_inv = inverse_with_covariance(z_l, cov_l)
+        moved = [e for e in self.edges_of(n).tolist() if e != anchor_edge]
+        for e in moved:
+            i, j = self.edge_nodes(e)
+            cov = np.linalg.inv(self.edge_information(e)) / max(float(weights[e]), 1e-9)
+            if j == n:   # i -> n becomes i -> k
+                a, b = i, k
+                z, cov = compose_with_covariance(self.edge_measurement(e), cov, z_l_inv, cov_l_inv)
+            else:        # n -> j becomes k -> j
+                a, b = k, j
+                z, cov = compose_with_covariance(z_l, cov_l, self.edge_measurement(e), cov)
+            parallel = self.find_edge(a, b) if a != b else None
+            if a == b or parallel is not None:
+                self.remove_edge(e)
+            if parallel is not None:
+                self.merge_measurement(parallel, a, b, z, cov)
+            elif a != b:
+                self.set_edge(e, a, b, z, np.linalg.inv(cov))
+        return moved
+
+    def merge_measurement(self, edge: int, a: int, b: int, z: np.ndarray, cov: np.ndarray) -> None:
+        """Fuse a measurement ``z`` (3,) of node ``b`` in node ``a``'s frame, covariance ``cov`` (3, 3),
+        into ``edge`` (between the same two nodes, either way round).
+
+        Information adds; the measurement moves from the edge's towards ``z`` by the new
+        information's share, in the edge's own frame (the two differ by a correction, not a turn).
+        """
+        i, _ = self.edge_nodes(edge)
+        if i != a:   # the edge runs b -> a
+            z, cov = inverse_with_covariance(z, cov)
+        old_z, old_info = self.edge_measurement(edge), self.edge_information(edge)
+        info = np.linalg.inv(cov)
+        fused_info = old_info + info
+        step = np.linalg.solve(fused_info, info @ relative(old_z, z))
+        self.set_edge(edge, *self.edge_nodes(edge), compose(old_z, step), fused_info)
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """The graph as arrays (copies): ``graph_poses`` (K, 3); per edge, removed ones included so
@@ -542,7 +602,7 @@ class PoseGraph:
         """The factorisation of the first ``covered`` nodes' and ``edges`` edges' normal equations.
 
         With ``drop_leaves``, without the nodes with a single edge (a folded revisit of
-        lrfslam/algo/loop_closure.py) and their edges: a leaf's edge fixes the leaf and tells the
+        lrfslam/algo/loop_closure/) and their edges: a leaf's edge fixes the leaf and tells the
         rest of the graph nothing (its Schur complement is zero), so the other nodes' covariance
         is the same, and the factorisation is the size of the graph without its leaves.
         """
