@@ -263,7 +263,10 @@ def run(bus_cfg: BusConfig, cfg: Ros2Config, stop: threading.Event, counts: Coun
         ``--subscribe`` while a live service of the robot publishes ``scan`` or ``odom``.
     """
     zenoh.init_log_from_env_or("error")
-    session = open_session(zenoh_config(bus_cfg), stop, bus_cfg.connect)
+    conf = zenoh_config(bus_cfg)
+    # A transient-local publisher (zenoh-ext's advanced one, as rmw_zenoh makes it) stamps its samples.
+    conf.insert_json5("timestamping/enabled", "true")
+    session = open_session(conf, stop, bus_cfg.connect)
     if session is None:
         return 0
     with closing(session):
