@@ -31,6 +31,7 @@ from lrfslam.msgs import types as t
 from lrfslam.ros2 import convert, views, wire
 from lrfslam.runtime.bus import parse_attachment
 from lrfslam.runtime.recording import read_recording
+from lrfslam.tools import status
 
 pytestmark = pytest.mark.integration
 
@@ -78,7 +79,8 @@ def test_a_ros2_node_sees_the_pipeline(cluster):
                 received[topic].append((att, sample.payload.to_bytes(), msgtype))
         return on_sample
 
-    proc = bridge(cluster)
+    health = cluster.tmp / "ros2-health.json"
+    proc = bridge(cluster, "--health-file", str(health))
     session = cluster.session()
     with session:
         zid = str(session.zid())
@@ -101,6 +103,7 @@ def test_a_ros2_node_sees_the_pipeline(cluster):
                                "--connect", cluster.endpoint], cwd=cluster.tmp, capture_output=True, text=True, check=False,
                               timeout=120)
         assert play.returncode == 0, play.stderr
+        assert status.main(["--check-file", str(health)]) == 0   # what its container's healthcheck runs
         deadline = time.monotonic() + 10
         while len(received[views.POSE.qualified(NS)]) < 80 and time.monotonic() < deadline:
             time.sleep(0.1)

@@ -27,6 +27,9 @@ or could not be converted, by kind (``error.decode``: not CDR of the type; ``err
 refused; ``attachment.other``: a sample without rmw_zenoh's 33-byte attachment, converted anyway);
 each kind of bad input is logged once.
 
+With ``--health-file`` it rewrites FILE every health period as a service does, for a container's
+healthcheck (``lrfslam status --check-file FILE``).
+
 Exit codes: 0 stopped by SIGTERM or Ctrl-C; 2 bad usage, a refused start, or the Zenoh session
 could not start (one line).
 """
@@ -35,7 +38,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import threading
+import time
 from collections import Counter, deque
 from dataclasses import dataclass
 
@@ -44,10 +49,19 @@ import zenoh.ext
 
 from lrfslam.errors import ConfigError, DecodeError, InputError, LrfSlamError
 from lrfslam.msgs import counters, topics
+from lrfslam.msgs import types as t
 from lrfslam.msgs.codec import parse_encoding
 from lrfslam.ros2 import convert, wire
 from lrfslam.ros2.views import PUBLISHED, SUBSCRIBED, RosTopic, RosViews
-from lrfslam.runtime.bus import BusConfig, ZenohBus, closing, open_session, zenoh_config
+from lrfslam.runtime import health_file
+from lrfslam.runtime.bus import (
+    BusConfig,
+    ZenohBus,
+    closing,
+    connected,
+    open_session,
+    zenoh_config,
+)
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.runner import (
     install_signal_handlers,
@@ -280,12 +294,29 @@ def run(bus_cfg: BusConfig, cfg: Ros2Config, stop: threading.Event, counts: Coun
             log.info("node %s/%s on ROS domain %d: robot %s's topics as %s", cfg.namespace, NODE_NAME,
                      cfg.domain_id, bus_cfg.robot, ", ".join(bridge.publishers[t.name].name for t in PUBLISHED))
             bridge.catch_up()
+        next_health = 0.0
         try:
             while not stop.is_set():
                 bridge.step(0.1)
+                if bus_cfg.health_file and (now := time.monotonic()) >= next_health:
+                    next_health = now + bus_cfg.health_period_s
+                    write_health(session, bus_cfg, counts)
         finally:
             bridge.close()
     return 0
+
+
+def write_health(session: zenoh.Session, bus_cfg: BusConfig, counts: Counter) -> None:
+    """The health file (``--health-file``), as a service writes it: rewritten while the loop turns, and
+    whether the session still has its router. One that cannot be written is counted and logged once."""
+    try:
+        health_file.write(bus_cfg.health_file, health_file.HealthRecord(
+            "ros2", bus_cfg.robot, t.HEALTH_OK, f"{sum(v for k, v in counts.items() if k.startswith(counters.OUT))} "
+            "messages published", time.time_ns(), bus_cfg.health_period_s, connected(session), os.getpid()))
+    except OSError as exc:
+        if not counts[counters.ERROR_HEALTH_FILE]:
+            log.warning("cannot write the health file: %s", exc)
+        counts[counters.ERROR_HEALTH_FILE] += 1
 
 
 def parser() -> argparse.ArgumentParser:
@@ -302,6 +333,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--scan-topic", help="with --subscribe: the LaserScan topic (default /<ns>/scan)")
     p.add_argument("--odom-topic", help="with --subscribe: the Odometry topic (default /<ns>/odom)")
     p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config applied first (TLS, ...)")
+    p.add_argument("--health-file", metavar="FILE",
+                   help="also write the bridge's health to FILE every second, for a container healthcheck: "
+                        "lrfslam status --check-file FILE")
     p.add_argument("--log-level", default=None, help="DEBUG, INFO, WARNING, ERROR")
     return p
 
@@ -321,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
                          scan_topic=wire.check_namespace(args.scan_topic) if args.scan_topic else "",
                          odom_topic=wire.check_namespace(args.odom_topic) if args.odom_topic else "")
         bus_cfg = BusConfig(robot=robot, mode="client", connect=tuple(args.connect or BusConfig.connect),
-                            zenoh_config=args.zenoh_config or "")
+                            zenoh_config=args.zenoh_config or "", health_file=args.health_file or "")
         run(bus_cfg, cfg, stop, counts)
     except LrfSlamError as exc:
         log.error("%s", exc)
