@@ -1,7 +1,7 @@
 """rmw_zenoh's wire format (src/lrfslam/ros2/wire.py): keys, tokens, QoS strings, attachment, names, hashes.
 
-The fixtures are the examples of rmw_zenoh's ``docs/design.md`` and the type hashes of the research
-note (``shared/notes/ros2-rmw-zenoh.md``, each read in two sources).
+The fixtures are the examples of rmw_zenoh's design document (``design.md`` in its repository) and the
+Jazzy type hashes as rosidl generates them (docs/ros2.md).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 What a plain Zenoh program must send for ROS 2 nodes using rmw_zenoh (Jazzy ≥ 0.2.4, Kilted,
 Rolling ≥ 0.6.0) to take its samples and list its node and topics (docs/ros2.md; the layout is
-rmw_zenoh's ``docs/design.md`` and ``liveliness_utils.cpp``):
+rmw_zenoh's design document, ``design.md``, and ``liveliness_utils.cpp``):
 
 - data key ``<domain_id>/<topic without its leading '/'>/<DDS type name>/<RIHS01 type hash>``,
   e.g. ``0/robot1/scan/sensor_msgs::msg::dds_::LaserScan_/RIHS01_64c1…``;
