@@ -2,9 +2,10 @@
 
 Out: the bridge runs beside ``lrfslam play`` of the golden pipeline recording; the "ROS node"
 (its own liveliness token, subscribers on the exact Jazzy data keys) sees the bridge's node and
-publisher tokens, receives LaserScan, Odometry, TFMessage and PoseWithCovarianceStamped with the
-33-byte attachment, decodes them with rosbags and finds the recorded values; a late subscriber
-gets ``/tf_static`` from the transient-local cache.
+publisher tokens, receives LaserScan, Odometry, TFMessage, PoseWithCovarianceStamped and, after
+the session puts the mapper's keyframes, OccupancyGrid with the 33-byte attachment, decodes them
+with rosbags and finds the recorded values (the grid: lrfslam's grid of the keyframes' scans); a
+late subscriber gets ``/tf_static`` and ``/map`` from the transient-local caches.
 
 In: the "ROS node" publishes the golden Intel recording re-encoded as ROS 2 LaserScan and
 Odometry (with its publisher tokens and attachments); ``lrfslam ros2 --subscribe`` puts them on
@@ -26,10 +27,11 @@ import zenoh
 import zenoh.ext
 
 from lrfslam.algo.geometry import wrap_angle
+from lrfslam.algo.occupancy_grid import GridParams, build_grid
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
 from lrfslam.ros2 import convert, views, wire
-from lrfslam.runtime.bus import parse_attachment
+from lrfslam.runtime.bus import attachment, parse_attachment, producer_id
 from lrfslam.runtime.recording import read_recording
 from lrfslam.tools import status
 
@@ -70,7 +72,7 @@ def test_a_ros2_node_sees_the_pipeline(cluster):
     received = defaultdict(list)   # topic -> (attachment, decoded message)
     lock = threading.Lock()
     wanted = {views.SCAN: wire.LASER_SCAN, views.SCAN_FILTERED: wire.LASER_SCAN, views.ODOM: wire.ODOMETRY,
-              views.TF: wire.TF_MESSAGE, views.POSE: wire.POSE_WITH_COVARIANCE_STAMPED}
+              views.TF: wire.TF_MESSAGE, views.POSE: wire.POSE_WITH_COVARIANCE_STAMPED, views.MAP: wire.OCCUPANCY_GRID}
 
     def receiver(topic: str, msgtype: str):
         def on_sample(sample: zenoh.Sample) -> None:
@@ -104,18 +106,29 @@ def test_a_ros2_node_sees_the_pipeline(cluster):
                               timeout=120)
         assert play.returncode == 0, play.stderr
         assert status.main(["--check-file", str(health)]) == 0   # what its container's healthcheck runs
+        # The mapper's keyframes (this session stands in for it): every 10th scan at the EKF's pose.
+        kf_stamps = sorted(recorded("scan", source))[::10]
+        kf_poses = np.array([recorded("slam/state", source)[s].pose for s in kf_stamps])
+        kf = t.MapKeyframes(stamp_ns=kf_stamps[-1], seq=1, scan_stamp_ns=kf_stamps, local_pose=kf_poses,
+                            map_pose=kf_poses)
+        session.put(topics.key(cluster.robot, topics.MAP_KEYFRAMES.name), topics.MAP_KEYFRAMES.codec.encode(kf),
+                    encoding=zenoh.Encoding(topics.MAP_KEYFRAMES.codec.encoding),
+                    attachment=attachment(1, kf.stamp_ns, producer_id(session)))
         deadline = time.monotonic() + 10
-        while len(received[views.POSE.qualified(NS)]) < 80 and time.monotonic() < deadline:
+        while (len(received[views.POSE.qualified(NS)]) < 80 or not received[views.MAP.qualified(NS)]) \
+                and time.monotonic() < deadline:
             time.sleep(0.1)
-        # A subscriber joining now gets /tf_static from the publisher's cache (transient local).
-        late = []
-        late_sub = zenoh.ext.declare_advanced_subscriber(
-            session, wire.data_key(0, "/tf_static", wire.TF_MESSAGE), lambda s: late.append(s.payload.to_bytes()),
+        # A subscriber joining now gets /tf_static and the map from the publishers' caches (transient local).
+        late = defaultdict(list)
+        late_subs = [zenoh.ext.declare_advanced_subscriber(
+            session, wire.data_key(0, topic, msgtype), lambda s, topic=topic: late[topic].append(s.payload.to_bytes()),
             history=zenoh.ext.HistoryConfig(detect_late_publishers=True))
+            for topic, msgtype in (("/tf_static", wire.TF_MESSAGE), (f"{NS}/map", wire.OCCUPANCY_GRID))]
         deadline = time.monotonic() + 10
-        while not late and time.monotonic() < deadline:
+        while len(late) < 2 and time.monotonic() < deadline:
             time.sleep(0.1)
-        late_sub.undeclare()
+        for sub in late_subs:
+            sub.undeclare()
         for sub in subs:
             sub.undeclare()
         me.undeclare()
@@ -167,9 +180,23 @@ def test_a_ros2_node_sees_the_pipeline(cluster):
         assert msg.pose.covariance[0] == state.pose_cov[0, 0]
     frames = {(tr.header.frame_id, tr.child_frame_id) for m in decoded["/tf"] for tr in m.transforms}
     assert frames == {("itest/odom", "itest/base_link"), ("itest/map", "itest/odom")}
-    assert len(decoded["/tf"]) == len(odoms) + len(states)
-    (static,) = [convert.deserialize(p, wire.TF_MESSAGE) for p in late[:1]]
+    # One odom -> base_link per odometry, one map -> odom per state but a first state that reached the
+    # bridge before any odometry (the streams race at the start).
+    assert len(odoms) + len(states) - 1 <= len(decoded["/tf"]) <= len(odoms) + len(states)
+    (static,) = [convert.deserialize(p, wire.TF_MESSAGE) for p in late["/tf_static"][:1]]
     assert [(tr.header.frame_id, tr.child_frame_id) for tr in static.transforms] == [("itest/base_link", "itest/laser")]
+    # The map: the grid of the keyframes' scans at their poses, as lrfslam's own grid code draws it.
+    (grid_msg,) = decoded["/itest/map"]
+    assert [convert.deserialize(p, wire.OCCUPANCY_GRID).data.tolist() for p in late[f"{NS}/map"][:1]] == \
+        [grid_msg.data.tolist()]
+    kf_scans = [scans[s] for s in kf_stamps]
+    grid = build_grid(kf_poses, np.array([views.grid_ranges(s) for s in kf_scans]),
+                      np.array([s.angles_rad for s in kf_scans]), GridParams(), fit=True)
+    assert (grid_msg.header.frame_id, convert.stamp_ns(grid_msg.header.stamp)) == ("itest/map", kf_stamps[-1])
+    assert (grid_msg.info.height, grid_msg.info.width) == grid.shape
+    assert (grid_msg.info.origin.position.x, grid_msg.info.origin.position.y) == tuple(grid.origin_xy_m)
+    assert grid_msg.info.resolution == pytest.approx(grid.resolution_m)
+    assert grid_msg.data.tolist() == grid.trinary().reshape(-1).tolist()
 
 
 def test_a_ros2_robots_scans_and_odometry_reach_the_pipeline(cluster):

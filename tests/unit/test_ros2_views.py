@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from pathlib import Path
 
@@ -90,3 +91,55 @@ def test_no_map_to_odom_without_odometry():
     state = t.SlamState(stamp_ns=5, seq=1, scan_seq=1, pose=(0, 0, 0), pose_cov=np.eye(3))
     assert [p.topic.name for p in v.on_message("slam/state", state)] == ["pose", "landmarks"]
     assert v.on_message("features", object()) == []
+
+
+def keyframes(stamp_ns: int, seq: int, stamps, poses) -> t.MapKeyframes:
+    poses = np.asarray(poses, float)
+    return t.MapKeyframes(stamp_ns=stamp_ns, seq=seq, scan_stamp_ns=stamps, local_pose=poses, map_pose=poses)
+
+
+def grid_fields(msg) -> tuple:
+    back = convert.deserialize(convert.serialize(msg), msg.__msgtype__)
+    info = back.info
+    return (info.width, info.height, round(info.resolution, 6), info.origin.position.x, info.origin.position.y,
+            back.data.tolist(), back.header.frame_id, convert.stamp_ns(back.header.stamp))
+
+
+def test_the_map_is_the_grid_of_the_keyframes_scans_relaid_as_they_move():
+    from lrfslam.algo.occupancy_grid import GridParams, build_grid
+    v = views.RosViews("/robot1")
+    msgs = pipeline_messages()
+    scans = [value for name, value in msgs if name == "scan"]
+    states = {value.stamp_ns: value.pose for name, value in msgs if name == "slam/state"}
+    for s in scans:
+        assert [p.topic.name for p in v.on_message("scan", s)] == ["scan"]   # no keyframes yet: no map
+    chosen = scans[::10]
+    stamps = np.array([s.stamp_ns for s in chosen])
+    poses = np.array([states[s] for s in stamps])
+    last = scans[-1].stamp_ns
+
+    def expected(use_poses, use_scans):
+        ranges = np.array([views.grid_ranges(s) for s in use_scans])
+        angles = np.array([s.angles_rad for s in use_scans])
+        return build_grid(use_poses, ranges, angles, GridParams(), fit=True)
+
+    (pub,) = v.on_message("map/keyframes", keyframes(last, 1, stamps, poses))
+    assert pub.topic is views.MAP and pub.topic.latched
+    grid = expected(poses, chosen)
+    h, w = grid.shape
+    assert grid_fields(pub.message) == (w, h, grid.resolution_m, *grid.origin_xy_m, grid.trinary().reshape(-1).tolist(),
+                                        "robot1/map", last)
+    assert {100, 0, -1} <= set(grid.trinary().reshape(-1).tolist())   # walls, free space and unknown
+    # An optimisation moves every keyframe 1 m along x and drops two: within 1 s of data time of the
+    # last map nothing goes out; the first scan after it draws them where they are now.
+    moved = poses + (1.0, 0.0, 0.0)
+    assert v.on_message("map/keyframes", keyframes(last + 300_000_000, 2, stamps[2:], moved[2:])) == []
+    later = [dataclasses.replace(scans[-1], stamp_ns=last + k * 250_000_000) for k in (2, 3, 4, 5)]
+    assert [[p.topic.name for p in v.on_message("scan", s)] for s in later] == \
+        [["scan"], ["scan"], ["scan", "map"], ["scan"]]
+    (pub,) = [p for p in v.on_message("map/keyframes", keyframes(last + 2_000_000_000, 3, stamps[2:], moved[2:]))]
+    relaid = expected(moved[2:], chosen[2:])
+    h, w = relaid.shape
+    assert grid_fields(pub.message) == (w, h, relaid.resolution_m, *relaid.origin_xy_m,
+                                        relaid.trinary().reshape(-1).tolist(), "robot1/map", last + 2_000_000_000)
+    assert relaid.origin_xy_m[0] != grid.origin_xy_m[0]

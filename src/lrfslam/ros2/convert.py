@@ -9,7 +9,8 @@ Out (what ``lrfslam ros2`` publishes; frames per REP-105, each prefixed ``<ns>/`
 - :func:`pose_with_covariance`: ``geometry_msgs/msg/PoseWithCovarianceStamped`` (the 3×3 (x, y, θ)
   covariance placed in the 6×6 one, rows and columns 0, 1, 5);
 - :func:`landmark_markers`: ``visualization_msgs/msg/MarkerArray``, a flat cylinder per landmark
-  whose footprint is its 2-sigma ellipse.
+  whose footprint is its 2-sigma ellipse;
+- :func:`occupancy_grid`: ``nav_msgs/msg/OccupancyGrid`` of an :class:`~lrfslam.algo.occupancy_grid.OccupancyGrid`.
 
 In (``lrfslam ros2 --subscribe``): :func:`scan_from_ros`, :func:`odometry_from_ros`.
 
@@ -24,6 +25,7 @@ import struct
 import numpy as np
 from rosbags.serde import SerdeError
 
+from lrfslam.algo.occupancy_grid import OccupancyGrid
 from lrfslam.errors import InputError
 from lrfslam.msgs import types as t
 from lrfslam.ros2 import wire
@@ -205,6 +207,19 @@ def landmark_markers(landmarks: t.Landmarks, stamp_ns_: int, frame_id: str):
                         scale=ty["geometry_msgs/msg/Vector3"](x=major, y=minor, z=MARKER_HEIGHT_M),
                         color=color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])))
     return ty[wire.MARKER_ARRAY](markers=out)
+
+
+def occupancy_grid(grid: OccupancyGrid, stamp_ns_: int, frame_id: str):
+    """``nav_msgs/msg/OccupancyGrid``: cells 100 occupied, 0 free, -1 unknown (map_server's thresholds),
+    row-major from row 0 at the lowest y, the origin the lower-left corner of cell [0, 0]."""
+    ty = _types()
+    h, w = grid.shape
+    x0, y0 = grid.origin_xy_m
+    return ty[wire.OCCUPANCY_GRID](
+        header=header(stamp_ns_, frame_id),
+        info=ty["nav_msgs/msg/MapMetaData"](map_load_time=stamp(stamp_ns_), resolution=float(grid.resolution_m),
+                                            width=int(w), height=int(h), origin=pose((x0, y0, 0.0))),
+        data=grid.trinary().reshape(-1))
 
 
 def serialize(message) -> bytes:

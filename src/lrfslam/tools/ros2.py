@@ -8,9 +8,9 @@ wire format there (src/lrfslam/ros2/wire.py), so a ROS 2 machine using ``rmw_zen
 router sees a node ``/<ns>/lrfslam`` and its topics (docs/ros2.md).
 
 Publishing (the default): subscribes to the robot's ``scan``, ``scan/filtered``, ``odom``,
-``slam/state``, ``slam/map`` and ``map/pose`` and publishes their ROS 2 views
+``slam/state``, ``slam/map``, ``map/pose`` and ``map/keyframes`` and publishes their ROS 2 views
 (src/lrfslam/ros2/views.py): ``/<ns>/scan``, ``/<ns>/scan_filtered``, ``/<ns>/odom``, ``/<ns>/pose``,
-``/<ns>/landmarks``, ``/tf`` and ``/tf_static`` (transient local), each on its data key with a CDR
+``/<ns>/landmarks``, ``/tf``, and transient local ``/tf_static`` and ``/<ns>/map``, each on its data key with a CDR
 payload and the 33-byte attachment (its sequence number, the data stamp as source timestamp, the
 publisher's GID), after declaring the node's liveliness token and one per publisher. Joining late, it
 asks the ``latest`` queryables for the current SLAM state, landmark map and map pose first.
@@ -77,7 +77,8 @@ log = logging.getLogger("lrfslam.ros2")
 #: The ROS node's name (in the namespace): ``/<ns>/lrfslam``.
 NODE_NAME = "lrfslam"
 #: The robot's topics the publishing bridge takes.
-INPUTS = (topics.SCAN, topics.SCAN_FILTERED, topics.ODOM, topics.SLAM_STATE, topics.SLAM_MAP, topics.MAP_POSE)
+INPUTS = (topics.SCAN, topics.SCAN_FILTERED, topics.ODOM, topics.SLAM_STATE, topics.SLAM_MAP, topics.MAP_POSE,
+          topics.MAP_KEYFRAMES)
 #: The topics whose newest message a late bridge asks for (``topics.latest``).
 CATCH_UP = (topics.SLAM_MAP, topics.SLAM_STATE, topics.MAP_POSE)
 #: Samples taken from ROS 2 waiting to be converted, at most.
