@@ -374,6 +374,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.status_period > 0:
         parser.error(f"--status-period must be > 0 s, got {args.status_period}")
+    if args.ros2 and not 0 <= args.domain_id <= 232:
+        parser.error(f"--domain-id must be 0..232 (ROS 2's range), got {args.domain_id}")
     if args.connect and args.listen:
         parser.error("--listen sets up's own router's endpoints; with --connect up starts no router")
     setup_logging("up", "INFO")
