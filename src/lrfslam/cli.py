@@ -12,6 +12,7 @@
     lrfslam export RECORDING [-o DIR | --foxglove OUT.mcap]   map.json/map.png, or a copy for Foxglove
     lrfslam monitor --connect tcp/HOST:7447 [--port 8765]     live Foxglove WebSocket server
     lrfslam play RECORDING [--rate X | --rate max] [--topics T ...] [--loop]   a recording onto the live bus
+    lrfslam ros2 --connect tcp/HOST:7447 [--domain-id 0] [--subscribe]   ROS 2 over rmw_zenoh, both ways
     lrfslam bench [--only SECTIONS] [--quick] [--json] | --check ekf   one table of costs, latency, rates, logs
     lrfslam emulate-lms200             an LMS200 on a pseudo-terminal
 
@@ -48,6 +49,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "monitor": ("lrfslam.tools.monitor", "main", "serve a robot's live streams to Foxglove (WebSocket)"),
     "play": ("lrfslam.tools.play", "main",
              "play a recording onto the live bus (--rate X, or --rate max: as fast as the stages answer)"),
+    "ros2": ("lrfslam.tools.ros2", "main",
+             "the robot's topics to ROS 2 over rmw_zenoh (--subscribe: a ROS 2 robot's scans into the pipeline)"),
     "bench": ("lrfslam.tools.bench", "main",
               "one table: stage costs, EKF against a dense update, codecs, live latency, max rate, logs, memory"),
 }

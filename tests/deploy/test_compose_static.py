@@ -23,7 +23,7 @@ from lrfslam import cli, services
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
 from lrfslam.runtime.runner import bus_config, flag_sets, service_parser
-from lrfslam.tools import monitor, status
+from lrfslam.tools import monitor, ros2, status
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
@@ -31,6 +31,7 @@ COMPOSE = DEPLOY / "compose.yaml"
 CONFIG = DEPLOY / "config.toml"
 ROUTER = "zenohd"
 MONITOR = "monitor"
+ROS2 = "ros2"
 
 _VAR = re.compile(r"\$\{(\w+)(?::?-([^}]*))?\}")
 
@@ -66,8 +67,20 @@ def mounts(svc: dict) -> dict[str, Path]:
     return out
 
 
-def test_services_are_the_router_the_six_stages_and_the_monitor(svcs):
-    assert set(svcs) == {ROUTER, MONITOR, *services.NAMES}
+def test_services_are_the_router_the_six_stages_the_monitor_and_the_ros2_bridge(svcs):
+    assert set(svcs) == {ROUTER, MONITOR, ROS2, *services.NAMES}
+
+
+def test_the_ros2_bridge_runs_only_when_asked_waits_for_the_router_alone_and_parses(svcs):
+    """Under a profile, so `docker compose up` leaves it out; its robot is the pipeline's."""
+    bridge = svcs[ROS2]
+    assert bridge["profiles"] == ["ros2"]
+    assert not [name for name, svc in svcs.items() if name != ROS2 and "profiles" in svc]
+    assert bridge["depends_on"] == {ROUTER: {"condition": "service_healthy"}}
+    assert not [name for name, svc in svcs.items() if ROS2 in svc.get("depends_on", {})]
+    args = ros2.parser().parse_args(bridge["command"][1:])
+    assert args.robot == config_mod.read_file(CONFIG)["bus"]["robot"]
+    assert args.connect == ["tcp/zenohd:7447"] and args.domain_id == 0 and not args.subscribe
 
 
 def test_depends_on_targets_exist_and_form_no_cycle(svcs):

@@ -29,9 +29,10 @@ MAY_IMPORT: dict[str, set[str]] = {
     "drivers": BASE | {"sim", "algo"},
     "runtime": BASE | {"msgs", "extras"},
     "viz": BASE | {"msgs", "algo"},
+    "ros2": BASE | {"msgs", "algo"},
     "services": BASE | {"runtime", "viz", "msgs", "algo", "sim", "drivers", "io", "extras"},
     "evaluation": BASE | {"services", "runtime", "msgs", "algo", "sim", "io", "extras"},
-    "tools": BASE | {"evaluation", "services", "runtime", "viz", "msgs", "algo", "sim", "drivers", "io", "extras"},
+    "tools": BASE | {"evaluation", "services", "runtime", "viz", "ros2", "msgs", "algo", "sim", "drivers", "io", "extras"},
     "cli": BASE | {"services", "runtime", "tools"},
 }
 

@@ -11,7 +11,8 @@ Zenoh sessions reconnect to a restarted router by themselves, the slam resumes f
 its checkpoint (in the recording folder), the sensor from where the simulated robot
 is now, and the recorder adds a segment. While it runs, a status line every
 ``--status-period`` seconds (scans, their rate, landmarks, the pose error against the truth;
-``--quiet``: none); ``--monitor`` also runs ``lrfslam monitor --dashboard`` as one more
+``--quiet``: none); ``--monitor`` also runs ``lrfslam monitor --dashboard`` and ``--ros2``
+``lrfslam ros2`` (the robot's topics for ROS 2 over rmw_zenoh, docs/ros2.md), each as one more
 supervised process. On Ctrl-C, SIGTERM or after ``--duration`` seconds the sensor stops
 first, the pipeline drains, the rest stop in order, and a summary compares the SLAM estimate
 with the simulator's ground truth. ``--skip sensor`` runs the pipeline without one, for a
@@ -32,6 +33,7 @@ import sys
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -48,6 +50,7 @@ from lrfslam.errors import (
 )
 from lrfslam.evaluation.truth import RunningTruthError
 from lrfslam.msgs import codec, counters, topics
+from lrfslam.ros2 import wire
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import closing, parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
@@ -364,9 +367,15 @@ def main(argv: list[str] | None = None) -> int:
                              "dashboard on --http-port, both on 127.0.0.1), supervised like the services")
     parser.add_argument("--monitor-port", type=int, default=8765, help="with --monitor: Foxglove WebSocket port")
     parser.add_argument("--http-port", type=int, default=8080, help="with --monitor: the dashboard's port")
+    parser.add_argument("--ros2", action="store_true",
+                        help="also run lrfslam ros2 (the robot's topics for ROS 2 over rmw_zenoh on this router, "
+                             "domain --domain-id; docs/ros2.md), supervised like the services")
+    parser.add_argument("--domain-id", type=int, default=0, help="with --ros2: the ROS_DOMAIN_ID (default 0)")
     args = parser.parse_args(argv)
     if not args.status_period > 0:
         parser.error(f"--status-period must be > 0 s, got {args.status_period}")
+    if args.ros2 and not 0 <= args.domain_id <= 232:
+        parser.error(f"--domain-id must be 0..232 (ROS 2's range), got {args.domain_id}")
     if args.connect and args.listen:
         parser.error("--listen sets up's own router's endpoints; with --connect up starts no router")
     setup_logging("up", "INFO")
@@ -406,7 +415,10 @@ def main(argv: list[str] | None = None) -> int:
     monitor = Child("monitor", [sys.executable, "-m", "lrfslam.cli", "monitor", "--connect", endpoint, "--robot",
                                 args.robot, "--dashboard", "--port", str(args.monitor_port), "--http-port",
                                 str(args.http_port), "--log-level", args.log_level]) if args.monitor else None
-    supervised = ([router] if router else []) + list(children.values()) + ([monitor] if monitor else [])
+    ros2 = Child("ros2", [sys.executable, "-m", "lrfslam.cli", "ros2", "--connect", endpoint, "--robot", args.robot,
+                          "--domain-id", str(args.domain_id), "--log-level", args.log_level]) if args.ros2 else None
+    viewers = [c for c in (monitor, ros2) if c]
+    supervised = ([router] if router else []) + list(children.values()) + viewers
     observer = Observer()
     started = time.monotonic()
     try:
@@ -446,8 +458,8 @@ def main(argv: list[str] | None = None) -> int:
         if up:
             if "sensor" in children:
                 children["sensor"].start()
-            if monitor:
-                monitor.start()
+            for viewer in viewers:
+                viewer.start()
         log.info("pipeline up: robot %s, router %s, recording %s", args.robot, endpoint, recording)
         if "sensor" not in children:
             log.info("no sensor: play a recording in with lrfslam play RECORDING --robot %s --connect %s",
@@ -455,6 +467,9 @@ def main(argv: list[str] | None = None) -> int:
         if monitor:
             log.info("monitor: Foxglove ws://127.0.0.1:%d, dashboard http://127.0.0.1:%d/", args.monitor_port,
                      args.http_port)
+        if ros2:
+            log.info("ros2: node /%s/lrfslam on ROS domain %d via %s (RMW_IMPLEMENTATION=rmw_zenoh_cpp)",
+                     wire.namespace_of(args.robot), args.domain_id, endpoint)
         live = LiveLine(time.monotonic())
         next_line = time.monotonic() + args.status_period
         # The run's length counts from here: starting the processes can take seconds on a busy machine.
@@ -499,15 +514,15 @@ def main(argv: list[str] | None = None) -> int:
         for name in services.NAMES:
             if name != "sensor" and name in children:
                 children[name].stop(15)
-        if monitor:
-            monitor.stop(10)
+        for viewer in viewers:
+            viewer.stop(10)
         time.sleep(0.3)  # let the last health messages arrive
         observer.process()
         for sub in subs:
             sub.undeclare()
     if router:
         router.stop(5)
-    print(summary(observer, children, recording, time.monotonic() - started, router, monitor))
+    print(summary(observer, children, recording, time.monotonic() - started, router, viewers))
     return 1 if any(c.gave_up for c in supervised) else 0
 
 
@@ -626,7 +641,7 @@ def pose_errors(observer: Observer) -> dict[str, float] | None:
 
 
 def summary(observer: Observer, children: dict[str, Child], recording: Path, wall_s: float,
-            router: Child | None = None, monitor: Child | None = None) -> str:
+            router: Child | None = None, viewers: Sequence[Child] = ()) -> str:
     """The table of stages (counters summed over restarts), SLAM against truth, and the recording.
 
     ``wall_s`` is the run's duration on the monotonic clock. ``dropped`` counts inputs a stage
@@ -654,7 +669,7 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
     lines += recording_lines(recording, observer.counters("sensor").get(f"{counters.OUT}{topics.SCAN.name}", 0)
                              if "sensor" in children else None)
     lines += unrecorded_lines(observer, recording, children.get("recorder"))
-    lines += restart_lines(([router] if router else []) + list(children.values()) + ([monitor] if monitor else []))
+    lines += restart_lines(([router] if router else []) + list(children.values()) + list(viewers))
     return "\n".join(lines)
 
 

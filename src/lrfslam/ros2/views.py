@@ -1,0 +1,248 @@
+"""What ``lrfslam ros2`` publishes for each lrfslam message: the ROS 2 topics and their messages.
+
+One :class:`RosViews` per robot takes the robot's messages in the order they arrive and returns
+the ROS messages to publish, each with its topic (fully qualified). Frames (REP-105, each
+``<ns>/…``): ``map`` -> ``odom`` -> ``base_link`` -> ``laser``.
+
+- ``scan`` -> ``/<ns>/scan``; ``scan/filtered`` -> ``/<ns>/scan_filtered`` (``LaserScan``);
+- ``odom`` -> ``/<ns>/odom`` (``Odometry``) and ``/tf`` odom -> base_link; with the first one,
+  ``/tf_static`` base_link -> laser (identity: lrfslam's scans are in the robot's frame);
+- the robot's pose in the map, from the mapper's ``map/pose`` once one has come, else from the
+  EKF's ``slam/state``: ``/<ns>/pose`` (``PoseWithCovarianceStamped``, in ``<ns>/map``, the EKF's
+  covariance of that scan, turned into the mapper's frame) and ``/tf`` map -> odom, the
+  correction that puts the odometry's pose of the same stamp (interpolated) on it;
+- the EKF's landmarks (rebuilt from ``slam/state`` and ``slam/map``), in the map frame, at most
+  every :data:`LANDMARK_PERIOD_S` of data time: ``/<ns>/landmarks`` (``MarkerArray``);
+- the occupancy grid of the scans of the mapper's keyframes at their optimised poses
+  (:class:`KeyframeGrid`), after a ``map/keyframes``, at most every :data:`MAP_PERIOD_S` of data
+  time: ``/<ns>/map`` (``OccupancyGrid``, transient local).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict, deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from lrfslam.algo.geometry import compose, inverse
+from lrfslam.algo.occupancy_grid import GridParams, OccupancyGrid, build_grid
+from lrfslam.algo.stream_alignment import interpolate_pose
+from lrfslam.msgs import topics
+from lrfslam.msgs import types as t
+from lrfslam.msgs.landmark_map import LandmarkMapReplica
+from lrfslam.ros2 import convert, wire
+
+#: Landmarks go out at most this often, s of data time.
+LANDMARK_PERIOD_S = 0.5
+#: Odometry poses kept for the map -> odom transform, and EKF covariances kept for the mapper's poses.
+ODOM_KEPT = 256
+COV_KEPT = 64
+#: The map goes out at most this often, s of data time.
+MAP_PERIOD_S = 1.0
+#: Recent scans kept for keyframes still to come (the mapper announces a keyframe after its scan).
+RECENT_SCANS = 1024
+
+
+@dataclass(frozen=True)
+class RosTopic:
+    """A ROS 2 topic this bridge publishes: its name under the namespace (``scan``) or absolute
+    (``/tf``), its message type and QoS."""
+
+    name: str
+    msgtype: str
+    qos: wire.Qos = wire.STREAM_QOS
+    latched: bool = False
+
+    def qualified(self, namespace: str) -> str:
+        """``/robot1/scan`` (``/tf`` stays ``/tf``)."""
+        return self.name if self.name.startswith("/") else f"{namespace.rstrip('/')}/{self.name}"
+
+
+SCAN = RosTopic("scan", wire.LASER_SCAN)
+SCAN_FILTERED = RosTopic("scan_filtered", wire.LASER_SCAN)
+ODOM = RosTopic("odom", wire.ODOMETRY)
+POSE = RosTopic("pose", wire.POSE_WITH_COVARIANCE_STAMPED)
+LANDMARKS = RosTopic("landmarks", wire.MARKER_ARRAY)
+TF = RosTopic("/tf", wire.TF_MESSAGE, wire.TF_QOS)
+TF_STATIC = RosTopic("/tf_static", wire.TF_MESSAGE, wire.LATCHED_QOS, latched=True)
+MAP = RosTopic("map", wire.OCCUPANCY_GRID, wire.LATCHED_QOS, latched=True)
+PUBLISHED = (SCAN, SCAN_FILTERED, ODOM, POSE, LANDMARKS, TF, TF_STATIC, MAP)
+#: What ``--subscribe`` takes by default.
+SUBSCRIBED = (RosTopic("scan", wire.LASER_SCAN, wire.SENSOR_QOS), RosTopic("odom", wire.ODOMETRY, wire.SENSOR_QOS))
+
+
+@dataclass(frozen=True)
+class Publication:
+    """One ROS message to publish on ``topic``, with the data stamp it carries (ns)."""
+
+    topic: RosTopic
+    message: object
+    stamp_ns: int
+
+
+def grid_ranges(scan: t.LaserScan) -> np.ndarray:
+    """A scan's ranges as the grid takes them (as ``lrfslam export`` does): (N,) float32, a valid
+    beam's range, +inf for no return, NaN for the rest."""
+    return np.where(scan.status == t.BEAM_VALID, scan.ranges_m,
+                    np.where(scan.status == t.BEAM_NO_RETURN, np.inf, np.nan)).astype(np.float32)
+
+
+class KeyframeGrid:
+    """The occupancy grid of the mapper's keyframes: each keyframe's scan at its optimised pose.
+
+    Scans are held by stamp: the last :data:`RECENT_SCANS`, and those of the graph's keyframes
+    for as long as they are in it (a keyframe retired from the graph, a folded revisit, takes its
+    scan with it). Each ``map/keyframes`` replaces the poses; :meth:`build` traces the grid anew
+    from all of them, with ``lrfslam export``'s default parameters (coarsened as it does when too large).
+    """
+
+    def __init__(self) -> None:
+        self.params = GridParams()
+        self._recent: OrderedDict[int, tuple[np.ndarray, float, float]] = OrderedDict()
+        self._kept: dict[int, tuple[np.ndarray, float, float]] = {}
+        self._stamps = np.zeros(0, np.int64)
+        self._poses = np.zeros((0, 3))
+
+    def add_scan(self, scan: t.LaserScan) -> None:
+        self._recent[scan.stamp_ns] = (grid_ranges(scan), scan.angle_min_rad, scan.angle_increment_rad)
+        while len(self._recent) > RECENT_SCANS:
+            self._recent.popitem(last=False)
+
+    def set_keyframes(self, keyframes: t.MapKeyframes) -> None:
+        """The graph's keyframes and their poses now."""
+        self._stamps, self._poses = keyframes.scan_stamp_ns, keyframes.map_pose
+        wanted = {int(s) for s in self._stamps}
+        self._kept = {s: v for s, v in self._kept.items() if s in wanted}
+        for s in wanted - set(self._kept):
+            if s in self._recent:
+                self._kept[s] = self._recent[s]
+
+    def build(self) -> OccupancyGrid | None:
+        """The grid of every keyframe whose scan is held; None when there is none."""
+        placed = [(i, self._kept[int(s)]) for i, s in enumerate(self._stamps) if int(s) in self._kept]
+        if not placed:
+            return None
+        width = max(r.size for _, (r, _, _) in placed)
+        ranges = np.full((len(placed), width), np.nan, dtype=np.float32)
+        for row, (_, (r, _, _)) in enumerate(placed):
+            ranges[row, :r.size] = r
+        angles = np.array([a0 + da * np.arange(width) for _, (_, a0, da) in placed])
+        return build_grid(self._poses[[i for i, _ in placed]], ranges, angles, self.params, fit=True)
+
+
+class RosViews:
+    """The ROS 2 views of one robot's messages (the module's docstring), for namespace ``namespace``
+    (fully qualified, ``/robot1``)."""
+
+    def __init__(self, namespace: str) -> None:
+        self.namespace = namespace
+        self.frames = {name: convert.frame(namespace, name) for name in ("map", "odom", "base_link", "laser")}
+        self._odom_stamps: deque[int] = deque(maxlen=ODOM_KEPT)
+        self._odom_poses: deque[np.ndarray] = deque(maxlen=ODOM_KEPT)
+        self._covs: OrderedDict[int, np.ndarray] = OrderedDict()
+        self.mapper_seen = False
+        self._map_from_slam = np.zeros(3)
+        self._landmarks = LandmarkMapReplica()
+        self._landmarks_due_ns: int | None = None
+        self._static_sent = False
+        self.grid = KeyframeGrid()
+        self._map_pending_ns: int | None = None   # the stamp of keyframes not yet drawn
+        self._map_due_ns: int | None = None
+
+    def on_message(self, name: str, value) -> list[Publication]:
+        """The publications for message ``value`` of relative topic ``name`` (none for the others)."""
+        if name == topics.SCAN.name:
+            self.grid.add_scan(value)
+            return [Publication(SCAN, convert.laser_scan(value, self.namespace), value.stamp_ns), *self._map(value.stamp_ns)]
+        if name == topics.MAP_KEYFRAMES.name:
+            self.grid.set_keyframes(value)
+            self._map_pending_ns = value.stamp_ns
+            return self._map(value.stamp_ns)
+        if name == topics.SCAN_FILTERED.name:
+            return [Publication(SCAN_FILTERED, convert.filtered_scan(value, self.namespace), value.stamp_ns)]
+        if name == topics.ODOM.name:
+            return self._odometry(value)
+        if name == topics.SLAM_STATE.name:
+            return self._slam_state(value)
+        if name == topics.SLAM_MAP.name:
+            self._landmarks.apply_map(value)
+            return []
+        if name == topics.MAP_POSE.name:
+            self.mapper_seen = True
+            self._map_from_slam = value.map_from_slam
+            cov = self._covs.get(value.stamp_ns)
+            if cov is not None:   # the EKF's covariance, turned into the mapper's frame
+                c, s = np.cos(value.map_from_slam[2]), np.sin(value.map_from_slam[2])
+                rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+                cov = rot @ cov @ rot.T
+            return self._map_pose(value.stamp_ns, value.pose, cov)
+        return []
+
+    def _map(self, stamp_ns: int) -> list[Publication]:
+        """``/<ns>/map`` if keyframes wait and :data:`MAP_PERIOD_S` of data time has passed (or time went back)."""
+        due = self._map_due_ns
+        if self._map_pending_ns is None or not (due is None or stamp_ns >= due
+                                                or stamp_ns < due - int(MAP_PERIOD_S * 1e9)):
+            return []
+        grid = self.grid.build()
+        if grid is None:
+            return []
+        self._map_pending_ns = None
+        self._map_due_ns = stamp_ns + int(MAP_PERIOD_S * 1e9)
+        return [Publication(MAP, convert.occupancy_grid(grid, stamp_ns, self.frames["map"]), stamp_ns)]
+
+    def _odometry(self, odom: t.Odometry) -> list[Publication]:
+        if self._odom_stamps and odom.stamp_ns <= self._odom_stamps[-1]:
+            self._odom_stamps.clear()   # data time went back (a replay's new loop): start afresh
+            self._odom_poses.clear()
+        self._odom_stamps.append(odom.stamp_ns)
+        self._odom_poses.append(odom.pose)
+        out = [Publication(ODOM, convert.odometry(odom, self.namespace), odom.stamp_ns),
+               Publication(TF, convert.tf_message([convert.transform(
+                   odom.stamp_ns, self.frames["odom"], self.frames["base_link"], odom.pose)]), odom.stamp_ns)]
+        if not self._static_sent:
+            self._static_sent = True
+            out.append(Publication(TF_STATIC, convert.tf_message([convert.transform(
+                odom.stamp_ns, self.frames["base_link"], self.frames["laser"], (0.0, 0.0, 0.0))]), odom.stamp_ns))
+        return out
+
+    def _slam_state(self, state: t.SlamState) -> list[Publication]:
+        self._landmarks.apply_state(state)
+        self._covs[state.stamp_ns] = state.pose_cov
+        while len(self._covs) > COV_KEPT:
+            self._covs.popitem(last=False)
+        out = [] if self.mapper_seen else self._map_pose(state.stamp_ns, state.pose, state.pose_cov)
+        due = self._landmarks_due_ns
+        if due is None or state.stamp_ns >= due or state.stamp_ns < due - int(LANDMARK_PERIOD_S * 1e9):
+            self._landmarks_due_ns = state.stamp_ns + int(LANDMARK_PERIOD_S * 1e9)
+            out.append(Publication(LANDMARKS, convert.landmark_markers(self.landmarks_in_map(), state.stamp_ns,
+                                                                       self.frames["map"]), state.stamp_ns))
+        return out
+
+    def landmarks_in_map(self) -> t.Landmarks:
+        """The EKF's landmarks as held, in the published map frame (the mapper's, once it has spoken)."""
+        held = self._landmarks.landmarks
+        if not self.mapper_seen or len(held) == 0:
+            return held
+        x, y, theta = self._map_from_slam
+        c, s = np.cos(theta), np.sin(theta)
+        rot = np.array([[c, -s], [s, c]])
+        return t.Landmarks(ids=held.ids, xy_m=held.xy_m @ rot.T + (x, y), cov_m2=rot @ held.cov_m2 @ rot.T,
+                           kind=held.kind, sightings=held.sightings, confirmed=held.confirmed)
+
+    def map_to_odom(self, stamp_ns: int, map_pose: np.ndarray) -> np.ndarray | None:
+        """The ``odom`` frame's pose in ``map`` (3,): ``map_pose ⊕ ⊖odom_pose``, the odometry's pose at
+        ``stamp_ns`` interpolated; None without odometry."""
+        if not self._odom_stamps:
+            return None
+        odom_pose = interpolate_pose(np.array(self._odom_stamps), np.array(self._odom_poses), stamp_ns)
+        return compose(map_pose, inverse(odom_pose))
+
+    def _map_pose(self, stamp_ns: int, xyt: np.ndarray, cov: np.ndarray | None) -> list[Publication]:
+        out = [Publication(POSE, convert.pose_with_covariance(stamp_ns, self.frames["map"], xyt, cov), stamp_ns)]
+        correction = self.map_to_odom(stamp_ns, xyt)
+        if correction is not None:
+            out.append(Publication(TF, convert.tf_message([convert.transform(
+                stamp_ns, self.frames["map"], self.frames["odom"], correction)]), stamp_ns))
+        return out
