@@ -72,9 +72,9 @@ OPTIONAL = ("mapper", "sensor")
 POLL_S = 0.05
 #: Messages heard but not yet looked at by the supervisor's loop, at most.
 MAX_INBOX = 100_000
-#: The checkpoint files ``up`` gives the stages that keep state, unless one is configured: in the
-#: run's recording folder.
-CHECKPOINT_NAMES = {"slam": "slam.checkpoint.npz", "mapper": "mapper.checkpoint.npz"}
+#: The checkpoint file ``up`` gives a stage that keeps state (its config has a ``checkpoint_path``),
+#: unless one is configured: ``<recording folder>/<service>`` + this.
+CHECKPOINT_SUFFIX = ".checkpoint.npz"
 
 
 #: glibc serves an allocation this large (bytes) from mmap, returned to the system when freed.
@@ -398,8 +398,9 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault(f"{config_mod.ENV_PREFIX}_BUS_WALL_CLOCK_STAMPS", "false")
     topics.check_robot(args.robot)
     configs = check_configs(sets, args.config)
-    for name, file in CHECKPOINT_NAMES.items():
-        if name in configs and not configs[name].checkpoint_path:
+    for name, cfg in configs.items():
+        if getattr(cfg, "checkpoint_path", None) == "":
+            file = name + CHECKPOINT_SUFFIX
             # A killed stage resumes from here (its first start finds none: the folder is new).
             sets[name].append(f"checkpoint_path={recording / file}")
     extra = {n: [a for item in items for a in ("--set", item)] for n, items in sets.items()}
