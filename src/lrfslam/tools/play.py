@@ -44,6 +44,7 @@ or missed messages; 2 bad input or usage (one line); 130/143 stopped by SIGINT/S
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
 import queue
 import signal
@@ -75,7 +76,12 @@ from lrfslam.runtime.recording import (
     read_recording,
     recording_files,
 )
-from lrfslam.runtime.runner import BACKLOG, live_services, setup_logging
+from lrfslam.runtime.runner import (
+    BACKLOG,
+    STOP_STACKS_AFTER_S,
+    live_services,
+    setup_logging,
+)
 from lrfslam.tools.status import client_config, query_status
 
 log = logging.getLogger("lrfslam.play")
@@ -522,6 +528,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def on_signal(signum, _frame) -> None:
         signals.append(signum)
+        if not stop.is_set():   # a stop that hangs says where (as a service's does)
+            faulthandler.dump_traceback_later(STOP_STACKS_AFTER_S)
         stop.set()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
@@ -552,6 +560,7 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             player.close()
         lost = losses(before, query_status(session, robot, 2.0)[1]) if alive else {}
+    faulthandler.cancel_dump_traceback_later()
     stopped = signal.Signals(signals[0]).name if signals else None
     print(summary_line(player.summary, watched, player.window, lost, stopped), flush=True)
     if stopped:
