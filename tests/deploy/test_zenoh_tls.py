@@ -8,7 +8,6 @@ without a certificate or with a certificate from another CA is refused.
 from __future__ import annotations
 
 import json
-import shutil
 import socket
 import subprocess
 import sys
@@ -31,12 +30,9 @@ def free_port() -> int:
 
 
 @pytest.fixture
-def tls(tmp_path):
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl not installed")
+def tls(tmp_path, make_certs):
     certs = tmp_path / "tls"
-    subprocess.run([str(DEPLOY / "zenoh" / "make-certs.sh"), str(certs), "robot.test"], check=True,
-                   capture_output=True, timeout=60)
+    make_certs(certs)
     router_conf = tmp_path / "router.json5"
     router_conf.write_text((DEPLOY / "zenoh" / "router-tls.json5").read_text()
                            .replace("/etc/lrfslam/tls/", f"{certs}/"))
@@ -47,8 +43,7 @@ def tls(tmp_path):
     no_cert_conf = tmp_path / "no-cert.json5"
     no_cert_conf.write_text(json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": f"{certs}/ca.pem"}}}}))
     rogue = tmp_path / "rogue"
-    subprocess.run([str(DEPLOY / "zenoh" / "make-certs.sh"), str(rogue), "robot.test"], check=True,
-                   capture_output=True, timeout=60)
+    make_certs(rogue)
     rogue_conf = tmp_path / "rogue.json5"
     rogue_conf.write_text(monitor_conf.read_text().replace(f"{certs}/monitor", f"{rogue}/monitor"))
     return router_conf, monitor_conf, no_cert_conf, rogue_conf
