@@ -1,4 +1,5 @@
-"""What counts as loopback, for ``lrfslam up --listen`` (src/lrfslam/tools/exposure.py).
+"""What counts as loopback, for ``lrfslam up --listen`` and ``lrfslam monitor`` (src/lrfslam/tools/exposure.py),
+and where the monitor's token comes from.
 
 Properties over every IPv4 address and a sample of IPv6 ones, against the definition: loopback is
 127.0.0.0/8 and ::1 (and the IPv4-mapped form of 127/8); every other address, 0.0.0.0 and ::
@@ -14,7 +15,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from lrfslam.errors import ConfigError
-from lrfslam.tools.exposure import endpoint_host, is_loopback, plain_beyond_loopback
+from lrfslam.tools.exposure import (
+    TOKEN_ENV,
+    endpoint_host,
+    is_loopback,
+    plain_beyond_loopback,
+    read_token,
+)
 
 LOOPBACK_V4 = ipaddress.ip_network("127.0.0.0/8")
 
@@ -63,3 +70,22 @@ def test_endpoints(endpoint, plain_beyond):
 def test_not_an_endpoint():
     with pytest.raises(ConfigError, match="not a Zenoh endpoint"):
         plain_beyond_loopback("0.0.0.0:7447")
+
+
+def test_the_token_comes_from_the_file_then_the_environment(tmp_path):
+    (tmp_path / "token").write_text("  from-the-file-0123456789\n")
+    env = {TOKEN_ENV: "from-the-environment-0123"}
+    assert read_token(str(tmp_path / "token"), env) == "from-the-file-0123456789"
+    assert read_token(None, env) == "from-the-environment-0123"
+    assert read_token(None, {TOKEN_ENV: ""}) is None and read_token(None, {}) is None
+
+
+@pytest.mark.parametrize("token", ["short-token", "has a space in it 0123", "semi;colon-0123456789", "é" * 20])
+def test_a_token_a_url_or_cookie_would_mangle_or_a_short_one_is_refused(token):
+    with pytest.raises(ConfigError, match="at least 16 characters of A-Z a-z 0-9"):
+        read_token(None, {TOKEN_ENV: token})
+
+
+def test_an_unreadable_token_file_is_one_line(tmp_path):
+    with pytest.raises(ConfigError, match=r"cannot read --token-file .*nothing: No such file"):
+        read_token(str(tmp_path / "nothing"), {})
