@@ -56,7 +56,7 @@ ROLES = (Role("router", "lrfslam-router", server=True), Role("service", "lrfslam
 #: which the services and the router's own healthcheck dial.
 ALWAYS_NAMES = ("zenohd", "localhost", "127.0.0.1")
 CA_DAYS = 3650
-#: Apple's and the browsers' limit for a server certificate, kept for all roles (as make-certs.sh did).
+#: Apple's limit for a TLS server certificate, kept for every role (as deploy/zenoh/make-certs.sh's openssl did).
 CERT_DAYS = 825
 #: Valid from a little before now, so that a desk whose clock is a few minutes behind accepts them.
 BACKDATE = dt.timedelta(minutes=5)
