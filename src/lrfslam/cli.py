@@ -4,6 +4,7 @@
     lrfslam <service> [...]            one service live, or on a recording with --replay IN --out OUT
     lrfslam status                     live services and their statistics
     lrfslam router                     a Zenoh router
+    lrfslam certs OUT_DIR --host ROBOT_HOST   a private CA and the router's, services' and monitors' certificates
     lrfslam info RECORDING             topics, schemas, counts and duration of a recording (file or folder)
     lrfslam recover IN.mcap -o OUT.mcap   an indexed copy of a file whose writer was killed
     lrfslam pipeline --replay IN.mcap --out OUT.mcap [--stages denoise,features,slam]
@@ -38,6 +39,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "up": ("lrfslam.tools.up", "main", "run the whole pipeline (router + six services) and summarise"),
     "status": ("lrfslam.tools.status", "main", "list live services and their statistics"),
     "router": ("lrfslam.tools.router", "main", "run a Zenoh router"),
+    "certs": ("lrfslam.tools.certs", "main",
+              "a private CA and the TLS certificates of the router, the services and monitors (deploy/zenoh)"),
     "info": ("lrfslam.tools.info", "main", "describe an MCAP recording (a file or a recording folder)"),
     "recover": ("lrfslam.tools.recover", "main", "rewrite a file whose writer was killed as an indexed MCAP"),
     "pipeline": ("lrfslam.tools.pipeline", "main", "run several stages over a recording in one process (offline)"),

@@ -85,7 +85,8 @@ def run(argv: list[str], timeout: float, env: dict | None = None, check: bool = 
 class Deployment:
     """One compose project with its own name, router port and recordings folder."""
 
-    def __init__(self, compose: list[str], tmp: Path, tls: bool = False) -> None:
+    def __init__(self, compose: list[str], tmp: Path, make_certs=None) -> None:
+        """With ``make_certs`` (the fixture), over compose.tls.yaml with the certificates it makes."""
         self.project = f"lrfslam-test-{os.getpid()}"
         self.port = free_port()
         self.foxglove_port, self.dashboard_port = free_port(), free_port()
@@ -99,9 +100,9 @@ class Deployment:
         self.compose = [*compose, "-p", self.project, "-f", str(COMPOSE)]
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.zenoh_config: str | None = None
-        if tls:
+        if make_certs is not None:
             certs = tmp / "tls"
-            run([str(ROOT / "deploy" / "zenoh" / "make-certs.sh"), str(certs), "robot.test"], 60)
+            make_certs(certs)
             self.env["LRFSLAM_TLS"] = str(certs)
             self.compose += ["-f", str(COMPOSE_TLS)]
             self.endpoint = f"tls/127.0.0.1:{self.port}"
@@ -192,13 +193,13 @@ def check_monitor(dep: Deployment) -> dict:
 
 
 @pytest.mark.parametrize("tls", [False, True], ids=["plain", "tls-acl"])
-def test_compose_up_status_down_recording(engine, tmp_path, tls):
+def test_compose_up_status_down_recording(engine, tmp_path, tls, make_certs):
     t0 = time.monotonic()
     # The build is part of the test: the Dockerfile must install the repo on the base image.
     run([str(ROOT / "deploy" / "podman-build.sh")], 1200, dict(os.environ, LRFSLAM_IMAGE="lrfslam:test"))
     build_s = time.monotonic() - t0
 
-    dep = Deployment(engine, tmp_path, tls)
+    dep = Deployment(engine, tmp_path, make_certs if tls else None)
     try:
         dep("up", "-d", "--no-build", timeout=180)
 

@@ -146,13 +146,14 @@ def test_service_commands_parse_and_their_config_loads(svcs):
 
 def test_monitor_command_parses_and_serves_the_published_ports(svcs):
     """Its robot is the pipeline's (config.toml's [bus], which it does not read), it reaches the router
-    by name, listens on the container's interfaces, and serves Foxglove and the dashboard on the
-    container ports the host ports are mapped to."""
+    by name, listens on the container's interfaces (without a token: the host's port bindings keep it
+    on loopback, below), and serves Foxglove and the dashboard on the container ports the host ports
+    are mapped to."""
     args = monitor.parser().parse_args(svcs[MONITOR]["command"][1:])
     assert svcs[MONITOR]["command"][0] == "monitor"
     assert args.robot == config_mod.read_file(CONFIG)["bus"]["robot"]
     assert args.connect == ["tcp/zenohd:7447"]
-    assert args.host == "0.0.0.0" and args.dashboard
+    assert args.host == "0.0.0.0" and args.dashboard and args.insecure and args.token_file is None
     container_ports = {interpolate(p).rsplit(":", 1)[-1] for p in svcs[MONITOR]["ports"]}
     assert container_ports == {str(args.port), str(args.http_port)}
 

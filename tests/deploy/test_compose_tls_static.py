@@ -19,6 +19,7 @@ import zenoh
 from lrfslam import services
 from lrfslam.runtime.runner import bus_config, service_parser
 from lrfslam.tools import monitor, status
+from lrfslam.tools.certs import ROLES, Role
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 ROUTER = "zenohd"
@@ -106,10 +107,9 @@ def test_monitor_is_a_tls_client_with_the_monitor_certificate(tls):
     assert resolved == {"root_ca_certificate": f"{tls_dir}/ca.pem",
                         "connect_certificate": f"{tls_dir}/monitor.pem",
                         "connect_private_key": f"{tls_dir}/monitor-key.pem"}
-    # The certificate is the one make-certs.sh issues with the monitor's common name, which the
-    # router's list grants reading only.
-    certs = (DEPLOY / "zenoh" / "make-certs.sh").read_text()
-    assert re.search(r"^issue monitor lrfslam-monitor ", certs, re.MULTILINE)
+    # The certificate is the one lrfslam certs (make-certs.sh) issues with the monitor's common name,
+    # which the router's list grants reading only.
+    assert Role("monitor", "lrfslam-monitor") in ROLES
     acl = (DEPLOY / "zenoh" / "router-tls-acl.json5").read_text()
     assert '{ id: "monitor", cert_common_names: ["lrfslam-monitor"] }' in acl
     # Everything else as in the base file: robot, servers, ports, health file.

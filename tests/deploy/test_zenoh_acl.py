@@ -10,7 +10,6 @@ denoise service receive, and which queryable a query reaches.
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 import threading
@@ -49,16 +48,9 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def make_certs(out: Path) -> None:
-    subprocess.run([str(DEPLOY / "zenoh" / "make-certs.sh"), str(out), "robot.test"], check=True,
-                   capture_output=True, timeout=60)
-
-
 @pytest.fixture
-def acl(tmp_path):
+def acl(tmp_path, make_certs):
     """Config files for the router and every kind of client, and the router's TLS endpoint."""
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl not installed")
     certs, rogue = tmp_path / "tls", tmp_path / "rogue"
     make_certs(certs)
     make_certs(rogue)   # another CA, with certificates of the same common names

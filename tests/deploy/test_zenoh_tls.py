@@ -2,13 +2,13 @@
 
 The committed JSON5 files and make-certs.sh are used as shipped (only the certificate folder is
 moved into a temporary directory): a monitor with the issued certificate sees the services, one
-without a certificate or with a certificate from another CA is refused.
+without a certificate or with a certificate from another CA is refused; the same with the router
+of ``lrfslam up --zenoh-config router-tls.json5 --listen tls/...``.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 import socket
 import subprocess
 import sys
@@ -31,12 +31,9 @@ def free_port() -> int:
 
 
 @pytest.fixture
-def tls(tmp_path):
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl not installed")
+def tls(tmp_path, make_certs):
     certs = tmp_path / "tls"
-    subprocess.run([str(DEPLOY / "zenoh" / "make-certs.sh"), str(certs), "robot.test"], check=True,
-                   capture_output=True, timeout=60)
+    make_certs(certs)
     router_conf = tmp_path / "router.json5"
     router_conf.write_text((DEPLOY / "zenoh" / "router-tls.json5").read_text()
                            .replace("/etc/lrfslam/tls/", f"{certs}/"))
@@ -47,8 +44,7 @@ def tls(tmp_path):
     no_cert_conf = tmp_path / "no-cert.json5"
     no_cert_conf.write_text(json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": f"{certs}/ca.pem"}}}}))
     rogue = tmp_path / "rogue"
-    subprocess.run([str(DEPLOY / "zenoh" / "make-certs.sh"), str(rogue), "robot.test"], check=True,
-                   capture_output=True, timeout=60)
+    make_certs(rogue)
     rogue_conf = tmp_path / "rogue.json5"
     rogue_conf.write_text(monitor_conf.read_text().replace(f"{certs}/monitor", f"{rogue}/monitor"))
     return router_conf, monitor_conf, no_cert_conf, rogue_conf
@@ -77,3 +73,30 @@ def test_monitor_needs_a_certificate_from_the_robots_ca(tls):
             proc.terminate()
         for proc in procs:
             proc.wait(10)
+
+
+def test_up_listens_for_other_hosts_over_tls_and_plain_only_when_insecure(tls, tmp_path):
+    """up's router takes the TLS config; a plain endpoint on every interface runs with --insecure,
+    and up says so in one warning line."""
+    router_conf, monitor_conf, no_cert_conf, _ = tls
+    port, tls_port, plain = free_port(), free_port(), free_port()
+    up = subprocess.Popen([sys.executable, "-m", "lrfslam.cli", "up", "--port", str(port), "--robot", "r9",
+                           "--zenoh-config", str(router_conf), "--listen", f"tls/0.0.0.0:{tls_port}",
+                           "--listen", f"tcp/0.0.0.0:{plain}", "--insecure", "--skip", "sensor", "--skip", "mapper",
+                           "--duration", "120", "--quiet"],
+                          cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        endpoint = f"tls/127.0.0.1:{tls_port}"
+        deadline = time.monotonic() + 60
+        while status(["--zenoh-config", str(monitor_conf), "-e", endpoint, "--robot", "r9", "--check",
+                      "-s", "slam"]) != 0:
+            assert up.poll() is None and time.monotonic() < deadline, "up's slam never answered over TLS"
+            time.sleep(0.5)
+        assert status(["-e", f"tcp/127.0.0.1:{plain}", "--robot", "r9", "--check", "-s", "slam"]) == 0
+        assert status(["--zenoh-config", str(no_cert_conf), "-e", endpoint, "--check"]) == 2
+    finally:
+        up.terminate()
+        _, err = up.communicate(timeout=60)
+    assert up.returncode == 0, err[-3000:]
+    warnings = [line for line in err.splitlines() if "--insecure" in line]
+    assert len(warnings) == 1 and f"--listen tcp/0.0.0.0:{plain}: plain, beyond loopback" in warnings[0], err

@@ -86,8 +86,9 @@ class DevTools:
                     raise RuntimeError(reply["error"])
                 return reply["result"]
 
-    async def evaluate(self, expression: str):
-        result = await self.call("Runtime.evaluate", expression=expression, returnByValue=True)
+    async def evaluate(self, expression: str, await_promise: bool = False):
+        result = await self.call("Runtime.evaluate", expression=expression, returnByValue=True,
+                                 awaitPromise=await_promise)
         if "exceptionDetails" in result:
             raise RuntimeError(f"the page threw: {result['exceptionDetails'].get('exception', {}).get('description')}")
         return result["result"].get("value")
@@ -132,6 +133,30 @@ async def look_at_page(debug_port: int, timeout_s: float) -> tuple[dict, dict, b
         return first, facts, base64.b64decode(shot["data"]), html
 
 
+async def ask_page(debug_port: int, expression: str):
+    """What ``expression`` (awaited, if a promise) gives in the browser's page."""
+    targets = get_json(f"http://127.0.0.1:{debug_port}/json/list")
+    page = next(tg for tg in targets if tg["type"] == "page")
+    async with websockets.connect(page["webSocketDebuggerUrl"], max_size=None) as ws:
+        return json.loads(await DevTools(ws).evaluate(expression, await_promise=True))
+
+
+def open_chromium(chromium: str, profile: Path, url: str) -> tuple[subprocess.Popen, int]:
+    """Headless Chromium on ``url``: the process and its DevTools port."""
+    browser = subprocess.Popen(
+        [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+         "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1280,900",
+         "--no-first-run", url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    port_file = profile / "DevToolsActivePort"
+    deadline = time.monotonic() + 30
+    while not port_file.exists() or not port_file.read_text().strip():
+        if browser.poll() is not None or time.monotonic() > deadline:
+            browser.kill()
+            pytest.fail("chromium did not start")
+        time.sleep(0.2)
+    return browser, int(port_file.read_text().split()[0])
+
+
 def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_path):
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
@@ -163,18 +188,9 @@ def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_
 
         cluster.start("sensor", *SENSOR)
         wait_state(url, lambda s: s["scans"] >= 20, 60, "scans")
-        profile = tmp_path / "chromium"
-        browser = subprocess.Popen(
-            [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-             "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1280,900",
-             "--no-first-run", f"http://127.0.0.1:{http}/"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        browser, debug_port = open_chromium(chromium, tmp_path / "chromium", f"http://127.0.0.1:{http}/")
         try:
-            port_file = profile / "DevToolsActivePort"
-            deadline = time.monotonic() + 30
-            while not port_file.exists() or not port_file.read_text().strip():
-                assert browser.poll() is None and time.monotonic() < deadline, "chromium did not start"
-                time.sleep(0.2)
-            first, facts, png, html = asyncio.run(look_at_page(int(port_file.read_text().split()[0]), 60))
+            first, facts, png, html = asyncio.run(look_at_page(debug_port, 60))
         finally:
             browser.terminate()
             browser.wait(15)
@@ -197,6 +213,50 @@ def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_
     red = (crop[..., 0] > 0.7) & (crop[..., 1] < 0.3) & (crop[..., 2] < 0.3)
     assert drawn.sum() > 500, f"{drawn.sum()} drawn pixels"
     assert red.sum() > 10, f"{red.sum()} landmark-red pixels"
+
+
+TOKEN = "browser-test-token-0123456789"
+#: In the page: the address bar without the token, no cookie its scripts can read (HttpOnly), and
+#: the snapshot fetched with the cookie the first answer set, and without it.
+TOKEN_FACTS = """(async () => JSON.stringify({
+  search: location.search,
+  cookie: document.cookie,
+  with_cookie: (await fetch('/state.json')).status,
+  without: (await fetch('/state.json', {credentials: 'omit'})).status}))()"""
+
+
+def test_beyond_loopback_the_page_opened_with_the_token_shows_the_live_map(cluster, tmp_path):
+    """The monitor on every interface with a token: Chromium opens ``/?token=...`` once, and the page
+    and its WebSocket then go on with the cookie that answer set; without it the pages answer 401."""
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        unavailable("chromium is not installed (Debian: apt-get install chromium; deploy/setup-podman.sh does)")
+    for name in STAGES:
+        cluster.start(name, *(("name=run",) if name == "recorder" else ()))
+    session = cluster.session()
+    with session:
+        cluster.wait_for(session, lambda alive, st: {s for _, s in alive} >= set(STAGES), 30, "liveliness")
+    cluster.start("sensor", *SENSOR)
+    (tmp_path / "token").write_text(TOKEN + "\n")
+    http = free_port()
+    cluster.procs["monitor"] = subprocess.Popen(cluster.cmd(
+        "monitor", "--connect", cluster.endpoint, "--robot", cluster.robot, "--host", "0.0.0.0", "--port", "0",
+        "--dashboard", "--http-port", str(http), "--token-file", str(tmp_path / "token"), "--log-level", "WARNING"),
+        cwd=cluster.tmp)
+    wait_state(f"http://127.0.0.1:{http}/state.json?token={TOKEN}", lambda s: s["scans"] >= 20, 60, "scans")
+    browser, debug_port = open_chromium(chromium, tmp_path / "chromium", f"http://127.0.0.1:{http}/?token={TOKEN}")
+    try:
+        first, facts, _, _ = asyncio.run(look_at_page(debug_port, 60))
+        token_facts = asyncio.run(ask_page(debug_port, TOKEN_FACTS))
+    finally:
+        browser.terminate()
+        browser.wait(15)
+    for name in ("sensor", *reversed(STAGES), "monitor"):
+        assert cluster.stop(name) == 0, f"{name} did not exit cleanly on SIGTERM"
+    assert sorted(row[0] for row in facts["rows"]) == sorted(services.NAMES)
+    assert facts["conn"] == "live" and facts["scans"] > first["scans"] > 0
+    assert facts["states"] >= first["states"] + 20 and facts["trajectory"] > first["trajectory"]
+    assert token_facts == {"search": "", "cookie": "", "with_cookie": 200, "without": 401}
 
 
 def test_up_with_monitor_serves_the_dashboard_and_quiet_prints_no_live_line(tmp_path):

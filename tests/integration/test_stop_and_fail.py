@@ -98,6 +98,21 @@ def test_up_with_a_bad_setting_fails_before_starting_anything(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_up_refuses_a_plain_endpoint_beyond_loopback_before_starting_anything(tmp_path):
+    port, extra = free_port(), free_port()
+    proc = cli("up", "--port", str(port), "--listen", f"tcp/0.0.0.0:{extra}", cwd=tmp_path)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert err.splitlines() == [(f"lrfslam up: error: --listen tcp/0.0.0.0:{extra} is plain (no TLS) beyond loopback: "
+                                "whoever reaches it can read and publish on the bus; use tls/ with --zenoh-config "
+                                "(deploy/zenoh/router-tls.json5), or pass --insecure on a closed network")], err
+    # Nothing was started: no line from a router or a stage, no recording folder, no process left on a port.
+    assert list(tmp_path.iterdir()) == []
+    for p in (port, extra):
+        with socket.socket() as s:
+            s.bind(("0.0.0.0", p))
+
+
 def test_up_stops_everything_when_a_stage_exits_while_starting(tmp_path):
     (tmp_path / "blocker").write_text("a file where the recordings folder should be")
     proc = cli("up", "--recordings", "blocker/rec", "--port", str(free_port()), "--duration", "60", cwd=tmp_path)

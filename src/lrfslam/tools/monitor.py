@@ -1,15 +1,21 @@
 """``lrfslam monitor``: a robot's live streams served to Foxglove over WebSocket.
 
     lrfslam monitor --connect tcp/ROBOT:7447 [--robot R] [--port 8765] [--host 127.0.0.1]
-                    [--dashboard [--http-port 8080]] [--health-file FILE]
+                    [--dashboard [--http-port 8080]] [--token-file FILE | --insecure] [--health-file FILE]
 
 Joins the robot's Zenoh network as a client, subscribes to every key of the robot
 (``lrf/<robot>/**``), turns each message into Foxglove's views (lrfslam/viz/foxglove.py:
 the channels a recording holds) and serves them with foxglove-sdk's WebSocket server;
 Foxglove or Lichtblick open ``ws://HOST:PORT`` (docs/monitoring.md). The server sends
 the data stamps as its time, so the app's clock follows the robot's data. Read-only: the
-monitor publishes nothing on Zenoh, and its clients can only subscribe. The server has
-no authentication: keep ``--host`` on loopback unless the network is trusted.
+monitor publishes nothing on Zenoh, and its clients can only subscribe.
+
+Whoever reaches the ports sees every stream of the robot. On loopback (the default ``--host``)
+that is this machine's users, and nothing is asked of them. Beyond loopback the monitor wants a
+token (``--token-file FILE``, or ``LRFSLAM_MONITOR_TOKEN``) and refuses to start without one
+(exit 2, one line) unless told ``--insecure``; with a token, every page and WebSocket answers
+only a request that presents it (``?token=TOKEN`` in the URL: src/lrfslam/tools/webserver.py,
+where Foxglove's server, which cannot check one, is put behind a relay that does).
 
 The monitor is one feed (the Zenoh subscription) handing every message to its sinks;
 the Foxglove server is one sink, and with ``--dashboard`` a web page of the map and the
@@ -23,7 +29,7 @@ With ``--health-file`` the monitor rewrites FILE every health period as a servic
 ``lrfslam status --check-file FILE`` (connected to the router, main loop turning).
 
 Exit codes: 0 stopped by SIGTERM or Ctrl-C; 2 the server or the Zenoh session could
-not start (one line).
+not start, or beyond loopback without a token or ``--insecure`` (one line).
 """
 
 from __future__ import annotations
@@ -41,7 +47,13 @@ import foxglove
 import zenoh
 from foxglove.websocket import Capability
 
-from lrfslam.errors import DecodeError, InputError, LrfSlamError, StartupError
+from lrfslam.errors import (
+    ConfigError,
+    DecodeError,
+    InputError,
+    LrfSlamError,
+    StartupError,
+)
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.codec import parse_encoding
@@ -63,6 +75,8 @@ from lrfslam.runtime.runner import (
 )
 from lrfslam.runtime.step import Message
 from lrfslam.tools.dashboard import DEFAULT_HTTP_PORT, DashboardServer
+from lrfslam.tools.exposure import TOKEN_ENV, is_loopback, read_token
+from lrfslam.tools.webserver import FoxgloveRelay, TokenGate
 from lrfslam.viz.foxglove import CHANNELS, FoxgloveViews, ViewConfig, schema_of
 
 log = logging.getLogger("lrfslam.monitor")
@@ -89,7 +103,9 @@ class FoxgloveServer:
     """Sink: Foxglove's views of every message, on a foxglove-sdk WebSocket server.
 
     Every view channel is advertised from the start, so a client sees the whole list at
-    once; a message reaches only the clients subscribed to its channel.
+    once; a message reaches only the clients subscribed to its channel. With ``gate`` the
+    server listens on a free loopback port and a :class:`~lrfslam.tools.webserver.FoxgloveRelay`
+    checking the token takes ``host``:``port``.
 
     Raises
     ------
@@ -97,15 +113,22 @@ class FoxgloveServer:
         The server cannot listen on ``host``:``port``.
     """
 
-    def __init__(self, host: str, port: int, name: str, cfg: ViewConfig = LIVE_VIEWS) -> None:
+    def __init__(self, host: str, port: int, name: str, cfg: ViewConfig = LIVE_VIEWS,
+                 gate: TokenGate | None = None) -> None:
         self.context = foxglove.Context()
+        inner_host, inner_port = ("127.0.0.1", 0) if gate is not None else (host, port)
         try:
-            self.server = foxglove.start_server(name=name, host=host, port=port, capabilities=[Capability.Time],
-                                                context=self.context)
+            self.server = foxglove.start_server(name=name, host=inner_host, port=inner_port,
+                                                capabilities=[Capability.Time], context=self.context)
         except RuntimeError as exc:
             reason = str(exc).removeprefix("FoxgloveError: ")
             hint = " (another monitor has it: pass another --port)" if "in use" in reason else ""
-            raise StartupError(f"cannot serve Foxglove on {host}:{port}: {reason}{hint}") from None
+            raise StartupError(f"cannot serve Foxglove on {inner_host}:{inner_port}: {reason}{hint}") from None
+        try:
+            self.relay = FoxgloveRelay(host, port, self.server.port, gate) if gate is not None else None
+        except StartupError:
+            self.server.stop()
+            raise
         self.channels = {topic: foxglove.Channel(topic, schema=schema_of(cls), message_encoding="protobuf",
                                                  context=self.context)
                          for topic, cls in CHANNELS.items()}
@@ -116,7 +139,7 @@ class FoxgloveServer:
 
     @property
     def port(self) -> int:
-        return self.server.port
+        return self.relay.port if self.relay is not None else self.server.port
 
     def on_message(self, msg: Message) -> None:
         stamp = msg.stamp_ns or time.time_ns()
@@ -139,6 +162,8 @@ class FoxgloveServer:
         """The services' health reaches Foxglove as logs; liveliness has no view there."""
 
     def close(self) -> None:
+        if self.relay is not None:
+            self.relay.close()
         self.server.stop()
 
 
@@ -234,12 +259,18 @@ def parser() -> argparse.ArgumentParser:
                    help="the robot's Zenoh router, e.g. tcp/robot:7447 (repeatable; default tcp/127.0.0.1:7447)")
     p.add_argument("--robot", default=BusConfig.robot, help="robot namespace (keys lrf/<robot>/...)")
     p.add_argument("--host", default="127.0.0.1",
-                   help="address the WebSocket server listens on (0.0.0.0: every interface; no authentication)")
+                   help="address the servers listen on (default loopback; beyond it, e.g. 0.0.0.0 for every "
+                        "interface, only with --token-file or --insecure)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help="WebSocket port (0: any free one)")
     p.add_argument("--dashboard", action="store_true",
                    help="also serve a web dashboard (map and services) on http://HOST:HTTP_PORT/")
     p.add_argument("--http-port", type=int, default=DEFAULT_HTTP_PORT,
                    help=f"the dashboard's HTTP and WebSocket port (default {DEFAULT_HTTP_PORT}; 0: any free one)")
+    p.add_argument("--token-file", metavar="FILE",
+                   help=f"a file holding the token every page and WebSocket then requires (?token=TOKEN in the "
+                        f"URL; default: ${TOKEN_ENV} if set); needed beyond loopback")
+    p.add_argument("--insecure", action="store_true",
+                   help="serve beyond loopback without a token: whoever reaches the ports sees every stream")
     p.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config applied first (TLS, ...)")
     p.add_argument("--health-file", metavar="FILE",
                    help="also write the monitor's health to FILE every second, for a container healthcheck: "
@@ -248,29 +279,52 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def token_gate(args: argparse.Namespace) -> TokenGate | None:
+    """The gate of the monitor's servers: with a token (given on loopback too), None without one.
+
+    Raises
+    ------
+    ConfigError
+        Beyond loopback without a token or ``--insecure``; a token file that cannot be read or a bad token.
+    """
+    token = read_token(args.token_file, os.environ)
+    if token is not None:
+        return TokenGate(token)
+    if not is_loopback(args.host):
+        if not args.insecure:
+            raise ConfigError(f"--host {args.host} is beyond loopback: whoever reaches it would see every stream; "
+                              f"give a token (--token-file FILE or {TOKEN_ENV}), or pass --insecure on a network "
+                              "where everyone may see everything")
+        log.warning("--host %s: beyond loopback without a token (--insecure): whoever reaches the ports sees "
+                    "every stream", args.host)
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     setup_logging("monitor", args.log_level)
     stop = threading.Event()
     install_signal_handlers(stop)
     try:
+        gate = token_gate(args)
         bus_cfg = BusConfig(robot=args.robot, mode="client", connect=tuple(args.connect or BusConfig.connect),
                             zenoh_config=args.zenoh_config or "", health_file=args.health_file or "")
-        server = FoxgloveServer(args.host, args.port, f"lrfslam {args.robot}")
+        server = FoxgloveServer(args.host, args.port, f"lrfslam {args.robot}", gate=gate)
     except (LrfSlamError, OSError) as exc:
         log.error("%s", exc)
         return 2
     sinks: list[Sink] = [server]
-    log.info("serving Foxglove on ws://%s:%d (pid %d)", args.host, server.port, os.getpid())
+    query = "/?token=TOKEN" if gate is not None else ""
+    log.info("serving Foxglove on ws://%s:%d%s (pid %d)", args.host, server.port, query, os.getpid())
     if args.dashboard:
         try:
-            dashboard = DashboardServer(args.host, args.http_port, f"lrfslam {args.robot}")
+            dashboard = DashboardServer(args.host, args.http_port, f"lrfslam {args.robot}", gate=gate)
         except LrfSlamError as exc:
             server.close()
             log.error("%s", exc)
             return 2
         sinks.append(dashboard)
-        log.info("serving the dashboard on http://%s:%d/", args.host, dashboard.port)
+        log.info("serving the dashboard on http://%s:%d%s", args.host, dashboard.port, query or "/")
     try:
         Monitor(bus_cfg, sinks).run(stop)
     except LrfSlamError as exc:

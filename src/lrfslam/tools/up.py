@@ -18,6 +18,11 @@ first, the pipeline drains, the rest stop in order, and a summary compares the S
 with the simulator's ground truth. ``--skip sensor`` runs the pipeline without one, for a
 recording played in (``lrfslam play RECORDING --robot R``, src/lrfslam/tools/play.py): the
 summary then compares with the truth played, where the recording has it.
+
+The router listens on loopback; ``--listen`` adds endpoints for other hosts. A plain one (tcp/,
+udp/) beyond loopback lets whoever reaches it read and publish on the bus, so ``up`` refuses it
+before starting anything unless told ``--insecure`` (src/lrfslam/tools/exposure.py); a tls/ one
+takes the router's certificates from ``--zenoh-config`` (deploy/zenoh/router-tls.json5).
 """
 
 from __future__ import annotations
@@ -55,6 +60,7 @@ from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import closing, parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
+from lrfslam.tools.exposure import plain_beyond_loopback
 from lrfslam.tools.info import segment_lines
 from lrfslam.tools.status import client_config
 from lrfslam.viz.dashboard import counter_figures
@@ -341,7 +347,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robot", default="robot1")
     parser.add_argument("--port", type=int, default=7447, help="router port on 127.0.0.1")
     parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                        help="extra router endpoint, e.g. tcp/0.0.0.0:7447 for remote monitoring")
+                        help="extra router endpoint for other hosts, e.g. tls/0.0.0.0:7448 with --zenoh-config; "
+                             "a plain tcp/ or udp/ one beyond loopback only with --insecure")
+    parser.add_argument("--zenoh-config", metavar="FILE",
+                        help="Zenoh JSON5 config of up's router, e.g. deploy/zenoh/router-tls.json5 for a tls/ "
+                             "--listen endpoint (mutual TLS: only holders of a certificate of your CA get in)")
+    parser.add_argument("--insecure", action="store_true",
+                        help="allow a plain --listen endpoint beyond loopback: whoever reaches it reads and "
+                             "publishes on the bus (a closed network where that is wanted)")
     parser.add_argument("--connect", metavar="ENDPOINT",
                         help="use the router at ENDPOINT (e.g. another up's, tcp/127.0.0.1:7447) instead of "
                              "starting one; robots with different --robot names share it without crosstalk")
@@ -376,9 +389,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--status-period must be > 0 s, got {args.status_period}")
     if args.ros2 and not 0 <= args.domain_id <= 232:
         parser.error(f"--domain-id must be 0..232 (ROS 2's range), got {args.domain_id}")
-    if args.connect and args.listen:
-        parser.error("--listen sets up's own router's endpoints; with --connect up starts no router")
+    if args.connect and (args.listen or args.zenoh_config):
+        parser.error("--listen and --zenoh-config set up's own router; with --connect up starts no router")
     setup_logging("up", "INFO")
+    for ep in filter(plain_beyond_loopback, args.listen):
+        if not args.insecure:
+            raise ConfigError(f"--listen {ep} is plain (no TLS) beyond loopback: whoever reaches it can read and "
+                              "publish on the bus; use tls/ with --zenoh-config (deploy/zenoh/router-tls.json5), "
+                              "or pass --insecure on a closed network")
+        log.warning("--listen %s: plain, beyond loopback, no authentication (--insecure): whoever reaches it can "
+                    "read and publish on the bus", ep)
 
     order = tuple(n for n in START_ORDER if n not in args.skip)
     try:
@@ -410,6 +430,7 @@ def main(argv: list[str] | None = None) -> int:
     install_signal_handlers(stop)
     router = None if args.connect else Child(
         "router", [sys.executable, "-m", "lrfslam.cli", "router", "--log-level", args.log_level]
+        + (["--zenoh-config", args.zenoh_config] if args.zenoh_config else [])
         + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)])
     router_id = start_router(router) if router else None
     children = {n: Child(n, child_argv(n, args, endpoint, extra[n])) for n in order}
