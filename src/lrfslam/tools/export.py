@@ -236,7 +236,7 @@ def map_of(path: RecordingSource, resolution_m: float | None = None, max_range_m
     """:func:`collect` and :func:`scene` as ``lrfslam export`` (and ``lrfslam map save``) build the map.
 
     ``resolution_m`` None: :class:`GridParams`' default, or the finest of its doublings a map
-    too large for it fits (:func:`notes` says so); ``max_range_m``: returns up to it mark walls
+    too large for it fits (:func:`resolution_note` says so); ``max_range_m``: returns up to it mark walls
     and it caps the free space a beam marks, metres; ``grid`` False: no scans read, no grid.
     """
     params = GridParams(resolution_m=GridParams.resolution_m if resolution_m is None else resolution_m,
@@ -245,20 +245,23 @@ def map_of(path: RecordingSource, resolution_m: float | None = None, max_range_m
     return data, scene(path, data, params, fit=resolution_m is None)
 
 
-def notes(data: dict, sc: Scene, resolution_m: float | None) -> list[str]:
-    """What a user of :func:`map_of`'s map should be told: undecodable messages skipped, a grid made coarser,
-    scans left out of it."""
+def notes(data: dict, sc: Scene) -> list[str]:
+    """Warnings for a user of :func:`map_of`'s map: undecodable messages skipped, scans left out of the grid."""
     out = [f"skipped {data['undecodable']} undecodable messages"] if data["undecodable"] else []
-    asked = GridParams.resolution_m if resolution_m is None else resolution_m
-    if sc.grid is not None and sc.grid.resolution_m != asked:
-        h, w = sc.grid.log_odds.shape
-        out.append(f"the map spans {w * sc.grid.resolution_m:.0f} x {h * sc.grid.resolution_m:.0f} m, "
-                   f"more than {GridParams.max_cells:,} cells at {asked:g} m: grid at {sc.grid.resolution_m:g} m "
-                   "(--resolution sets it)")
     if sc.grid is not None and sc.scans_unplaced:
         out.append(f"{sc.scans_unplaced} of {len(data['scans'])} scans have no pose at their stamp and are not in "
                    "the grid")
     return out
+
+
+def resolution_note(sc: Scene, resolution_m: float | None) -> str | None:
+    """What :func:`map_of` did to fit a large map in :class:`GridParams`' cells, None if nothing."""
+    asked = GridParams.resolution_m if resolution_m is None else resolution_m
+    if sc.grid is None or sc.grid.resolution_m == asked:
+        return None
+    h, w = sc.grid.log_odds.shape
+    return (f"the map spans {w * sc.grid.resolution_m:.0f} x {h * sc.grid.resolution_m:.0f} m, more than "
+            f"{GridParams.max_cells:,} cells at {asked:g} m: grid at {sc.grid.resolution_m:g} m (--resolution sets it)")
 
 
 def _grid(stamps: np.ndarray, poses: np.ndarray, scans: dict, params: GridParams,
@@ -505,8 +508,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.ellipse_scale is not None and args.ellipse_scale < 1:
         parser.error("--ellipse-scale must be >= 1")
     data, sc = map_of(args.recording, args.resolution, args.max_range, grid=not args.no_grid)
-    for note in notes(data, sc, args.resolution):
-        print(f"lrfslam export: {note}", file=sys.stderr)
+    for warning in notes(data, sc):
+        print(f"lrfslam export: {warning}", file=sys.stderr)
+    if note := resolution_note(sc, args.resolution):
+        print(f"lrfslam export: {note}")
     out = args.out_dir
     with atomic_output(out / "map.json") as partial:
         partial.write_text(json.dumps(to_json(data, sc), indent=1))

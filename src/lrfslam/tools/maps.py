@@ -66,7 +66,7 @@ def check_target(out: Path, force: bool = False) -> None:
 def build(recording: RecordingSource, resolution_m: float | None = None,
           max_range_m: float = GridParams.max_range_m) -> tuple[SavedMap, OccupancyGrid, list[str]]:
     """The saved map of ``recording`` (its grid not yet as read back: :func:`export.trinary` of it),
-    the grid to write, and the notes :func:`export.notes` has for the user.
+    the grid to write, and what the user should be told (:func:`export.notes`, :func:`export.resolution_note`).
 
     Raises
     ------
@@ -126,7 +126,8 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
         landmark_sightings=lms.sightings, landmark_confirmed=lms.confirmed,
         grid_cells=export.trinary(sc.grid).astype(np.int8), grid_resolution_m=sc.grid.resolution_m,
         grid_origin_xy_m=np.asarray(sc.grid.origin_xy_m, dtype=float))
-    return saved, sc.grid, export.notes(data, sc, resolution_m)
+    note = export.resolution_note(sc, resolution_m)
+    return saved, sc.grid, [*export.notes(data, sc), *([note] if note else [])]
 
 
 def save_map(recording: RecordingSource, out: Path, force: bool = False, resolution_m: float | None = None,
