@@ -141,7 +141,7 @@ def save_map(recording: RecordingSource, out: Path, force: bool = False, resolut
     RecordingError
         The recording cannot be read.
     """
-    out = Path(out)
+    out = Path(out).resolve()   # a name to put the sibling folders beside, even for "."
     check_target(out, force)
     saved, grid, notes = build(recording, resolution_m, max_range_m)
     out.parent.mkdir(parents=True, exist_ok=True)
