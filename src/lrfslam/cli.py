@@ -11,6 +11,7 @@
     lrfslam eval features|slam|relations ...
     lrfslam import carmen LOG -o FILE.mcap
     lrfslam export RECORDING [-o DIR | --foxglove OUT.mcap]   map.json/map.png, or a copy for Foxglove
+    lrfslam map save RECORDING -o MAP/ | map info MAP/         a map a user keeps (docs/maps.md)
     lrfslam monitor --connect tcp/HOST:7447 [--port 8765]     live Foxglove WebSocket server
     lrfslam play RECORDING [--rate X | --rate max] [--topics T ...] [--loop]   a recording onto the live bus
     lrfslam ros2 --connect tcp/HOST:7447 [--domain-id 0] [--subscribe]   ROS 2 over rmw_zenoh, both ways
@@ -49,6 +50,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "emulate-lms200": ("lrfslam.drivers.lms200.emulator", "main", "emulate an LMS200 on a pseudo-terminal"),
     "export": ("lrfslam.tools.export", "main",
                "the map of a recording: occupancy grid (map_server PGM + YAML), JSON, PNG; or a Foxglove copy"),
+    "map": ("lrfslam.tools.maps", "main",
+            "a map a user keeps: map save RECORDING -o MAP/ (one folder, docs/maps.md), map info MAP/"),
     "monitor": ("lrfslam.tools.monitor", "main", "serve a robot's live streams to Foxglove (WebSocket)"),
     "play": ("lrfslam.tools.play", "main",
              "play a recording onto the live bus (--rate X, or --rate max: as fast as the stages answer)"),
@@ -61,7 +64,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
 #: Commands that run to an end and write files (and any service with ``--replay``): SIGTERM
 #: stops them like Ctrl-C, removing what they had not finished (the live services and
 #: ``up`` handle the signals themselves and stop cleanly).
-OFFLINE = frozenset({"info", "pipeline", "eval", "import", "export"})
+OFFLINE = frozenset({"info", "pipeline", "eval", "import", "export", "map"})
 
 
 def usage() -> str:

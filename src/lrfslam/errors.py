@@ -60,3 +60,11 @@ class RecordingError(LrfSlamError):
 
 class StartupError(LrfSlamError):
     """A process of ``lrfslam up`` exited, or never came up, while the pipeline was starting."""
+
+
+class MapError(LrfSlamError):
+    """A map cannot be saved (its folder is taken, the recording has no mapper output) or read."""
+
+
+class MapFormatError(MapError):
+    """A saved map (``lrfslam map save``) lacks a file, is damaged, or has a format version this build cannot read."""

@@ -124,6 +124,16 @@ class FinalTrajectoryBuilder:
             self._local["map"][0].append(value.stamp_ns)
             self._local["map"][1].append(value.local_pose)
 
+    def keyframes(self) -> t.MapKeyframes | None:
+        """Every keyframe of the run, the retired ones placed (:meth:`KeyframeHistory.keyframes`); None without any.
+
+        Raises
+        ------
+        InputError
+            A retired keyframe cannot be placed.
+        """
+        return self._keyframes.keyframes()
+
     def result(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Stamps (ns, (T,)) and final poses ((T, 3)); None without ``map/keyframes``.
 
@@ -133,7 +143,7 @@ class FinalTrajectoryBuilder:
             A retired keyframe cannot be placed (:meth:`KeyframeHistory.keyframes`).
         """
         stamps, poses = self._local["map"] if self._local["map"][0] else self._local["slam"]
-        keyframes = self._keyframes.keyframes()
+        keyframes = self.keyframes()
         if keyframes is None or not stamps:
             return None
         order = np.argsort(np.array(stamps, dtype=np.int64), kind="stable")

@@ -63,8 +63,9 @@ ELLIPSE_MIN_FRACTION = 0.004
 
 
 def collect(path: RecordingSource, scans: bool = True) -> dict:
-    """Trajectory, odometry, truth, scans, the last SLAM state and the mapper's final trajectory
-    (``"final"``, None without ``map/keyframes``) of a recording (file, folder or files), in one pass.
+    """Trajectory, odometry, truth, scans, the last SLAM state, the mapper's final trajectory
+    (``"final"``) and every keyframe of its graph (``"keyframes"``, a ``MapKeyframes``; both None
+    without ``map/keyframes``) of a recording (file, folder or files), in one pass.
 
     ``"landmarks"`` is the landmark map rebuilt from ``slam/map`` and the states' changes (at
     the last state). Undecodable messages are skipped and counted (``"undecodable"``). ``"seen_ns"`` maps each
@@ -112,7 +113,8 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
         raise RecordingError(f"{describe_source(path)} has no decodable {topics.SLAM_STATE.name} messages")
     return {"states": states, "odom": odom, "truth": truth, "last": last, "landmarks": landmarks.landmarks,
             "undecodable": undecodable,
-            "scans": scan_of, "scans_read": scans, "seen_ns": seen_ns, "final": final.result()}
+            "scans": scan_of, "scans_read": scans, "seen_ns": seen_ns, "final": final.result(),
+            "keyframes": final.keyframes()}
 
 
 def _grown(ids: np.ndarray, sightings: np.ndarray, old_ids: np.ndarray, old_sightings: np.ndarray) -> np.ndarray:
@@ -227,6 +229,39 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit
     sc.figures = _figures(sc, data)
     sc.view = _view(sc)
     return sc
+
+
+def map_of(path: RecordingSource, resolution_m: float | None = None, max_range_m: float = GridParams.max_range_m,
+           grid: bool = True) -> tuple[dict, Scene]:
+    """:func:`collect` and :func:`scene` as ``lrfslam export`` (and ``lrfslam map save``) build the map.
+
+    ``resolution_m`` None: :class:`GridParams`' default, or the finest of its doublings a map
+    too large for it fits (:func:`resolution_note` says so); ``max_range_m``: returns up to it mark walls
+    and it caps the free space a beam marks, metres; ``grid`` False: no scans read, no grid.
+    """
+    params = GridParams(resolution_m=GridParams.resolution_m if resolution_m is None else resolution_m,
+                        max_range_m=max_range_m, free_range_m=max_range_m) if grid else None
+    data = collect(path, scans=grid)
+    return data, scene(path, data, params, fit=resolution_m is None)
+
+
+def notes(data: dict, sc: Scene) -> list[str]:
+    """Warnings for a user of :func:`map_of`'s map: undecodable messages skipped, scans left out of the grid."""
+    out = [f"skipped {data['undecodable']} undecodable messages"] if data["undecodable"] else []
+    if sc.grid is not None and sc.scans_unplaced:
+        out.append(f"{sc.scans_unplaced} of {len(data['scans'])} scans have no pose at their stamp and are not in "
+                   "the grid")
+    return out
+
+
+def resolution_note(sc: Scene, resolution_m: float | None) -> str | None:
+    """What :func:`map_of` did to fit a large map in :class:`GridParams`' cells, None if nothing."""
+    asked = GridParams.resolution_m if resolution_m is None else resolution_m
+    if sc.grid is None or sc.grid.resolution_m == asked:
+        return None
+    h, w = sc.grid.log_odds.shape
+    return (f"the map spans {w * sc.grid.resolution_m:.0f} x {h * sc.grid.resolution_m:.0f} m, more than "
+            f"{GridParams.max_cells:,} cells at {asked:g} m: grid at {sc.grid.resolution_m:g} m (--resolution sets it)")
 
 
 def _grid(stamps: np.ndarray, poses: np.ndarray, scans: dict, params: GridParams,
@@ -470,20 +505,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.foxglove:
         from lrfslam.tools import foxglove_export
         return foxglove_export.main(args.recording, args.foxglove)
-    resolution = GridParams.resolution_m if args.resolution is None else args.resolution
-    params = None if args.no_grid else GridParams(resolution_m=resolution, max_range_m=args.max_range,
-                                                  free_range_m=args.max_range)
     if args.ellipse_scale is not None and args.ellipse_scale < 1:
         parser.error("--ellipse-scale must be >= 1")
-    data = collect(args.recording, scans=params is not None)
-    if data["undecodable"]:
-        print(f"lrfslam export: skipped {data['undecodable']} undecodable messages", file=sys.stderr)
-    sc = scene(args.recording, data, params, fit=args.resolution is None)
-    if sc.grid is not None and sc.grid.resolution_m != resolution:
-        h, w = sc.grid.log_odds.shape
-        print(f"lrfslam export: the map spans {w * sc.grid.resolution_m:.0f} x {h * sc.grid.resolution_m:.0f} m, "
-              f"more than {GridParams.max_cells:,} cells at {resolution:g} m: grid at {sc.grid.resolution_m:g} m "
-              "(--resolution sets it)")
+    data, sc = map_of(args.recording, args.resolution, args.max_range, grid=not args.no_grid)
+    for warning in notes(data, sc):
+        print(f"lrfslam export: {warning}", file=sys.stderr)
+    if note := resolution_note(sc, args.resolution):
+        print(f"lrfslam export: {note}")
     out = args.out_dir
     with atomic_output(out / "map.json") as partial:
         partial.write_text(json.dumps(to_json(data, sc), indent=1))
@@ -492,10 +520,7 @@ def main(argv: list[str] | None = None) -> int:
         write_grid(sc.grid, out / "map.pgm", out / "map.yaml",
                    comment=f"lrfslam export of {sc.name}, {sc.trajectory_label}")
         written += [out / "map.pgm", out / "map.yaml"]
-        if sc.scans_unplaced:
-            print(f"lrfslam export: {sc.scans_unplaced} of {len(data['scans'])} scans have no pose at their stamp "
-                  "and are not in the grid", file=sys.stderr)
-    elif params is not None:
+    elif not args.no_grid:
         print(f"lrfslam export: no {topics.SCAN.name} messages with a pose: no occupancy grid (map.pgm, map.yaml)",
               file=sys.stderr)
     if not args.no_png:

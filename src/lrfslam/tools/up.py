@@ -50,6 +50,7 @@ from lrfslam.errors import (
     ConfigError,
     DecodeError,
     LrfSlamError,
+    MapError,
     RecordingError,
     StartupError,
 )
@@ -60,6 +61,7 @@ from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import closing, parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
+from lrfslam.tools import maps
 from lrfslam.tools.exposure import plain_beyond_loopback
 from lrfslam.tools.info import segment_lines
 from lrfslam.tools.status import client_config
@@ -384,6 +386,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="also run lrfslam ros2 (the robot's topics for ROS 2 over rmw_zenoh on this router, "
                              "domain --domain-id; docs/ros2.md), supervised like the services")
     parser.add_argument("--domain-id", type=int, default=0, help="with --ros2: the ROS_DOMAIN_ID (default 0)")
+    parser.add_argument("--save-map", type=Path, metavar="MAP",
+                        help="when the run ends, save its map into the folder MAP as lrfslam map save does "
+                             "(docs/maps.md); MAP must not exist or be empty")
     args = parser.parse_args(argv)
     if not args.status_period > 0:
         parser.error(f"--status-period must be > 0 s, got {args.status_period}")
@@ -391,6 +396,14 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--domain-id must be 0..232 (ROS 2's range), got {args.domain_id}")
     if args.connect and (args.listen or args.zenoh_config):
         parser.error("--listen and --zenoh-config set up's own router; with --connect up starts no router")
+    if args.save_map and "mapper" in args.skip:
+        parser.error("--save-map saves the mapper's map: not with --skip mapper")
+    if args.save_map:
+        try:
+            maps.check_target(args.save_map)
+        except MapError as exc:
+            print(f"lrfslam up: error: {exc}", file=sys.stderr)
+            return 1
     setup_logging("up", "INFO")
     for ep in filter(plain_beyond_loopback, args.listen):
         if not args.insecure:
@@ -545,7 +558,21 @@ def main(argv: list[str] | None = None) -> int:
     if router:
         router.stop(5)
     print(summary(observer, children, recording, time.monotonic() - started, router, viewers))
-    return 1 if any(c.gave_up for c in supervised) else 0
+    saved = save_map(recording, args.save_map) if args.save_map else True
+    return 1 if any(c.gave_up for c in supervised) or not saved else 0
+
+
+def save_map(recording: Path, out: Path) -> bool:
+    """``--save-map``: the run's recording (its recorder stopped) saved as ``lrfslam map save`` does; one line either way."""
+    try:
+        saved, notes = maps.save_map(recording, out)
+    except (MapError, RecordingError) as exc:
+        print(f"lrfslam up: error: the map was not saved: {exc}", file=sys.stderr)
+        return False
+    for note in notes:
+        print(f"lrfslam up: map: {note}", file=sys.stderr)
+    print(f"map: saved to {out}/ ({maps.summary_line(saved)})")
+    return True
 
 
 class LiveLine:
