@@ -157,17 +157,29 @@ def open_chromium(chromium: str, profile: Path, url: str) -> tuple[subprocess.Po
     return browser, int(port_file.read_text().split()[0])
 
 
-def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_path):
+def find_chromium() -> str:
+    """The browser's path; the test stops (fails under CI) where there is none."""
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
         unavailable("chromium is not installed (Debian: apt-get install chromium; deploy/setup-podman.sh does)")
-    from matplotlib import image
+    return chromium
 
+
+def start_stages(cluster):
+    """Every stage but the sensor started and alive; returns the open session to the router."""
     for name in STAGES:
         cluster.start(name, *(("name=run",) if name == "recorder" else ()))
     session = cluster.session()
+    cluster.wait_for(session, lambda alive, st: {s for _, s in alive} >= set(STAGES), 30, "liveliness")
+    return session
+
+
+def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_path):
+    chromium = find_chromium()
+    from matplotlib import image
+
+    session = start_stages(cluster)
     with session:
-        cluster.wait_for(session, lambda alive, st: {s for _, s in alive} >= set(STAGES), 30, "liveliness")
         cluster.start("sensor", *SENSOR)
         cluster.wait_for(session, lambda a, st: st.get("slam") and st["slam"].counters.get(
             "out.slam/state", 0) >= 40, 60, "40 SLAM states")
@@ -228,14 +240,9 @@ TOKEN_FACTS = """(async () => JSON.stringify({
 def test_beyond_loopback_the_page_opened_with_the_token_shows_the_live_map(cluster, tmp_path):
     """The monitor on every interface with a token: Chromium opens ``/?token=...`` once, and the page
     and its WebSocket then go on with the cookie that answer set; without it the pages answer 401."""
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
-    if chromium is None:
-        unavailable("chromium is not installed (Debian: apt-get install chromium; deploy/setup-podman.sh does)")
-    for name in STAGES:
-        cluster.start(name, *(("name=run",) if name == "recorder" else ()))
-    session = cluster.session()
-    with session:
-        cluster.wait_for(session, lambda alive, st: {s for _, s in alive} >= set(STAGES), 30, "liveliness")
+    chromium = find_chromium()
+    with start_stages(cluster):
+        pass
     cluster.start("sensor", *SENSOR)
     (tmp_path / "token").write_text(TOKEN + "\n")
     http = free_port()
