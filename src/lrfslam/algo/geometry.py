@@ -142,6 +142,21 @@ def inverse_with_covariance(a, cov_a) -> tuple[np.ndarray, np.ndarray]:
     return inverse(a), 0.5 * (cov + cov.T)
 
 
+def ellipse_axes(cov_m2: np.ndarray, scale2: float) -> tuple[float, float, float]:
+    """The ellipse ``x^T cov^-1 x = scale2`` of a 2-D covariance ``cov_m2`` (2, 2), m².
+
+    Returns
+    -------
+    (major_m, minor_m, yaw_rad)
+        Semi-axes ``sqrt(scale2 × eigenvalue)`` (a negative rounding error counts as 0) and the
+        direction of the major axis. ``scale2`` is a χ² quantile (2 dof) for a confidence
+        ellipse, or k² for the k-sigma one.
+    """
+    vals, vecs = np.linalg.eigh(0.5 * (cov_m2 + cov_m2.T))
+    minor, major = np.sqrt(scale2 * np.maximum(vals, 0.0))
+    return float(major), float(minor), float(np.arctan2(vecs[1, 1], vecs[0, 1]))
+
+
 def to_frame(points_xy: np.ndarray, pose) -> np.ndarray:
     """Express world points in the frame of ``pose``.
 

@@ -25,6 +25,7 @@ import struct
 import numpy as np
 from rosbags.serde import SerdeError
 
+from lrfslam.algo.geometry import ellipse_axes
 from lrfslam.algo.occupancy_grid import OccupancyGrid
 from lrfslam.errors import InputError
 from lrfslam.msgs import types as t
@@ -172,11 +173,8 @@ ELLIPSE_SIGMAS = 2.0
 def ellipse(cov2: np.ndarray) -> tuple[float, float, float]:
     """``(major_m, minor_m, angle_rad)``: the full axes of the :data:`ELLIPSE_SIGMAS`-sigma ellipse of a
     (2, 2) covariance, and the major axis' direction."""
-    values, vectors = np.linalg.eigh(0.5 * (cov2 + cov2.T))
-    values = np.clip(values, 0.0, None)
-    major = vectors[:, 1]
-    return (2 * ELLIPSE_SIGMAS * math.sqrt(values[1]), 2 * ELLIPSE_SIGMAS * math.sqrt(values[0]),
-            math.atan2(major[1], major[0]))
+    major, minor, angle = ellipse_axes(cov2, ELLIPSE_SIGMAS**2)
+    return 2 * major, 2 * minor, angle
 
 
 def landmark_markers(landmarks: t.Landmarks, stamp_ns_: int, frame_id: str):

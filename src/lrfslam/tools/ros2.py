@@ -50,7 +50,6 @@ import zenoh.ext
 from lrfslam.errors import ConfigError, DecodeError, InputError, LrfSlamError
 from lrfslam.msgs import counters, topics
 from lrfslam.msgs import types as t
-from lrfslam.msgs.codec import parse_encoding
 from lrfslam.ros2 import convert, wire
 from lrfslam.ros2.views import PUBLISHED, SUBSCRIBED, RosTopic, RosViews
 from lrfslam.runtime import health_file
@@ -71,6 +70,7 @@ from lrfslam.runtime.runner import (
 )
 from lrfslam.runtime.step import Output
 from lrfslam.tools.play import check_collisions
+from lrfslam.tools.status import query_latest
 
 log = logging.getLogger("lrfslam.ros2")
 
@@ -165,14 +165,10 @@ class Publishing:
     def catch_up(self, timeout_s: float = 2.0) -> None:
         """The newest landmark map, SLAM state and map pose the services keep for late joiners."""
         for topic in CATCH_UP:
-            for reply in self.session.get(topics.latest(self.robot, topic.name), timeout=timeout_s):
-                if reply.ok is None:
-                    continue
-                try:
-                    value = topic.codec.decode(reply.ok.payload.to_bytes(), parse_encoding(str(reply.ok.encoding)))
-                except DecodeError as exc:
+            for _, value in query_latest(self.session, self.robot, topic, timeout_s):
+                if isinstance(value, DecodeError):
                     self.counts["catch_up.undecodable"] += 1
-                    self._once.warning("catch_up", topic.name, "the newest %s does not decode: %s", topic.name, exc)
+                    self._once.warning("catch_up", topic.name, "the newest %s does not decode: %s", topic.name, value)
                     continue
                 self.counts["catch_up"] += 1
                 self.hand_on(topic.name, value)

@@ -21,6 +21,7 @@ from lrfslam import services
 from lrfslam.errors import DecodeError
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.topics import Topic
 from lrfslam.runtime import health_file
 from lrfslam.runtime.bus import base_config, closing
 from lrfslam.viz.dashboard import rates as status_rates
@@ -120,19 +121,25 @@ def check(alive: set[tuple[str, str]], statuses: list[t.ServiceStatus], wanted: 
     return problems
 
 
-def query_latest_states(session: zenoh.Session, robot: str, timeout_s: float) -> dict[str, t.SlamState]:
-    """Each robot's newest SLAM state, from its slam's latest-state queryable (none while it has none)."""
-    states = {}
-    for reply in session.get(topics.latest(robot, topics.SLAM_STATE.name), timeout=timeout_s,
+def query_latest(session: zenoh.Session, robot: str, topic: Topic, timeout_s: float):
+    """The newest ``topic`` message each live service of ``robot`` keeps for late joiners (its
+    ``topics.latest`` queryable): ``(key, value)`` per answer, the value a :class:`DecodeError` where
+    the payload does not decode (the caller counts it)."""
+    for reply in session.get(topics.latest(robot, topic.name), timeout=timeout_s,
                              target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE):
         if reply.ok is None:
             continue
         try:
-            state = codec.SLAM_STATE.decode(reply.ok.payload.to_bytes(), codec.parse_encoding(str(reply.ok.encoding)))
-        except DecodeError:
-            continue
-        states[str(reply.ok.key_expr).split("/")[1]] = state
-    return states
+            value = topic.codec.decode(reply.ok.payload.to_bytes(), codec.parse_encoding(str(reply.ok.encoding)))
+        except DecodeError as exc:
+            value = exc
+        yield str(reply.ok.key_expr), value
+
+
+def query_latest_states(session: zenoh.Session, robot: str, timeout_s: float) -> dict[str, t.SlamState]:
+    """Each robot's newest SLAM state, from its slam's latest-state queryable (none while it has none)."""
+    return {key.split("/")[1]: state for key, state in query_latest(session, robot, topics.SLAM_STATE, timeout_s)
+            if not isinstance(state, DecodeError)}
 
 
 def slam_lines(states: dict[str, t.SlamState]) -> list[str]:

@@ -392,8 +392,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.status_period > 0:
         parser.error(f"--status-period must be > 0 s, got {args.status_period}")
-    if args.ros2 and not 0 <= args.domain_id <= 232:
-        parser.error(f"--domain-id must be 0..232 (ROS 2's range), got {args.domain_id}")
+    if args.ros2:
+        from lrfslam.tools.ros2 import Ros2Config  # (rosbags only when asked for)
+        try:   # refused before anything starts, with the bridge's own check
+            Ros2Config(domain_id=args.domain_id)
+        except ConfigError as exc:
+            parser.error(str(exc))
     if args.connect and (args.listen or args.zenoh_config):
         parser.error("--listen and --zenoh-config set up's own router; with --connect up starts no router")
     if args.save_map and "mapper" in args.skip:

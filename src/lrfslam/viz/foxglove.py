@@ -51,6 +51,7 @@ import foxglove.messages as fm
 import numpy as np
 
 from lrfslam.algo.geometry import compose, inverse
+from lrfslam.algo.geometry import ellipse_axes as geometry_ellipse_axes
 from lrfslam.algo.stream_alignment import interpolate_pose
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
@@ -174,17 +175,9 @@ def color(rgba: tuple[float, float, float, float], alpha: float | None = None) -
 
 
 def ellipse_axes(cov_m2: np.ndarray) -> tuple[float, float, float]:
-    """The 95 % ellipse of a 2-D Gaussian with covariance ``cov_m2`` (2, 2), m².
-
-    Returns
-    -------
-    (major_m, minor_m, yaw_rad)
-        Semi-axes, ``sqrt(CHI2_2D_95 × eigenvalue)`` (a negative rounding error counts as 0),
-        and the direction of the major axis.
-    """
-    vals, vecs = np.linalg.eigh(0.5 * (cov_m2 + cov_m2.T))
-    minor, major = np.sqrt(CHI2_2D_95 * np.maximum(vals, 0.0))
-    return float(major), float(minor), math.atan2(vecs[1, 1], vecs[0, 1])
+    """The 95 % ellipse of a 2-D Gaussian with covariance ``cov_m2`` (2, 2), m²: ``(major_m, minor_m,
+    yaw_rad)``, semi-axes ``sqrt(CHI2_2D_95 × eigenvalue)`` (:func:`lrfslam.algo.geometry.ellipse_axes`)."""
+    return geometry_ellipse_axes(cov_m2, CHI2_2D_95)
 
 
 def ellipse(x_m: float, y_m: float, cov_m2: np.ndarray, rgba) -> fm.SpherePrimitive:
