@@ -107,3 +107,27 @@ def test_a_closure_the_relations_contradict_is_a_false_accept_and_one_they_do_no
     text = closure_audit.report(judged)
     assert "false accepts" in text and ": 1 of 2 covered" in text
     assert "precision 0.500" in text and "recall 0.500" in text
+
+
+def test_on_the_simulator_each_attempt_is_judged_by_the_true_poses_of_its_keyframes():
+    stamps = np.arange(100, dtype=np.int64) * 100_000_000   # 10 Hz
+    rng = np.random.default_rng(3)
+    truth = np.cumsum(rng.normal(size=(100, 3)) * [0.1, 0.1, 0.05], axis=0)
+    cov = np.diag([1e-4, 1e-4, 1e-6])
+    true_rel = relative(truth[10], truth[80])
+
+    def attempt(i, j, pose, verdict="accepted"):
+        return ClosureAttempt(int(stamps[i]), int(stamps[j]), np.asarray(pose, dtype=float), cov, verdict)
+
+    right = attempt(10, 80, compose(true_rel, [0.0, 0.01, 0.0]))
+    wrong = attempt(10, 80, compose(true_rel, [6.0, 0.0, 0.0]))          # a door period off
+    dropped = attempt(10, 80, compose(true_rel, [0.05, 0.0, 0.01]), "ambiguous")
+    unknown = ClosureAttempt(int(stamps[10]) + 1, int(stamps[80]), true_rel, cov, "accepted")
+    judged = closure_audit.judge_by_truth([right, wrong, dropped, unknown], stamps, truth)
+    np.testing.assert_allclose(judged[0].error, [0.0, 0.01, 0.0], atol=1e-9)
+    assert judged[0].right and judged[0].chi2 == pytest.approx(1.0)
+    assert judged[1].false_accept and not judged[1].right
+    assert judged[2].right and judged[2].attempt.verdict == "ambiguous"
+    assert not judged[3].covered
+    counts = closure_audit.summary_counts(judged)
+    assert closure_audit.precision_recall(counts) == (0.5, 0.5)

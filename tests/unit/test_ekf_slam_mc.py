@@ -93,3 +93,17 @@ def test_true_wall_direction_pins_the_heading_of_the_estimator():
     heading = [np.abs(wrap_angle(r.true_poses[:, 2] - r.est_poses[:, 2])).max() for r in (walls, corners)]
     assert heading[0] < 0.006 and heading[1] > 2 * heading[0]
     assert ate_rmse(walls.true_poses, walls.est_poses) < 0.5 * ate_rmse(corners.true_poses, corners.est_poses)
+
+
+def test_with_the_mapper_its_closures_are_judged_by_the_truth():
+    # A lap and a half of the hallway loop (59 m): the mapper closes the loop, and each closure
+    # it tried is judged against the true poses of its keyframes.
+    cfg = McConfig(n_runs=1, n_steps=1800, world_name="hallway_loop", features="extractor", mapper=True)
+    result = run_once(cfg, 0)
+    c = result.closures
+    assert c["accepted"] > 0
+    assert c["accepted.covered"] == c["accepted"]   # every stamp is a simulated frame's
+    assert c["accepted.right"] == c["accepted"] and c["false_accepts"] <= c["accepted"] // 10
+    s = summarise([result])
+    assert s["closures"] == c
+    assert result.map_final_poses.shape == result.true_poses.shape

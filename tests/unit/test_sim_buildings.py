@@ -11,10 +11,13 @@ from hypothesis import strategies as st
 
 from lrfslam.errors import ConfigError
 from lrfslam.sim.buildings import (
+    CAMPUS_DOOR_PERIOD_M,
     TWIN_A_X_M,
     TWIN_SHIFT_M,
     Feature,
+    alike,
     box,
+    campus,
     large_building,
     outline,
     recess,
@@ -294,6 +297,48 @@ def test_twin_corridors_path_drives_both_twins_the_same_way():
         np.testing.assert_allclose(poses[inside, 2], 0.0, atol=1e-9)
     clearance = _point_segment_distance(poses[:, :2], twin_corridors().segments_m).min(axis=1)
     assert clearance.min() >= 0.5
+
+
+# --- campus --------------------------------------------------------------------------------
+
+
+def test_campus_laps_are_long_and_first_come_back_after_350_m():
+    path, poses = _path_samples("campus")
+    assert path.total_length_m >= 500.0
+    s = np.linspace(0.0, path.total_length_m, len(poses), endpoint=False)
+    back = s[(np.hypot(*(poses[:, :2] - poses[0, :2]).T) < 1.0) & (s > 5.0)]
+    assert back.min() >= 350.0
+    assert scenario("campus").odometry_error.heading_drift_rad_per_m != 0
+    clearance = _point_segment_distance(poses[:, :2], campus().opaque_segments_m).min(axis=1)
+    assert clearance.min() >= 0.9
+
+
+@pytest.mark.parametrize("x_m", [86.0, 100.0, 118.0])
+def test_campus_corridors_look_the_same_every_door_period(x_m):
+    # The wing's bottom corridor, driving east: a scan and the one a door period on are alike.
+    w = campus()
+    angles = LidarModel().angles_rad()
+    here = raycast(w.opaque_segments_m, np.array([x_m, 0.0, 0.0]), angles, 8.0)
+    on = raycast(w.opaque_segments_m, np.array([x_m + CAMPUS_DOOR_PERIOD_M, 0.0, 0.0]), angles, 8.0)
+    seen = np.isfinite(here) & np.isfinite(on)
+    assert seen.sum() > 150
+    assert np.median(np.abs(here[seen] - on[seen])) < 1e-6
+
+
+def test_campus_courtyard_crossing_is_nearly_blind():
+    # Halfway across the courtyard the 8 m scanner sees a pillar and nothing else.
+    w = campus()
+    ranges = raycast(w.opaque_segments_m, np.array([40.0, 25.0, np.pi / 2]), LidarModel().angles_rad(), 8.0)
+    assert 0 < np.isfinite(ranges).sum() < 20
+    # From the ring's corridor the courtyard is behind glass: one side of the corridor is mostly open.
+    ranges = raycast(w.opaque_segments_m, np.array([20.0, 0.0, 0.0]), LidarModel().angles_rad(), 8.0)
+    assert (~np.isfinite(ranges[120:170])).mean() > 0.3
+
+
+def test_alike_puts_a_door_every_period_but_where_an_odd_feature_stands():
+    faces = alike(30.0, recess(9.5, 2.0, 1.4))
+    assert [f.s_m for f in faces] == [3.0, 9.5, 15.0, 21.0, 27.0]   # the door at 9 would overlap the alcove
+    assert [f.width_m for f in faces] == [0.9, 2.0, 0.9, 0.9, 0.9]
 
 
 # --- outline helper ------------------------------------------------------------------------

@@ -59,7 +59,8 @@ class Judged:
 
     @property
     def right(self) -> bool:
-        return self.covered and math.hypot(self.error[0], self.error[1]) <= RIGHT_M and abs(self.error[2]) <= RIGHT_RAD
+        return bool(self.covered and math.hypot(self.error[0], self.error[1]) <= RIGHT_M
+                    and abs(self.error[2]) <= RIGHT_RAD)
 
     @property
     def false_accept(self) -> bool:
@@ -120,14 +121,39 @@ def judge(attempts: Iterable[ClosureAttempt], relations: Relations, ekf_stamps_s
                 to_a = relative(ekf_poses[io], ekf_poses[a])       # old keyframe -> relation's first scan
                 from_b = relative(ekf_poses[b], ekf_poses[inew])   # relation's second scan -> new keyframe
                 truth = compose(compose(to_a, between), from_b)
-        if truth is None:
-            judged.append(Judged(att, None, None))
-            continue
-        error = relative(truth, att.pose)
-        error[2] = math.remainder(error[2], 2 * math.pi)
-        chi = float(error @ np.linalg.solve(att.cov, error)) if att.cov is not None else None
-        judged.append(Judged(att, error, chi))
+        judged.append(_against(att, truth))
     return judged
+
+
+def judge_by_truth(attempts: Iterable[ClosureAttempt], stamps_ns: np.ndarray, true_poses: np.ndarray) -> list[Judged]:
+    """Each attempt with its error against the true poses of its keyframes' scans (the simulator's).
+
+    Parameters
+    ----------
+    attempts : iterable of ClosureAttempt
+    stamps_ns : ndarray of int64, shape (T,)
+        Every scan's stamp (ns), increasing.
+    true_poses : ndarray, shape (T, 3)
+        The robot's true pose at each (m, m, rad). An attempt whose stamps are not among
+        ``stamps_ns`` is left unjudged.
+    """
+    judged = []
+    for att in attempts:
+        i, j = np.searchsorted(stamps_ns, [att.old_stamp_ns, att.new_stamp_ns])
+        known = i < len(stamps_ns) and j < len(stamps_ns) \
+            and stamps_ns[i] == att.old_stamp_ns and stamps_ns[j] == att.new_stamp_ns
+        judged.append(_against(att, relative(true_poses[i], true_poses[j]) if known else None))
+    return judged
+
+
+def _against(att: ClosureAttempt, truth: np.ndarray | None) -> Judged:
+    """``att`` judged by ``truth``, the new keyframe's true pose in the old one's frame (None: unknown)."""
+    if truth is None:
+        return Judged(att, None, None)
+    error = relative(truth, att.pose)
+    error[2] = math.remainder(error[2], 2 * math.pi)
+    chi = float(error @ np.linalg.solve(att.cov, error)) if att.cov is not None else None
+    return Judged(att, error, chi)
 
 
 def report(judged: list[Judged]) -> str:
@@ -141,9 +167,7 @@ def report(judged: list[Judged]) -> str:
                      f"{counts[verdict + '.right']:6d} "
                      + (f"{np.median(errs):13.3f} {max(errs):10.3f}" if errs else f"{'-':>13s} {'-':>10s}"))
     accepted = [j for j in judged if j.attempt.verdict == "accepted" and j.covered]
-    right = sum(counts[v + ".right"] for v in VERDICTS)
-    precision = counts["accepted.right"] / len(accepted) if accepted else float("nan")
-    recall = counts["accepted.right"] / right if right else float("nan")
+    precision, recall = precision_recall(counts)
     lines.append(f"false accepts (accepted, error's chi2 over its own covariance > {CHI2_99:.2f}): "
                  f"{counts['false_accepts']} of {len(accepted)} covered accepted closures")
     lines.append(f"precision {precision:.3f} (covered accepted closures within {RIGHT_M} m and "
@@ -158,6 +182,15 @@ def report(judged: list[Judged]) -> str:
                          f"{j.error[0]:+.3f} {j.error[1]:+.3f} {math.degrees(j.error[2]):+.2f}  "
                          f"{j.chi2:.1f}{flag}")
     return "\n".join(lines)
+
+
+def precision_recall(counts: Counter) -> tuple[float, float]:
+    """Of :func:`summary_counts`: the share of covered accepted closures that are right, and the
+    share of covered right attempts that were accepted (nan where there are none)."""
+    right = sum(counts[v + ".right"] for v in VERDICTS)
+    covered_accepted = counts["accepted.covered"]
+    return (counts["accepted.right"] / covered_accepted if covered_accepted else float("nan"),
+            counts["accepted.right"] / right if right else float("nan"))
 
 
 def summary_counts(judged: list[Judged]) -> Counter:

@@ -35,6 +35,10 @@ Metrics, over ``n_runs`` seeded runs:
   whether the landmark was confirmed (the update moved the robot) or not.
 * Extractor only: the features' own 2-dof NEES against the covariance the
   extractor reports (2 if calibrated) and their RMS position error.
+* With the mapper: the ATE of its pose as published and of its final trajectory,
+  and every closure it tried judged by the true poses of its keyframes
+  (:func:`lrfslam.evaluation.closure_audit.judge_by_truth`): right, false
+  accepts, precision and recall.
 
 Run ``python -m lrfslam.evaluation.slam_mc --help``.
 """
@@ -42,6 +46,7 @@ Run ``python -m lrfslam.evaluation.slam_mc --help``.
 from __future__ import annotations
 
 import argparse
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -51,6 +56,15 @@ from scipy.stats import chi2
 from lrfslam import services
 from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus
 from lrfslam.algo.geometry import from_frame, to_frame, wrap_angle
+from lrfslam.algo.loop_closure import VERDICTS
+from lrfslam.evaluation.closure_audit import (
+    CHI2_99,
+    RIGHT_M,
+    RIGHT_RAD,
+    judge_by_truth,
+    precision_recall,
+    summary_counts,
+)
 from lrfslam.evaluation.map_trajectory import KeyframeHistory, final_poses
 from lrfslam.evaluation.truth import ate_rmse
 from lrfslam.msgs import topics
@@ -177,6 +191,9 @@ class RunResult:
         Their 2-dof NEES against the extractor's own covariance.
     map_online_poses, map_final_poses : ndarray, shape (T, 3) or (0, 3)
         With the mapper: its pose as published at each step, and its final trajectory.
+    closures : Counter
+        With the mapper: its closure attempts judged by the truth
+        (:func:`lrfslam.evaluation.closure_audit.summary_counts`).
     """
 
     true_poses: np.ndarray
@@ -195,6 +212,7 @@ class RunResult:
     feature_nees: np.ndarray
     map_online_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     map_final_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    closures: Counter = field(default_factory=Counter)
 
 
 def pose_nees(true_poses: np.ndarray, est_poses: np.ndarray, covs: np.ndarray) -> np.ndarray:
@@ -283,6 +301,9 @@ class _Pipeline:
         self.map_online: list[np.ndarray] = []
         self.map_local: list[tuple[int, np.ndarray]] = []   # (stamp ns, local pose (3,)) per map/pose
         self.map_keyframes = KeyframeHistory()
+        self.closure_attempts: list = []   # the mapper's, each ClosureAttempt as it happens
+        if cfg.mapper:
+            self.chain.step("mapper").mapper.observer = self.closure_attempts.append
         self.slam = self.chain.step("slam").slam
         self.slam.start_at(pose0)
         self.lidar = sim.config.lidar
@@ -389,10 +410,14 @@ def run_once(cfg: McConfig, run_index: int) -> RunResult:
     lm_nees = np.einsum("li,li->l", err, np.linalg.solve(table.cov[use], err[..., None])[..., 0])
     cat = (lambda parts: np.concatenate(parts) if parts else np.zeros(0))
     online, final = pipeline.map_trajectories() if pipeline is not None else (np.zeros((0, 3)),) * 2
+    closures = Counter()
+    if pipeline is not None and cfg.mapper:
+        stamps = np.array([round(k / sim.config.rate_hz * 1e9) for k in range(len(true_p))], dtype=np.int64)
+        closures = summary_counts(judge_by_truth(pipeline.closure_attempts, stamps, true_p))
     return RunResult(
         true_p, est_p, odom_p, covs_p, np.hypot(err[:, 0], err[:, 1]), lm_nees,
         int(np.sum(table.confirmed & (lm_labels == PHANTOM))), np.array(nis_matched), n_wrong,
-        n_wrong_confirmed, n_obs, n_phantom, cat(feat_err), cat(feat_nees), online, final,
+        n_wrong_confirmed, n_obs, n_phantom, cat(feat_err), cat(feat_nees), online, final, closures,
     )
 
 
@@ -442,6 +467,7 @@ def summarise(results: list[RunResult], final_lap_frac: float = McConfig.final_l
                                            if r.map_online_poses.shape == r.true_poses.shape]),
         "map_final_ate_rmse_m": np.array([ate_rmse(r.true_poses, r.map_final_poses) for r in results
                                           if r.map_final_poses.shape == r.true_poses.shape]),
+        "closures": sum((r.closures for r in results), Counter()),
     }
 
 
@@ -487,6 +513,13 @@ def format_summary(s: dict, cfg: McConfig) -> str:
         on, fin = s["map_online_ate_rmse_m"], s["map_final_ate_rmse_m"]
         lines.append(f"mapper ATE RMSE (m) final {fin.mean():.4f} +- {fin.std():.4f} (max {fin.max():.4f}); "
                      f"as published at each step {on.mean():.4f} +- {on.std():.4f} (max {on.max():.4f})")
+        c = s["closures"]
+        precision, recall = precision_recall(c)
+        lines.append(f"mapper closures     {c['accepted']} accepted of {sum(c[v] for v in VERDICTS)} tried, "
+                     f"{c['accepted.right']} right (within {RIGHT_M} m and {np.degrees(RIGHT_RAD):.0f} deg of the truth), "
+                     f"{c['false_accepts']} false accepts (chi2 > {CHI2_99:.2f}), {c['removed']} removed; "
+                     f"precision {precision:.3f}, recall {recall:.3f} (of the {sum(c[v + '.right'] for v in VERDICTS)} "
+                     "right attempts)")
     if cfg.features == "extractor":
         lines.append(f"features            RMSE {s['feature_rmse_m']:.4f} m, mean NEES against their own "
                      f"covariance {s['feature_mean_nees']:.2f} (2.00 if calibrated)")

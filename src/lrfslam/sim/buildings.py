@@ -1,10 +1,13 @@
-"""Large worlds that break a filter tuned on the hallway loop: a big building and twin corridors.
+"""Large worlds that break a filter tuned on the hallway loop: a big building, twin corridors, a campus.
 
 ``large_building`` is what the ACES log is: long corridors round loops of tens of
 metres, few corners, the same door-and-alcove pattern on every face, glass, clutter
 and people. ``twin_corridors`` holds two identical corridors far apart, so a scan in
 one is a perfect match for the same place in the other: a loop closure on looks
-alone is wrong there.
+alone is wrong there. ``campus`` is what MIT Killian Court is: a ring of corridors round an open
+courtyard and a long wing, every corridor lined with the same doors every 6 m, a crossing of the
+courtyard where the scanner sees nothing but a few pillars, and a lap of 560 m whose first
+revisit comes after 370 m.
 
 Walls are Manhattan and corridors 2 m wide, as the paper assumes. Faces are written
 as outlines with features cut into the solid side (:func:`outline`).
@@ -246,3 +249,75 @@ def twin_corridors_path() -> np.ndarray:
         Metres, counter-clockwise.
     """
     return np.array(((3.0, 0.0), (60.0, 0.0), (60.0, 10.0), (0.0, 10.0), (0.0, 0.0)), dtype=float)
+
+
+# --- campus ---------------------------------------------------------------------------------
+# Corridor centrelines: a ring round the courtyard, x in [0, 80], y in [0, 50], and a wing loop,
+# x in [80, 140], y in [0, 12], off its east side. The courtyard (x in [1, 79], y in [1, 49]) is
+# open ground behind glass, with doorways at x = 40 on its bottom and top sides.
+CAMPUS_DOOR_PERIOD_M = 6.0
+
+
+def alike(length_m: float, *odd: Feature, period_m: float = CAMPUS_DOOR_PERIOD_M) -> tuple[Feature, ...]:
+    """A face lined with the same door recess (0.9 m x 0.4 m) every ``period_m`` (m), and the
+    ``odd`` features (an alcove, a window) in place of the doors they would overlap.
+
+    Parameters
+    ----------
+    length_m : float
+        The face's length (m).
+    odd : Feature
+        Features that break the pattern; doors within 0.5 m of one are left out.
+    """
+    doors = []
+    for s in np.arange(period_m / 2, length_m - 1.4, period_m):
+        door = recess(float(s), 0.9, 0.4)
+        if all(door.s_m + door.width_m + 0.5 <= f.s_m or f.s_m + f.width_m + 0.5 <= door.s_m for f in odd):
+            doors.append(door)
+    return tuple(sorted(doors + list(odd), key=lambda f: f.s_m))
+
+
+def _glazed(length_m: float, doorway_s_m: float | None = None) -> tuple[Feature, ...]:
+    """A courtyard face: 3 m windows every 6 m, and a 2 m doorway (glass to the scanner) at ``doorway_s_m``."""
+    doorway = () if doorway_s_m is None else (Feature("window", doorway_s_m, 2.0),)
+    windows = [Feature("window", float(s), 3.0) for s in np.arange(1.5, length_m - 3.5, CAMPUS_DOOR_PERIOD_M)]
+    keep = [w for w in windows if all(w.s_m + w.width_m + 0.5 <= d.s_m or d.s_m + d.width_m + 0.5 <= w.s_m
+                                      for d in doorway)]
+    return tuple(sorted(keep + list(doorway), key=lambda f: f.s_m))
+
+
+def campus() -> World:
+    """A 142 m x 52 m campus: a corridor ring round an open courtyard, and a wing loop.
+
+    Returns
+    -------
+    World
+        Walls lined with the same doors every 6 m (a few alcoves break the pattern), the
+        courtyard behind glass, and three pillars in the courtyard along its crossing.
+    """
+    alcove = (lambda s: recess(s, 2.0, 1.4))
+    # Outer wall counter-clockwise from the bottom-left corner (free space on the left).
+    outer = outline([(-1.0, -1.0), (141.0, -1.0), (141.0, 13.0), (81.0, 13.0), (81.0, 51.0), (-1.0, 51.0)],
+                    [alike(142.0, alcove(23.0), alcove(97.0)), alike(14.0), alike(60.0, alcove(34.0)),
+                     alike(38.0), alike(82.0, alcove(57.0)), alike(52.0)])
+    # The courtyard's glass, clockwise (the courtyard is on the right of each face).
+    courtyard = outline([(1.0, 1.0), (1.0, 49.0), (79.0, 49.0), (79.0, 1.0)],
+                        [_glazed(48.0), _glazed(78.0, doorway_s_m=38.0), _glazed(48.0), _glazed(78.0, doorway_s_m=38.0)])
+    wing = outline([(81.0, 1.0), (81.0, 11.0), (139.0, 11.0), (139.0, 1.0)],
+                   [alike(10.0), alike(58.0), alike(10.0), alike(58.0)])
+    pillars = (box(37.7, 12.0, 38.3, 12.6), box(41.7, 24.7, 42.3, 25.3), box(37.7, 37.4, 38.3, 38.0))
+    return _assemble("campus", (outer, courtyard, wing), pillars)
+
+
+def campus_path() -> np.ndarray:
+    """Waypoints of one lap of :func:`campus` (560 m): east through the ring and round the wing,
+    the ring's top and west corridors, across the courtyard, and round the ring's west half again.
+
+    Returns
+    -------
+    ndarray, shape (11, 2)
+        Metres; the loop closes from the last back to the first. The first revisit (of the
+        start's corridor) comes after 370 m.
+    """
+    return np.array(((10.0, 0.0), (140.0, 0.0), (140.0, 12.0), (80.0, 12.0), (80.0, 50.0), (0.0, 50.0),
+                     (0.0, 0.0), (40.0, 0.0), (40.0, 50.0), (0.0, 50.0), (0.0, 0.0)), dtype=float)

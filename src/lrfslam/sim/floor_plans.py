@@ -161,6 +161,8 @@ _SCENARIOS = {
                                       buildings.large_building_lanes(), n_walkers=6),
     # Only the aliasing: a calibrated robot, nobody about.
     "twin_corridors": Scenario(buildings.twin_corridors, buildings.twin_corridors_path),
+    # What MIT Killian Court is: alike corridors, a blind crossing, an uncalibrated robot, long laps.
+    "campus": Scenario(buildings.campus, buildings.campus_path, odometry_error=REALISTIC),
 }
 
 
