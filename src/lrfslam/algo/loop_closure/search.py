@@ -10,6 +10,7 @@ and the closures' NIS.
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -252,13 +253,31 @@ class ClosureSearch:
         parts = [from_frame(keyframes[i].points_xy_m, relative(poses[n], poses[i])) for i in range(first, n + 1)]
         return thin_points(np.vstack(parts), self.params.query_cell_m)
 
-    def _submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int) -> tuple[LikelihoodGrid, ReferenceScan]:
-        """The likelihood grid and line reference of keyframe ``k``'s neighbourhood, in its frame (cached)."""
-        if k in self.submaps:
-            self.submaps.move_to_end(k)
+    def _submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int,
+                half_m: float) -> tuple[LikelihoodGrid, ReferenceScan]:
+        """The likelihood grid and line reference of keyframe ``k``'s neighbourhood, in its frame.
+
+        The neighbourhood covers the search window (``half_m``, m): at least ``submap_keyframes``
+        keyframes each side, more where the window is wider than they reach. A map narrower than
+        the window favours the placements that fall inside it: in a corridor of alike doors a
+        twin a door period along, wholly inside the map, outscores the true place at its edge;
+        with the window covered the twins score alike and the ambiguity test sees them. Only
+        keyframes at least ``min_travel_m`` older than the newest one are taken (never the
+        query's own). The usual neighbourhood is cached; a wider one (a wide window, searched at
+        most once per ``wide_search_spacing_m``) is not.
+        """
+        p = self.params
+        span = max(p.submap_keyframes, math.ceil(half_m / p.keyframe_trans_m))
+        if span == p.submap_keyframes:
+            if k in self.submaps:
+                self.submaps.move_to_end(k)
+                return self.submaps[k][1:]
+            self.cache_submap(keyframes, graph, k, min(keyframes[-1].ordinal, keyframes[k].ordinal + span))
             return self.submaps[k][1:]
-        self.cache_submap(keyframes, graph, k, min(keyframes[-1].ordinal, keyframes[k].ordinal + self.params.submap_keyframes))
-        return self.submaps[k][1:]
+        old_enough = keyframes[-1].travel_m - p.min_travel_m
+        last = max((kf.ordinal for kf in keyframes if kf.ordinal <= keyframes[k].ordinal + span
+                    and kf.travel_m <= old_enough), default=keyframes[k].ordinal)
+        return self._build_submap(keyframes, graph, k, keyframes[k].ordinal - span, max(last, keyframes[k].ordinal))
 
     def cache_submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int, last: int) -> None:
         """Build keyframe ``k``'s submap from its neighbours up to the keyframe made ``last`` (an
@@ -268,17 +287,23 @@ class ClosureSearch:
         still takes its place. The cache keeps ``last``: a submap built before all its later
         neighbours existed must be rebuilt the same way when a checkpoint is restored.
         """
+        self.submaps[k] = (last, *self._build_submap(keyframes, graph, k, keyframes[k].ordinal - self.params.submap_keyframes,
+                                                     last))
+        if len(self.submaps) > self.params.cached_submaps:
+            self.submaps.popitem(last=False)
+
+    def _build_submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int, first: int,
+                      last: int) -> tuple[LikelihoodGrid, ReferenceScan]:
+        """The map of the keyframes made ``first`` to ``last`` (ordinals) in keyframe ``k``'s frame."""
         p = self.params
         poses = graph.poses
         ordinals = np.array([kf.ordinal for kf in keyframes], dtype=np.int64)
-        first = int(np.searchsorted(ordinals, ordinals[k] - p.submap_keyframes))
+        start = int(np.searchsorted(ordinals, first))
         end = int(np.searchsorted(ordinals, last, side="right"))
         pts = np.vstack([from_frame(keyframes[i].points_xy_m, relative(poses[k], poses[i]))
-                         for i in range(first, end)])
+                         for i in range(start, end)])
         pts = thin_points(pts, p.keyframe_cell_m)
-        self.submaps[k] = (last, LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match))
-        if len(self.submaps) > p.cached_submaps:
-            self.submaps.popitem(last=False)
+        return LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match)
 
     def _try_closure(self, keyframes: list[Keyframe], graph: PoseGraph, k: int, n: int, query: np.ndarray,
                      centre: np.ndarray, rel_cov: np.ndarray, half_m: float, half_rad: float,
@@ -290,7 +315,7 @@ class ClosureSearch:
         """
         p = self.params
         count = self.counts
-        grid, reference = self._submap(keyframes, graph, k)
+        grid, reference = self._submap(keyframes, graph, k, half_m)
         count["searched"] += 1
         found = search(grid, query, centre, half_m, half_rad, p.min_score)
         if found.score < p.min_score:
