@@ -465,3 +465,51 @@ def test_a_restored_snapshot_keeps_the_online_poses_and_an_older_one_has_none(ha
     assert np.array_equal(resumed.trajectory()[1], whole.trajectory()[1])
     assert right_attempts_across_the_slip(seen_resumed, stamps, truth) >= 3
     assert right_attempts_across_the_slip(seen_older, stamps, truth) == 0
+
+
+def alike_corridor_loop(gap_m: float) -> np.ndarray:
+    """Corridor A (y = 0, x in [-2, 50]) with a door jamb every 6 m on each wall, alike all along,
+    joined by connectors at both ends to corridor C (y = 2 gap_m) whose jambs are irregular.
+    Returns walls (M, 4)."""
+    h, c = 0.8, 2 * gap_m
+    walls = [(x, side * h, x, side * (h - 0.35)) for x in np.arange(3.0, 48.0, 6.0) for side in (-1.0, 1.0)]
+    walls += [(x, c + side * h, x, c + side * (h - 0.35))
+              for x, side in ((2.0, 1.0), (5.5, -1.0), (9.0, 1.0), (14.0, -1.0), (16.5, 1.0), (20.0, -1.0),
+                              (27.0, 1.0), (31.5, -1.0), (38.0, 1.0), (43.0, -1.0))]
+    walls += [
+        (-2, -h, 52, -h), (0, h, 48, h),          # A
+        (52, -h, 52, c + h), (48, h, 48, c - h),  # east connector
+        (-2, c + h, 52, c + h), (0, c - h, 48, c - h),  # C
+        (-2, -h, -2, c + h), (0, h, 0, c - h),    # west connector
+    ]
+    return np.array(walls, dtype=float)
+
+
+def test_a_return_along_a_corridor_of_alike_doors_is_not_closed_a_door_period_off():
+    # The robot drives A east, round through C, and back along A, its 'EKF' 8 % long on distance
+    # in C (a slipping carpet): metres off at the return, so the search window spans several door
+    # periods. Every alike door is then a candidate place: no closure may take one for the truth.
+    gap_m = 6.0
+    walls = alike_corridor_loop(gap_m)
+    legs = [((1.0, 0.0), (50.0, 0.0)), ((50.0, 0.0), (50.0, 2 * gap_m)), ((50.0, 2 * gap_m), (-1.0, 2 * gap_m)),
+            ((-1.0, 2 * gap_m), (-1.0, 0.0)), ((-1.0, 0.0), (30.0, 0.0))]
+    truth = []
+    for (x0, y0), (x1, y1) in legs:
+        n = int(np.hypot(x1 - x0, y1 - y0) / 0.2)
+        th = np.arctan2(y1 - y0, x1 - x0)
+        truth += [(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n, th) for i in range(n)]
+    truth = np.array(truth)
+    ekf = [truth[0]]
+    for k in range(1, len(truth)):
+        step = relative(truth[k - 1], truth[k])
+        slip = 1.08 if truth[k, 1] == 2 * gap_m else 1.0
+        ekf.append(compose(ekf[-1], step * (slip, slip, 1.0)))
+    rng = np.random.default_rng(11)
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    mapper = LoopClosingMapper()
+    for k, pose in enumerate(truth):
+        r = raycast(walls, pose, angles) + rng.normal(0.0, 0.01, angles.size)
+        mapper.add_scan(k, ekf[k], points(r, angles))
+    assert aligned_errors(np.array(ekf), truth)[-1] > 3.0   # the return is metres off
+    assert mapper.stats.searched > 0
+    assert all(closures_are_right(mapper, truth))

@@ -56,7 +56,9 @@ Design choices
   others: the gate stays against the graph's own prediction, drift model included.
   The online poses only say where to look; a closure is still the scans' match.
 * **Submaps.** The candidate and its ``submap_keyframes`` neighbours on each
-  side, placed by their graph poses in the candidate's frame, make the map
+  side (more where the window is wider than they reach: a map narrower than the
+  window favours a look-alike place inside it over the true one at its edge),
+  placed by their graph poses in the candidate's frame, make the map
   (likelihood grid, :mod:`lrfslam.algo.correlative_match`); the new keyframe
   and its ``query_keyframes − 1`` predecessors, placed by their graph poses
   (the odometry edges), make the query: more wall than one scan, so less ambiguity.
