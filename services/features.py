@@ -30,13 +30,17 @@ class FeatureConfig:
     mode: str = "default"   # "paper" or "default"; presets corners.*
     corners: FeatureParams = field(default_factory=FeatureParams.default)  # both searches' knobs (key kept)
     wall_direction: bool = True  # publish the dominant wall direction mod 90° (not in the paper)
-    walls: WallDirectionParams = field(default_factory=WallDirectionParams)
+    wall_lines: WallDirectionParams = field(default_factory=WallDirectionParams)  # the line fits that measure it
 
     #: What an operator sets (docs/settings.md); ``mode`` presets the rest of ``corners``.
     SETTINGS: ClassVar[tuple[str, ...]] = (
         "mode", "corners.max_range_m", "corners.arm_dists_m", "corners.corner_tol_deg", "corners.jump_m",
-        "corners.nms_radius_m", "corners.range_sigma_m", "wall_direction", "walls.min_support_frac",
+        "corners.nms_radius_m", "corners.range_sigma_m", "wall_direction", "wall_lines.min_support_frac",
     )
+    RETIRED: ClassVar[dict[str, str]] = {
+        "walls.min_support_frac": "renamed features.wall_lines.min_support_frac (one name per idea: "
+                                  "wall_direction turns the measurement on, wall_lines are its line fits)",
+    }
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -63,7 +67,7 @@ class FeatureStep(StepBase):
         self.counts["scans"] += 1
         self.counts["forward"] += kinds.count(t.FEATURE_FORWARD)
         self.counts["backward"] += kinds.count(t.FEATURE_BACKWARD)
-        wall = wall_direction(fs.points_xy_m, self.cfg.walls) if self.cfg.wall_direction else None
+        wall = wall_direction(fs.points_xy_m, self.cfg.wall_lines) if self.cfg.wall_direction else None
         wall_rad, wall_sigma = (wall.direction_rad, wall.sigma_rad) if wall is not None else (np.nan, np.nan)
         self.counts["wall_direction"] += int(wall is not None)
         self.seq += 1

@@ -65,7 +65,7 @@ class SlamConfig:
     checkpoint_path: str = ""            # e.g. checkpoints/slam.npz; empty = no checkpoints
     checkpoint_every_scans: int = 50
     scan_matching: bool = True           # predict with the scan-matched motion (not in the paper)
-    scan_match: ScanMatchParams = field(default_factory=ScanMatchParams)
+    tracker: ScanMatchParams = field(default_factory=ScanMatchParams)   # the scan tracker's parameters
     no_odometry_sigma_m: float = 0.2     # scan matching without odometry: guess "no motion" +- this per scan
     no_odometry_sigma_rad: float = 0.2
     map_period_s: float = 5.0            # the whole map on slam/map at least this often (data time)
@@ -76,11 +76,13 @@ class SlamConfig:
         "ekf.odom_trans_sigma_per_sqrt_m", "ekf.odom_rot_sigma_per_sqrt_rad", "ekf.odom_rot_sigma_per_sqrt_m",
         "ekf.corner_range_sigma_m", "ekf.corner_bearing_sigma_rad", "ekf.association", "ekf.gate_assoc_chi2",
         "ekf.gate_new_chi2", "ekf.min_sightings_to_confirm", "ekf.max_landmarks",
-        "scan_match.max_point_range_m", "scan_match.free_space_check",
+        "tracker.max_point_range_m", "tracker.free_space_check",
     )
     RETIRED: ClassVar[dict[str, str]] = {
         "landmark_tolerance_m": f"fixed at {LANDMARK_TOLERANCE_M} m (services/slam.py LANDMARK_TOLERANCE_M)",
         "max_odom_wait_scans": f"fixed at {MAX_ODOM_WAIT_SCANS} scans (services/slam.py MAX_ODOM_WAIT_SCANS)",
+        **{f"scan_match.{name}": f"renamed slam.tracker.{name} (one name per idea: scan_matching turns the tracker on)"
+           for name in ("max_point_range_m", "free_space_check")},
         **{f"scan_match.{name}": "the tracker's search of old reference scans was removed (it corrected the drift "
            "the landmarks correct, twice); it matches the last reference scans only"
            for name in ("map_radius_m", "map_max_keyframes", "max_keyframes")},
@@ -97,7 +99,7 @@ class SlamStep(StepBase):
         self.cfg = cfg
         kernels.prepare()
         self.align = StreamAligner(AlignmentParams(cfg.wait_for_odometry, cfg.scan_matching, MAX_ODOM_WAIT_SCANS))
-        motion = MotionParams(cfg.scan_matching, cfg.scan_match, cfg.no_odometry_sigma_m, cfg.no_odometry_sigma_rad)
+        motion = MotionParams(cfg.scan_matching, cfg.tracker, cfg.no_odometry_sigma_m, cfg.no_odometry_sigma_rad)
         self.slam = CornerSlam(cfg.ekf, motion, cfg.use_backward_features, cfg.use_wall_direction, self.counts)
         self.checkpoint = Path(cfg.checkpoint_path) if cfg.checkpoint_path and not ctx.replay else None
         if self.checkpoint is not None and self.checkpoint.exists():

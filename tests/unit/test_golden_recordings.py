@@ -87,7 +87,7 @@ def test_a_v1_recording_holds_the_map_its_v2_rerun_sends_as_changes(tmp_path):
     by under a micrometre."""
     shutil.copy(GOLDEN / "intel_150.pipeline.mcap", tmp_path / "intel_150.pipeline.mcap")
     argv = ["slam", "--replay", str(tmp_path / "intel_150.pipeline.mcap"), "--out", str(tmp_path / "intel_150.slam.mcap"),
-            "--set", "scan_match.free_space_check=false"]
+            "--set", "tracker.free_space_check=false"]
     assert cli.main(argv) == 0
 
     def states_and_maps(path: Path) -> list[tuple]:

@@ -65,7 +65,7 @@ SETTINGS = {
         "corners.nms_radius_m": 0.3,
         "corners.range_sigma_m": 0.015,
         "wall_direction": True,
-        "walls.min_support_frac": 0.6,
+        "wall_lines.min_support_frac": 0.6,
     },
     "slam": {
         "scan_matching": True,
@@ -87,8 +87,8 @@ SETTINGS = {
         "ekf.gate_new_chi2": 25.0,
         "ekf.min_sightings_to_confirm": 2,
         "ekf.max_landmarks": 1000,
-        "scan_match.max_point_range_m": 8.0,
-        "scan_match.free_space_check": True,
+        "tracker.max_point_range_m": 8.0,
+        "tracker.free_space_check": True,
     },
     "mapper": {
         "checkpoint_path": "",

@@ -25,13 +25,14 @@ class MotionParams:
     ----------
     scan_matching : bool
         Predict with the scan-matched motion (not in the paper).
-    scan_match : ScanMatchParams
+    tracker : ScanMatchParams
+        The scan tracker's parameters.
     no_odometry_sigma_m, no_odometry_sigma_rad : float
         Scan matching without odometry: the guess "no motion" is good to this per scan (m, rad).
     """
 
     scan_matching: bool = True
-    scan_match: ScanMatchParams = field(default_factory=ScanMatchParams)
+    tracker: ScanMatchParams = field(default_factory=ScanMatchParams)
     no_odometry_sigma_m: float = 0.2
     no_odometry_sigma_rad: float = 0.2
 
@@ -64,7 +65,7 @@ class MotionSource:
 
     def __init__(self, params: MotionParams) -> None:
         self.params = params
-        self._tracker = ScanTracker(params.scan_match) if params.scan_matching else None
+        self._tracker = ScanTracker(params.tracker) if params.scan_matching else None
         self._last_odom_pose: np.ndarray | None = None
         self._started = False   # a scan has been matched or skipped: the next one has a motion
 

@@ -194,7 +194,7 @@ def stage_rows(n_scans: int, seed: int, repeat: int) -> list[Row]:
     scans = [m.value for m in msgs[topics.SCAN.name]]
     filtered = [m.value for m in msgs[topics.SCAN_FILTERED.name]]
     odom = [m.value.pose for m in msgs[topics.ODOM.name]]
-    hist, corners, walls = cfg["denoise"].histogram, cfg["features"].corners, cfg["features"].walls
+    hist, corners, walls = cfg["denoise"].histogram, cfg["features"].corners, cfg["features"].wall_lines
     where = f"{len(scans)} simulated scans, fastest of {repeat} call{'s' * (repeat > 1)} each"
     rows = [
         _per_scan_row("denoise (angle histogram)", [fastest_s(lambda s=s: denoise(s.ranges_m, s.angles_rad, hist),
@@ -206,7 +206,7 @@ def stage_rows(n_scans: int, seed: int, repeat: int) -> list[Row]:
                                          for f in filtered], where),
     ]
     # The tracker keeps state (its keyframes): each scan is matched once, in order.
-    tracker, times = ScanTracker(cfg["slam"].scan_match), []
+    tracker, times = ScanTracker(cfg["slam"].tracker), []
     for k, scan in enumerate(scans):
         valid = (scan.status == t.BEAM_VALID) & np.isfinite(scan.ranges_m)
         points = polar_to_xy(scan.ranges_m[valid], scan.angles_rad[valid])

@@ -183,7 +183,7 @@ def run_log(log: Log, work: Path, stages: list[chain.Stage], draw_map: bool = Tr
         with open_log(log.relations) as f:
             relations = load_relations(f)
         slam_cfg = next((s.config for s in stages if s.spec.name == "slam"), None)
-        match_params = slam_cfg.scan_match if slam_cfg is not None else ScanMatchParams()
+        match_params = slam_cfg.tracker if slam_cfg is not None else ScanMatchParams()
         stamps_ns, poses, _ = scan_matched_trajectory(imported, match_params)
         scores, _ = evaluate_relations(out, log.relations, extra={
             SCAN_MATCHING: (np.array([stamp_s(s) for s in stamps_ns]), poses)})
