@@ -11,6 +11,7 @@ import pytest
 
 from lrfslam.algo.geometry import relative
 from lrfslam.errors import ConfigError
+from lrfslam.evaluation.relations import ErrorSummary
 from lrfslam.io.carmen import iter_records, laser_trajectory
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
@@ -108,6 +109,28 @@ def test_the_command_prints_one_table(datasets, tmp_path, capsys):
                           "--set", "features.mode=paper"]) == 0
     out = capsys.readouterr().out
     assert out.count("| scored |") == 5 and "map" in out
+    verdict = next(line for line in out.splitlines() if line.startswith("scored: mapper final "))
+    assert verdict.endswith("trials clean") and "unscored: mapper final" not in out
+
+
+def test_the_mapper_is_held_to_its_inputs_span_by_span_within_1_mm_or_2_percent():
+    def spans(*means):
+        return {span: (10, ErrorSummary(m, 0.0, m)) for span, m in zip(("< 2 s", "2-30 s", ">= 30 s"), means,
+                                                                         strict=True)}
+    result = eval_logs.LogResult(eval_logs.Log("x", Path("x.clf"), Path("x.relations")))
+    result.by_span = {"mapper final": spans(0.0109, 0.0520, 0.500),
+                      "slam estimate": spans(0.0100, 0.0500, 0.700),
+                      eval_logs.SCAN_MATCHING: spans(0.0100, 0.0505, 0.400)}
+    # < 2 s: 0.9 mm over both, within the 1 mm margin; 2-30 s: 2.0 mm over the EKF (4 %, beyond 2 %
+    # of 0.05 = 1 mm) and 1.5 mm over scan matching; >= 30 s: better than the EKF, worse than scan matching.
+    assert eval_logs.worse_than_inputs(result) == [
+        "2-30 s: 0.052 m against slam estimate 0.050 m",
+        "2-30 s: 0.052 m against scan matching alone 0.051 m",
+        ">= 30 s: 0.500 m against scan matching alone 0.400 m",
+    ]
+    result.by_span["mapper final"] = spans(0.0100, 0.0500, 0.4079)   # 0.4079 <= 0.4 + 2 %
+    assert eval_logs.worse_than_inputs(result) == []
+    assert eval_logs.worse_than_inputs(eval_logs.LogResult(eval_logs.Log("y", Path("y.clf"), None))) == []
 
 
 def test_the_closure_nis_band_holds_the_mean_of_consistent_closures_95_percent_of_the_time():

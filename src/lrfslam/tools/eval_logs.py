@@ -333,6 +333,30 @@ def _spread(values: list[float]) -> str:
     return f"{mean:.3f} [{min(values):.3f}, {max(values):.3f}] {100 * spread:.0f} %"
 
 
+#: The mapper's inputs, which its final trajectory must not be worse than (issue 28: a closure never
+#: makes the map worse), and by how much it may be: the larger of an absolute (m) and a relative margin.
+MAPPER_INPUTS = ("slam estimate", SCAN_MATCHING)
+NO_WORSE_M, NO_WORSE_FRAC = 0.001, 0.02
+
+
+def worse_than_inputs(result: LogResult) -> list[str]:
+    """Where the mapper's final trajectory is worse than one of its inputs (:data:`MAPPER_INPUTS`)
+    beyond :data:`NO_WORSE_M` or :data:`NO_WORSE_FRAC`, whichever is larger: one line per
+    (span, input), ``"<span>: <mapper> m against <input> <m> m"``; empty where it is no worse
+    anywhere (or the log has no relations)."""
+    if MAPPER_FINAL not in result.by_span:
+        return []
+    out = []
+    for span, (_, mapper) in result.by_span[MAPPER_FINAL].items():
+        for label in MAPPER_INPUTS:
+            if label not in result.by_span:
+                continue
+            base = result.by_span[label][span][1].mean
+            if mapper.mean > base + max(NO_WORSE_M, NO_WORSE_FRAC * base):
+                out.append(f"{span}: {mapper.mean:.3f} m against {label} {base:.3f} m")
+    return out
+
+
 def trials_markdown(results: Iterable[list[LogResult]]) -> str:
     """One row per (scored log, trajectory): each relation error over the trials as
     ``mean [min, max] spread %``, overall and by span."""
@@ -371,4 +395,11 @@ def main_all(root: Path, work: Path, sets: list[str], config_file: str | None, j
         print(f"{r.log.name}: {r.scans} scans in {r.pipeline_s:.1f} s; laser {facts.get('beams', '?')}, "
               f"no return {facts.get('no_return_m') or '-'} m"
               + (f"; map {r.map_png}" if r.map_png else ""))
+    for runs in (runs for runs in found if runs[0].scores):
+        worse = [(k, line) for k, r in enumerate(runs) for line in worse_than_inputs(r)]
+        verdict = "no worse than its inputs (EKF, scan matching alone) on every span"
+        if worse:
+            verdict = "worse than an input: " + "; ".join(f"trial {k} {line}" for k, line in worse)
+        print(f"{runs[0].log.name}: mapper final {verdict} (margin {1e3 * NO_WORSE_M:g} mm or "
+              f"{100 * NO_WORSE_FRAC:g} %), {len(runs) - len({k for k, _ in worse})} of {len(runs)} trials clean")
     return 0
