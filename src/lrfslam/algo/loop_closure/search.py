@@ -261,8 +261,8 @@ class ClosureSearch:
         keyframes each side, more where the window is wider than they reach. A map narrower than
         the window favours the placements that fall inside it: in a corridor of alike doors a
         twin a door period along, wholly inside the map, outscores the true place at its edge;
-        with the window covered the twins score alike and the ambiguity test sees them. Only
-        keyframes at least ``min_travel_m`` older than the newest one are taken (never the
+        with the window covered, twins inside it score alike and the ambiguity test sees them. A
+        wider map takes only keyframes at least ``min_travel_m`` older than the newest (never the
         query's own). The usual neighbourhood is cached; a wider one (a wide window, searched at
         most once per ``wide_search_spacing_m``) is not.
         """
