@@ -131,16 +131,20 @@ def twin_corridors(gap_m: float) -> np.ndarray:
     return np.array(walls, dtype=float)
 
 
-def twin_path(gap_m: float, step_m: float) -> np.ndarray:
-    """True poses (T, 3) every ``step_m`` along A east, up, C west, down, B east."""
-    legs = [((1.0, 0.0), (25.0, 0.0)), ((25.0, 0.0), (25.0, 2 * gap_m)), ((25.0, 2 * gap_m), (-1.0, 2 * gap_m)),
-            ((-1.0, 2 * gap_m), (-1.0, gap_m)), ((-1.0, gap_m), (22.0, gap_m))]
+def along(legs, step_m: float) -> np.ndarray:
+    """True poses (T, 3) every ``step_m`` along straight legs ``((x0, y0), (x1, y1))``, facing along each."""
     poses = []
     for (x0, y0), (x1, y1) in legs:
         n = int(np.hypot(x1 - x0, y1 - y0) / step_m)
         th = np.arctan2(y1 - y0, x1 - x0)
         poses += [(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n, th) for i in range(n)]
     return np.array(poses)
+
+
+def twin_path(gap_m: float, step_m: float) -> np.ndarray:
+    """True poses (T, 3) every ``step_m`` along A east, up, C west, down, B east."""
+    return along([((1.0, 0.0), (25.0, 0.0)), ((25.0, 0.0), (25.0, 2 * gap_m)), ((25.0, 2 * gap_m), (-1.0, 2 * gap_m)),
+                  ((-1.0, 2 * gap_m), (-1.0, gap_m)), ((-1.0, gap_m), (22.0, gap_m))], step_m)
 
 
 @pytest.mark.parametrize("gap_m", [4.0, 6.0])
@@ -491,14 +495,8 @@ def test_a_return_along_a_corridor_of_alike_doors_is_not_closed_a_door_period_of
     # periods. Every alike door is then a candidate place: no closure may take one for the truth.
     gap_m = 6.0
     walls = alike_corridor_loop(gap_m)
-    legs = [((1.0, 0.0), (50.0, 0.0)), ((50.0, 0.0), (50.0, 2 * gap_m)), ((50.0, 2 * gap_m), (-1.0, 2 * gap_m)),
-            ((-1.0, 2 * gap_m), (-1.0, 0.0)), ((-1.0, 0.0), (30.0, 0.0))]
-    truth = []
-    for (x0, y0), (x1, y1) in legs:
-        n = int(np.hypot(x1 - x0, y1 - y0) / 0.2)
-        th = np.arctan2(y1 - y0, x1 - x0)
-        truth += [(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n, th) for i in range(n)]
-    truth = np.array(truth)
+    truth = along([((1.0, 0.0), (50.0, 0.0)), ((50.0, 0.0), (50.0, 2 * gap_m)), ((50.0, 2 * gap_m), (-1.0, 2 * gap_m)),
+                   ((-1.0, 2 * gap_m), (-1.0, 0.0)), ((-1.0, 0.0), (30.0, 0.0))], 0.2)
     ekf = [truth[0]]
     for k in range(1, len(truth)):
         step = relative(truth[k - 1], truth[k])
