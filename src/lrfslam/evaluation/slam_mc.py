@@ -62,6 +62,7 @@ from lrfslam.evaluation.closure_audit import (
     RIGHT_M,
     RIGHT_RAD,
     judge_by_truth,
+    observed_stages,
     precision_recall,
     summary_counts,
 )
@@ -297,13 +298,13 @@ class _Pipeline:
     def __init__(self, sim: Simulator, cfg: McConfig, params: EkfParams, pose0: np.ndarray) -> None:
         slam = cfg.stage("slam")
         stages = [cfg.stage("denoise"), cfg.stage("features"), Stage(slam.spec, replace(slam.config, ekf=params))]
-        self.chain = Chain(stages + ([cfg.stage("mapper")] if cfg.mapper else []), robot="slam_mc", wire=False)
+        self.closure_attempts: list = []   # the mapper's, each ClosureAttempt as it happens
+        self.stamps_ns: list[int] = []      # every frame's, as fed
+        stages = observed_stages(stages + ([cfg.stage("mapper")] if cfg.mapper else []), self.closure_attempts)
+        self.chain = Chain(stages, robot="slam_mc", wire=False)
         self.map_online: list[np.ndarray] = []
         self.map_local: list[tuple[int, np.ndarray]] = []   # (stamp ns, local pose (3,)) per map/pose
         self.map_keyframes = KeyframeHistory()
-        self.closure_attempts: list = []   # the mapper's, each ClosureAttempt as it happens
-        if cfg.mapper:
-            self.chain.step("mapper").mapper.observer = self.closure_attempts.append
         self.slam = self.chain.step("slam").slam
         self.slam.start_at(pose0)
         self.lidar = sim.config.lidar
@@ -334,6 +335,7 @@ class _Pipeline:
     def step(self, frame: SimFrame):
         """Feed one frame; returns (pose, pose_cov, features xy (K, 2), covs (K, 2, 2), report)."""
         stamp, seq = round(frame.t_s * 1e9), frame.index + 1
+        self.stamps_ns.append(stamp)
         scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, self.lidar.angle_min_rad,
                                        self.lidar.angle_increment_rad, self.lidar.max_range_m,
                                        scan_time_s=self.scan_time_s, source="sim")
@@ -412,8 +414,8 @@ def run_once(cfg: McConfig, run_index: int) -> RunResult:
     online, final = pipeline.map_trajectories() if pipeline is not None else (np.zeros((0, 3)),) * 2
     closures = Counter()
     if pipeline is not None and cfg.mapper:
-        stamps = np.array([round(k / sim.config.rate_hz * 1e9) for k in range(len(true_p))], dtype=np.int64)
-        closures = summary_counts(judge_by_truth(pipeline.closure_attempts, stamps, true_p))
+        closures = summary_counts(judge_by_truth(pipeline.closure_attempts, np.array(pipeline.stamps_ns, dtype=np.int64),
+                                                 true_p))
     return RunResult(
         true_p, est_p, odom_p, covs_p, np.hypot(err[:, 0], err[:, 1]), lm_nees,
         int(np.sum(table.confirmed & (lm_labels == PHANTOM))), np.array(nis_matched), n_wrong,
