@@ -38,6 +38,6 @@ def stage(name: str, *, sets: Iterable[str] = (), config_file: str | Path | Mapp
 
 
 def build_step(name: str, *, sets: Iterable[str] = (), config_file: str | Path | Mapping | None = None,
-               env: Mapping[str, str] | None = None, robot: str = DEFAULT_ROBOT, replay: bool = True) -> Any:
+               env: Mapping[str, str] | None = None, robot: str = DEFAULT_ROBOT) -> Any:
     """The step of service ``name``, configured by :func:`stage`: the one way to make a step in code."""
-    return stage(name, sets=sets, config_file=config_file, env=env).build(robot, replay)
+    return stage(name, sets=sets, config_file=config_file, env=env).build(robot)

@@ -14,8 +14,8 @@ scan: its own was lost), so the result does not depend on how the two streams in
 trajectory of a recording is every slam state placed by the last ``map/keyframes``
 (``lrfslam.evaluation.map_trajectory``).
 
-With ``checkpoint_path`` set, the graph is saved atomically every ``checkpoint_every_keyframes``
-keyframes and on exit, and a restarted mapper continues it. The local trajectory is the chain of the
+The step is :class:`Resumable`: where the runtime keeps checkpoints (``bus.checkpoint_dir``,
+``lrfslam.runtime.checkpoints``) a restarted mapper continues its graph. The local trajectory is the chain of the
 states' motions; where that chain breaks (a state number skipped: states lost, this stage or the slam
 stage restarted) the filter's own pose change bridges the gap, taken as the motion across it: the
 closures that follow correct what the filter got wrong meanwhile.
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -34,10 +33,8 @@ from lrfslam.algo import kernels
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
-from lrfslam.errors import ConfigError, InputError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime import npz_file
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
 
 log = logging.getLogger("lrfslam.mapper")
@@ -52,11 +49,8 @@ class MapperConfig:
     """The mapper stage's configuration; ``SETTINGS`` are the names an operator sets (docs/settings.md)."""
 
     loop_closure: LoopClosureParams = field(default_factory=LoopClosureParams)
-    checkpoint_path: str = ""              # e.g. checkpoints/mapper.npz; empty = no checkpoints
-    checkpoint_every_keyframes: int = 20   # the graph and its keyframes' points: ~2 KB a keyframe
 
     SETTINGS: ClassVar[tuple[str, ...]] = (
-        "checkpoint_path", "checkpoint_every_keyframes",
         *(f"loop_closure.{name}" for name in (
             "keyframe_trans_m", "keyframe_rot_rad", "max_range_m", "min_travel_m", "candidate_radius_m",
             "max_window_m", "min_score", "max_second_ratio", "gate_chi2", "match_cov_scale",
@@ -64,15 +58,13 @@ class MapperConfig:
             "fold_revisits", "fold_after_keyframes", "correlative.cell_m")),
     )
     RETIRED: ClassVar[dict[str, str]] = {
+        "checkpoint_path": "the runtime keeps every stage's checkpoint: bus.checkpoint_dir (<dir>/mapper.checkpoint.npz)",
+        "checkpoint_every_keyframes": "the runtime saves every bus.checkpoint_period_s of data time",
         "max_waiting_states": f"fixed at {MAX_WAITING_STATES} (services/mapper.py MAX_WAITING_STATES)",
         "local_trajectory": "the local trajectory is always the chain of the slam's motions (slam_motion)",
         "loop_closure.drift_scale": "replaced by the drift model (loop_closure.odom_*); 1 did nothing",
         "loop_closure.interpolate": "always on: each scan is placed between its keyframes",
     }
-
-    def __post_init__(self) -> None:
-        if self.checkpoint_every_keyframes < 1:
-            raise ConfigError("mapper.checkpoint_every_keyframes must be >= 1")
 
 
 class MapperStep(StepBase):
@@ -91,10 +83,6 @@ class MapperStep(StepBase):
         self._local: np.ndarray | None = None   # the last state's pose on the local trajectory
         self._last_slam_pose = np.zeros(3)
         self._last_state_seq = -1   # the last state's number; -1: none yet
-        self._saved_keyframes = 0
-        self.checkpoint = Path(cfg.checkpoint_path) if cfg.checkpoint_path and not ctx.replay else None
-        if self.checkpoint is not None and self.checkpoint.exists():
-            self._restore(self.checkpoint)
 
     def on_message(self, msg: Message):
         v = msg.value
@@ -111,10 +99,6 @@ class MapperStep(StepBase):
             self.mapper.solve()   # every closure still pending
             outs.append(self._keyframes(self._last_stamp))
         return outs
-
-    def close(self) -> None:
-        if self.checkpoint is not None and self.mapper.keyframe_count:
-            self._save(self.checkpoint)
 
     def _place(self, state: t.SlamState, points: np.ndarray | None) -> list[Output]:
         if points is None:
@@ -137,9 +121,6 @@ class MapperStep(StepBase):
         if stats.optimisations != self.optimisations:
             self.optimisations = stats.optimisations
             outs.append(self._keyframes(state.stamp_ns))
-        if self.checkpoint is not None \
-                and self.mapper.keyframe_count >= self._saved_keyframes + self.cfg.checkpoint_every_keyframes:
-            self._save(self.checkpoint)
         return outs
 
     def _local_pose(self, state: t.SlamState) -> tuple[np.ndarray, np.ndarray | None]:
@@ -177,37 +158,29 @@ class MapperStep(StepBase):
             retired_local_edge=retired.local_edge, retired_anchor_stamp_ns=retired.anchor_stamp_ns,
             retired_offset=retired.offset))
 
-    def _save(self, path: Path) -> None:
+    def snapshot(self) -> dict | None:
+        """The pose graph with its keyframes' points, and where the streams stood; None before the first keyframe."""
+        if not self.mapper.keyframe_count:
+            return None
         arrays = self.mapper.snapshot()
         arrays.update(service_seq=self.seq, service_keyframes_seq=self.keyframes_seq,
                       service_last_stamp_ns=self._last_stamp, service_last_state_seq=self._last_state_seq,
                       service_local_pose=np.full(3, np.nan) if self._local is None else self._local,
                       service_last_slam_pose=self._last_slam_pose)
-        npz_file.write_atomic(path, arrays)
-        self._saved_keyframes = self.mapper.keyframe_count
-        self.counts["checkpoints"] += 1
+        return arrays
 
-    def _restore(self, path: Path) -> None:
-        try:
-            arrays = npz_file.read(path)
-            mapper = LoopClosingMapper.restore(self.cfg.loop_closure, arrays)
-            local = np.array(arrays["service_local_pose"], dtype=float).reshape(3)
-            last_slam_pose = np.array(arrays["service_last_slam_pose"], dtype=float).reshape(3)
-            counters = [int(arrays[k]) for k in ("service_seq", "service_keyframes_seq", "service_last_stamp_ns",
-                                                 "service_last_state_seq")]
-        except (OSError, ValueError, KeyError, InputError) as exc:
-            log.warning("ignoring unreadable checkpoint %s: %s", path, exc)
-            self.counts["checkpoint_unreadable"] += 1
-            return
+    def restore(self, arrays) -> str:
+        mapper = LoopClosingMapper.restore(self.cfg.loop_closure, arrays)
+        local = np.array(arrays["service_local_pose"], dtype=float).reshape(3)
+        last_slam_pose = np.array(arrays["service_last_slam_pose"], dtype=float).reshape(3)
+        counters = [int(arrays[k]) for k in ("service_seq", "service_keyframes_seq", "service_last_stamp_ns",
+                                             "service_last_state_seq")]
         self.mapper = mapper
         self.seq, self.keyframes_seq, self._last_stamp, self._last_state_seq = counters
         self._local = None if np.any(np.isnan(local)) else local
         self._last_slam_pose = last_slam_pose
         self.optimisations = mapper.stats.optimisations
-        self._saved_keyframes = mapper.keyframe_count
-        log.info("resumed from %s: %d keyframes, %d closures", path, mapper.keyframe_count,
-                 mapper.stats.accepted - mapper.stats.removed)
-        self.counts["restored"] += 1
+        return f"{mapper.keyframe_count} keyframes, {mapper.stats.accepted - mapper.stats.removed} closures"
 
     def health(self) -> tuple[int, str]:
         s = self.mapper.stats

@@ -11,15 +11,14 @@ Features wait for their odometry and scan (``lrfslam.algo.stream_alignment``), s
 depend on how the streams interleave; then ``lrfslam.algo.corner_slam`` moves the filter (scan-matched
 motion, else odometry), corrects the heading and adds the features. A state carries only the landmarks
 that moved (or whose spread changed) beyond ``LANDMARK_TOLERANCE_M`` since they were last sent, so its
-size does not grow with the map (``lrfslam.msgs.landmark_map``). With ``checkpoint_path`` set, the
-filter is saved atomically every ``checkpoint_every_scans`` scans and on exit, and a restart resumes.
+size does not grow with the map (``lrfslam.msgs.landmark_map``). The filter is :class:`Resumable`: where
+the runtime keeps checkpoints (``bus.checkpoint_dir``, ``lrfslam.runtime.checkpoints``) a restart resumes it.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -31,10 +30,8 @@ from lrfslam.algo.geometry import polar_to_xy
 from lrfslam.algo.motion_source import MotionParams
 from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.algo.stream_alignment import Aligned, AlignmentParams, StreamAligner
-from lrfslam.errors import InputError
 from lrfslam.msgs import landmark_map, topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime import npz_file
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
 
 log = logging.getLogger(__name__)
@@ -62,8 +59,6 @@ class SlamConfig:
     use_backward_features: bool = True   # jump edges as (tentative, viewpoint-checked) landmarks
     use_wall_direction: bool = True      # heading from the walls' direction mod 90° (not in the paper)
     wait_for_odometry: bool = True       # false for a laser without odometry (e.g. a bare LMS200)
-    checkpoint_path: str = ""            # e.g. checkpoints/slam.npz; empty = no checkpoints
-    checkpoint_every_scans: int = 50
     scan_matching: bool = True           # predict with the scan-matched motion (not in the paper)
     tracker: ScanMatchParams = field(default_factory=ScanMatchParams)   # the scan tracker's parameters
     no_odometry_sigma_m: float = 0.2     # scan matching without odometry: guess "no motion" +- this per scan
@@ -72,13 +67,15 @@ class SlamConfig:
 
     SETTINGS: ClassVar[tuple[str, ...]] = (
         "scan_matching", "use_backward_features", "use_wall_direction", "wait_for_odometry",
-        "no_odometry_sigma_m", "no_odometry_sigma_rad", "map_period_s", "checkpoint_path", "checkpoint_every_scans",
+        "no_odometry_sigma_m", "no_odometry_sigma_rad", "map_period_s",
         "ekf.odom_trans_sigma_per_sqrt_m", "ekf.odom_rot_sigma_per_sqrt_rad", "ekf.odom_rot_sigma_per_sqrt_m",
         "ekf.corner_range_sigma_m", "ekf.corner_bearing_sigma_rad", "ekf.association", "ekf.gate_assoc_chi2",
         "ekf.gate_new_chi2", "ekf.min_sightings_to_confirm", "ekf.max_landmarks",
         "tracker.max_point_range_m", "tracker.free_space_check",
     )
     RETIRED: ClassVar[dict[str, str]] = {
+        "checkpoint_path": "the runtime keeps every stage's checkpoint: bus.checkpoint_dir (<dir>/slam.checkpoint.npz)",
+        "checkpoint_every_scans": "the runtime saves every bus.checkpoint_period_s of data time",
         "landmark_tolerance_m": f"fixed at {LANDMARK_TOLERANCE_M} m (services/slam.py LANDMARK_TOLERANCE_M)",
         "max_odom_wait_scans": f"fixed at {MAX_ODOM_WAIT_SCANS} scans (services/slam.py MAX_ODOM_WAIT_SCANS)",
         **{f"scan_match.{name}": f"renamed slam.tracker.{name} (one name per idea: scan_matching turns the tracker on)"
@@ -101,9 +98,6 @@ class SlamStep(StepBase):
         self.align = StreamAligner(AlignmentParams(cfg.wait_for_odometry, cfg.scan_matching, MAX_ODOM_WAIT_SCANS))
         motion = MotionParams(cfg.scan_matching, cfg.tracker, cfg.no_odometry_sigma_m, cfg.no_odometry_sigma_rad)
         self.slam = CornerSlam(cfg.ekf, motion, cfg.use_backward_features, cfg.use_wall_direction, self.counts)
-        self.checkpoint = Path(cfg.checkpoint_path) if cfg.checkpoint_path and not ctx.replay else None
-        if self.checkpoint is not None and self.checkpoint.exists():
-            self._restore(self.checkpoint)
         self.current = t.Landmarks()         # the filter's map after the last update
         self.sent = t.Landmarks()            # the map as the subscribers hold it (sorted by id)
         self.last_state: t.SlamState | None = None
@@ -142,8 +136,6 @@ class SlamStep(StepBase):
         # Wire kinds (1 forward, 2 backward; 0 unknown, treated as forward) -> the filter's (0, 1).
         report = self.slam.update(a.odom_pose, a.scan_xy_m, f.xy_m, f.cov_m2,
                                   (f.kind == t.FEATURE_BACKWARD).astype(np.int8), wall)
-        if self.checkpoint is not None and self.slam.scans % self.cfg.checkpoint_every_scans == 0:
-            self._save(self.checkpoint)
         ekf, lm = self.slam.ekf, self.slam.ekf.landmarks()
         self.current = t.Landmarks(ids=lm.ids, xy_m=lm.xy, cov_m2=lm.cov,
                                    kind=np.where(lm.kinds == 0, t.FEATURE_FORWARD, t.FEATURE_BACKWARD),
@@ -178,23 +170,13 @@ class SlamStep(StepBase):
         motion = self.slam.last_update.motion
         return np.zeros(3) if motion is None else motion
 
-    def _save(self, path: Path) -> None:
-        npz_file.write_atomic(path, self.slam.checkpoint())
-        self.counts["checkpoints"] += 1
+    def snapshot(self) -> dict | None:
+        """The filter and where the stream stood (:mod:`lrfslam.algo.checkpoint`); None before the first scan."""
+        return self.slam.checkpoint() if self.slam.scans else None
 
-    def _restore(self, path: Path) -> None:
-        try:
-            self.slam.resume(checkpoint.decode(self.cfg.ekf, npz_file.read(path)))
-            log.info("resumed from %s: scan %d, %d landmarks", path, self.slam.scans, self.slam.ekf.n_landmarks)
-            self.counts["restored"] += 1
-        except (OSError, ValueError, InputError) as exc:
-            log.warning("ignoring unreadable checkpoint %s: %s", path, exc)
-            self.counts["checkpoint_unreadable"] += 1
-
-    def close(self) -> None:
-        if self.checkpoint is not None and self.slam.scans:
-            self._save(self.checkpoint)
-
+    def restore(self, arrays) -> str:
+        self.slam.resume(checkpoint.decode(self.cfg.ekf, arrays))
+        return f"scan {self.slam.scans}, {self.slam.ekf.n_landmarks} landmarks"
 
 SPEC = ServiceSpec(
     name="slam",

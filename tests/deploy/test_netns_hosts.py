@@ -53,7 +53,7 @@ SCANS = 1200             # 40 s of wall time; the sensors stop after this frame
 KILL_AFTER_STATES = 300  # r1's slam is killed once it has published this many states
 WORLDS = {"r1": ("hallway_loop", 1), "r2": ("large_building_empty", 3)}   # robot -> (world, seed)
 TIMEOUT_S = 120.0        # hang guard of every wait; nothing asserts on elapsed time
-CHECKPOINT_EVERY = 50    # scans: deploy/config.toml's checkpoint_every_scans
+CHECKPOINT_EVERY = 50    # scans: bus.checkpoint_period_s (5 s of data time) at the simulator's 10 Hz
 
 
 def unavailable(reason: str) -> None:
@@ -121,10 +121,8 @@ class Hosts:
         self.procs.append((label, proc))
         return proc
 
-    def service(self, host: str, robot: str, name: str, *sets: str) -> subprocess.Popen:
-        argv = [name, "--robot", robot, "--mode", "client", "--connect", self.router]
-        for s in sets:
-            argv += ["--set", s]
+    def service(self, host: str, robot: str, name: str, *flags: str) -> subprocess.Popen:
+        argv = [name, "--robot", robot, "--mode", "client", "--connect", self.router, *flags]
         return self.run(host, f"{robot}-{name}-{host}", *argv)
 
     def tail(self) -> str:
@@ -217,9 +215,10 @@ def test_pipeline_across_hosts_with_a_moved_slam_and_a_second_robot(hosts):
 
     def sensor_sets(robot: str) -> list[str]:
         world, seed = WORLDS[robot]
-        return [f"world={world}", f"seed={seed}", f"speedup={SPEEDUP}", f"max_scans={SCANS}"]
+        return [a for s in (f"world={world}", f"seed={seed}", f"speedup={SPEEDUP}", f"max_scans={SCANS}")
+                for a in ("--set", s)]
 
-    checkpoint = [f"checkpoint_path={shared / 'r1-slam.npz'}", f"checkpoint_every_scans={CHECKPOINT_EVERY}"]
+    checkpoint = ["--checkpoint-dir", str(shared)]
     # Consumers first, the sensors last (as `lrfslam up` and compose order them).
     procs = {
         "r1-recorder": h.service("c", "r1", "recorder"),
@@ -367,7 +366,7 @@ def test_a_monitor_on_another_host_serves_the_live_pipeline(hosts):
 
     stages = {"recorder", "slam", "features", "denoise"}
     wait_for(lambda s: stages <= {r["service"] for r in s["services"] if r["alive"]}, "the stages on the dashboard")
-    h.service("b", "r1", "sensor", f"speedup={SPEEDUP}", f"max_scans={SCANS}")
+    h.service("b", "r1", "sensor", "--set", f"speedup={SPEEDUP}", "--set", f"max_scans={SCANS}")
     first = wait_for(lambda s: s["scans"] >= 30 and s["pose"] is not None, "live scans")
     later = wait_for(lambda s: s["states"] >= first["states"] + 60 and len(s["landmarks"]) > 0, "more states")
     rows = {r["service"]: r for r in later["services"]}

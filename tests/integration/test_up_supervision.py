@@ -185,7 +185,7 @@ def test_a_killed_stage_is_restarted_and_the_run_holds(stage, baseline, tmp_path
         assert stamps == sorted(set(stamps))
         seqs = [s.seq for s in states]
         (restart,) = [i for i in range(1, len(seqs)) if seqs[i] != seqs[i - 1] + 1]
-        # Resumed: numbered on from its last checkpoint (every 50 scans: the scans since, in the
+        # Resumed: numbered on from its last checkpoint (every 5 s of data time, 50 scans: the scans since, in the
         # killed filter only, are numbered again), not from 1.
         assert seqs[restart - 1] - 50 <= seqs[restart] <= seqs[restart - 1] + 1, seqs[restart - 2: restart + 2]
         assert seqs[restart] > KILL_AFTER_STATES - 50
@@ -200,7 +200,7 @@ def test_a_killed_stage_is_restarted_and_the_run_holds(stage, baseline, tmp_path
     if stage == "mapper":
         poses = [codec.MAP_POSE.decode(m.data) for m in read_recording(run.recording, [topics.MAP_POSE.name])]
         (restart,) = [i for i in range(1, len(poses)) if poses[i].seq != poses[i - 1].seq + 1]
-        # Resumed its graph from its last checkpoint (every 20 keyframes), not from one keyframe;
+        # Resumed its graph from its last checkpoint (every 5 s of data time, a few keyframes), not from one keyframe;
         # the states it missed while down are bridged once.
         before, after = poses[restart - 1].keyframes, poses[restart].keyframes
         assert before - 20 <= after - 1 <= before and after > 20, (before, after)

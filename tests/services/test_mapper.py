@@ -13,6 +13,7 @@ from lrfslam.errors import ConfigError
 from lrfslam.evaluation.map_trajectory import KeyframeHistory, final_poses
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime import checkpoints
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.step import Message, Output
 from lrfslam.sim.simulator import OdometryNoise, SimConfig, Simulator
@@ -155,13 +156,13 @@ def encoded(messages) -> list[tuple[str, bytes]]:
 def test_a_restarted_mapper_continues_its_graph_exactly(mapped, tmp_path):
     frames, _, outs = mapped
     per_frame = frame_messages(frames)
-    live = [stage("mapper", sets=[f"checkpoint_path={tmp_path / 'mapper.npz'}", "checkpoint_every_keyframes=7"])]
+    live = [stage("mapper")]
     cut = 400   # in the second lap: closures before and after
-    with Chain(live, replay=False) as first:
+    with Chain(live, checkpoint_dir=tmp_path) as first:
         head = [o for pair in per_frame[:cut] for x in pair for o in first.push(x)]
         before = first.step("mapper").mapper.stats
     assert 0 < before.accepted and first.step("mapper").counts["checkpoints"] >= 2
-    with Chain(live, replay=False) as second:
+    with Chain(live, checkpoint_dir=tmp_path) as second:
         step = second.step("mapper")
         assert step.counts["restored"] == 1 and step.mapper.keyframe_count == first.step("mapper").mapper.keyframe_count
         tail = [o for pair in per_frame[cut:] for x in pair for o in second.push(x)] + list(second.feed([]))
@@ -173,14 +174,14 @@ def test_a_restarted_mapper_continues_its_graph_exactly(mapped, tmp_path):
 def test_a_killed_mapper_resumes_from_its_checkpoint_and_bridges_the_states_it_missed(mapped, tmp_path):
     frames, _, outs = mapped
     per_frame = frame_messages(frames)
-    live = [stage("mapper", sets=[f"checkpoint_path={tmp_path / 'mapper.npz'}", "checkpoint_every_keyframes=7"])]
+    live = [stage("mapper")]
     killed, back = 420, 450   # down for 6 s, through one of the 'filter's jumps (frame 438)
-    first = Chain(live, replay=False)   # never closed: killed, its last periodic checkpoint stays
+    first = Chain(live, checkpoint_dir=tmp_path)   # never closed: killed, its last periodic checkpoint stays
     for pair in per_frame[:killed]:
         for x in pair:
             first.push(x)
     saved = first.step("mapper").counts["checkpoints"]
-    with Chain(live, replay=False) as second:
+    with Chain(live, checkpoint_dir=tmp_path) as second:
         step = second.step("mapper")
         assert step.counts["restored"] == 1 and saved >= 1
         resumed_at = step.mapper.keyframe_count
@@ -207,7 +208,9 @@ def test_a_killed_mapper_resumes_from_its_checkpoint_and_bridges_the_states_it_m
 
 
 def test_an_unreadable_mapper_checkpoint_is_counted_and_a_new_graph_started(tmp_path):
-    ckpt = tmp_path / "mapper.npz"
+    ckpt = checkpoints.path_for(tmp_path, "mapper")
     ckpt.write_bytes(b"not a checkpoint")
-    step = stage("mapper", sets=[f"checkpoint_path={ckpt}"]).build(replay=False)
-    assert step.counts["checkpoint_unreadable"] == 1 and step.mapper.keyframe_count == 0
+    with Chain([stage("mapper")], checkpoint_dir=tmp_path) as chain:
+        step = chain.step("mapper")
+        assert step.counts["checkpoint_unreadable"] == 1 and step.mapper.keyframe_count == 0
+    assert ckpt.read_bytes() == b"not a checkpoint"   # nothing to save: the file is left as it was

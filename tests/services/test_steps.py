@@ -13,6 +13,7 @@ from lrfslam.evaluation import slam_resume
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
+from lrfslam.runtime import checkpoints
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.step import Message, Output
 from lrfslam.sim.floor_plans import l_corner
@@ -168,13 +169,13 @@ def test_slam_step_corrects_the_heading_with_the_wall_direction():
 
 def test_slam_resumes_from_its_checkpoint(tmp_path):
     fed = chain(sim_outputs(40))
-    ckpt = tmp_path / "slam.npz"
-    live = [stage("slam", sets=[f"checkpoint_path={ckpt}", "checkpoint_every_scans=10"])]
-    with Chain(live, robot=ROBOT, replay=False) as first:
+    ckpt = checkpoints.path_for(tmp_path, "slam")
+    live = [stage("slam")]
+    with Chain(live, robot=ROBOT, checkpoint_dir=tmp_path, checkpoint_period_s=1.0) as first:
         head_out = [m.value for m in first.feed(fed[:40])]
     head = [v for v in head_out if isinstance(v, t.SlamState)]
     assert ckpt.exists()
-    with Chain(live, robot=ROBOT, replay=False) as second:
+    with Chain(live, robot=ROBOT, checkpoint_dir=tmp_path, checkpoint_period_s=1.0) as second:
         resumed = second.step("slam")
         assert resumed.slam.scans == head[-1].seq
         np.testing.assert_allclose(resumed.slam.ekf.pose, head[-1].pose, atol=1e-12)

@@ -32,6 +32,8 @@ SETTINGS = {
         "join": False,
         "health_file": "",
         "wall_clock_stamps": True,
+        "checkpoint_dir": "",
+        "checkpoint_period_s": 5.0,
     },
     "sensor": {
         "source": "auto",
@@ -75,8 +77,6 @@ SETTINGS = {
         "no_odometry_sigma_m": 0.2,
         "no_odometry_sigma_rad": 0.2,
         "map_period_s": 5.0,
-        "checkpoint_path": "",
-        "checkpoint_every_scans": 50,
         "ekf.odom_trans_sigma_per_sqrt_m": 0.02,
         "ekf.odom_rot_sigma_per_sqrt_rad": 0.02,
         "ekf.odom_rot_sigma_per_sqrt_m": 0.005,
@@ -91,8 +91,6 @@ SETTINGS = {
         "tracker.free_space_check": True,
     },
     "mapper": {
-        "checkpoint_path": "",
-        "checkpoint_every_keyframes": 20,
         "loop_closure.keyframe_trans_m": 0.5,
         "loop_closure.keyframe_rot_rad": 0.35,
         "loop_closure.max_range_m": 20.0,

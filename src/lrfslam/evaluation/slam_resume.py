@@ -4,7 +4,7 @@
 
 What ``lrfslam up`` does when the slam process dies, in one process and without the clock: the
 simulator's stream (the sensor service's messages) goes through the denoise and features steps
-once; then, per kill, a slam step with a real checkpoint file (every 50 scans) takes the stream
+once; then, per kill, a slam step with a real checkpoint file (every 5 s of data time: 50 scans) takes the stream
 until its state ``kill`` (drawn from 400–449), is dropped without closing (SIGKILL: no final
 checkpoint), and a new slam step resumes from the file and takes the stream again from ``down``
 scans (drawn from 60–159) after the kill. Printed per kill: the resumed filter's position NEES
@@ -29,8 +29,6 @@ from lrfslam.msgs import types as t
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.step import Message
 from lrfslam.services import build_step, stage
-
-CHECKPOINT_EVERY = 50
 
 
 @dataclass(frozen=True)
@@ -68,15 +66,15 @@ def resume_once(stream: list[Message], kill: int, down_scans: int, folder: Path)
     """Kill the slam at its state ``kill``, restart it ``down_scans`` scans later."""
     truth = {m.stamp_ns: m.value.pose for m in stream if m.topic is topics.TRUTH}
     scan_period_ns = int(np.diff([m.stamp_ns for m in stream if m.topic is topics.SCAN][:2])[0])
-    slam = [stage("slam", sets=[f"checkpoint_path={folder / f'slam_{kill}_{down_scans}.npz'}",
-                                f"checkpoint_every_scans={CHECKPOINT_EVERY}"])]
+    slam = [stage("slam")]
+    folder = folder / f"{kill}_{down_scans}"
     inputs = [m for m in stream if m.topic is not topics.TRUTH]
-    first, before, i = Chain(slam, replay=False), [], 0
+    first, before, i = Chain(slam, checkpoint_dir=folder), [], 0
     while len(before) < kill:
         before += _states(first.push(inputs[i]))
         i += 1
     back_ns = before[-1].stamp_ns + down_scans * scan_period_ns
-    with Chain(slam, replay=False) as second:
+    with Chain(slam, checkpoint_dir=folder) as second:
         after = _states(list(second.feed(m for m in inputs[i:] if m.stamp_ns >= back_ns)))
     # SLAM's map frame is its first pose: the truth in it, as lrfslam up scores a run.
     anchor = compose(truth[before[0].stamp_ns], inverse(before[0].pose))

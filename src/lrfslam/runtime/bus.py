@@ -49,6 +49,7 @@ from lrfslam.errors import StartupError
 from lrfslam.msgs import counters, topics
 from lrfslam.msgs.codec import parse_encoding
 from lrfslam.msgs.topics import Topic
+from lrfslam.runtime import checkpoints
 from lrfslam.runtime.decoding import LogOnce, decode_message
 from lrfslam.runtime.sequence import SequenceTracker
 from lrfslam.runtime.step import Message, Output
@@ -90,6 +91,11 @@ class BusConfig:
     #: ``lrfslam up --speedup`` other than 1 sets it false in every process it starts: simulated
     #: stamps run faster or slower than the wall clock and their age would mean nothing.
     wall_clock_stamps: bool = True
+    #: Where a stage that keeps state (the slam, the mapper) saves it, ``<dir>/<service>.checkpoint.npz``,
+    #: so a restarted one resumes (lrfslam/runtime/checkpoints.py); "" for none. ``lrfslam up`` sets
+    #: the recording folder.
+    checkpoint_dir: str = ""
+    checkpoint_period_s: float = checkpoints.PERIOD_S   # data time between two saves
 
     def __post_init__(self) -> None:
         from lrfslam.errors import ConfigError
@@ -104,6 +110,8 @@ class BusConfig:
                 ok = False
             if not ok:
                 raise ConfigError(f"bus.debug_slow must be <service>:<ms>, got {self.debug_slow!r}")
+        if not self.checkpoint_period_s > 0:
+            raise ConfigError(f"bus.checkpoint_period_s must be > 0, got {self.checkpoint_period_s}")
 
     def debug_delay_s(self, service: str) -> float:
         """How long ``service`` sleeps after each input (0: not slowed)."""

@@ -31,8 +31,10 @@ from tqdm import tqdm
 
 from lrfslam.errors import InputError
 from lrfslam.msgs import counters, topics
+from lrfslam.runtime import checkpoints
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
+from lrfslam.runtime.checkpoints import Checkpointer, Resumable
 from lrfslam.runtime.decoding import LogOnce, decode_message
 from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import (
@@ -58,9 +60,9 @@ class Stage:
     spec: ServiceSpec
     config: Any
 
-    def build(self, robot: str = DEFAULT_ROBOT, replay: bool = True) -> Any:
-        """A fresh step of this service (a replay step never writes checkpoints)."""
-        return self.spec.build(self.config, RunContext(robot, replay=replay))
+    def build(self, robot: str = DEFAULT_ROBOT) -> Any:
+        """A fresh step of this service."""
+        return self.spec.build(self.config, RunContext(robot))
 
 
 def configure(spec: ServiceSpec, *, sets: Iterable[str] = (), config_file: str | Path | Mapping | None = None,
@@ -107,10 +109,14 @@ class Item:
 class _Link:
     """One stage in the chain: its step, the topics it takes, its counters."""
 
-    def __init__(self, st: Stage, step: Any) -> None:
+    def __init__(self, st: Stage, step: Any, checkpoint_dir: Path | None, checkpoint_period_s: float) -> None:
         self.name = st.spec.name
         self.stage = st
         self.step = step
+        self.checkpointer = None
+        if checkpoint_dir is not None and isinstance(step, Resumable):
+            self.checkpointer = Checkpointer(step, checkpoints.path_for(checkpoint_dir, self.name), checkpoint_period_s)
+            self.checkpointer.restore()
         self.wanted = frozenset(tp.name for tp in st.spec.inputs)
         self.raw = st.spec.raw_inputs
         self.counts: Counter[str] = Counter()
@@ -126,8 +132,11 @@ class Chain:
         In pipeline order; a stage sees the outputs of the stages before it.
     robot : str
         Given to the steps.
-    replay : bool
-        Given to the steps (True: no checkpoints).
+    checkpoint_dir : Path, optional
+        Where the stages that keep state save it and resume from (:mod:`lrfslam.runtime.checkpoints`),
+        as a live service does with ``bus.checkpoint_dir``; None: no checkpoints (a replay).
+    checkpoint_period_s : float
+        Data time between two saves.
     wire : bool
         True: a stage's outputs reach the later stages encoded and decoded, as
         the bus delivers them (float32 points), so results equal the live
@@ -135,10 +144,10 @@ class Chain:
         (the Monte Carlo measures the algorithms so).
     """
 
-    def __init__(self, stages: Iterable[Stage], *, robot: str = DEFAULT_ROBOT, replay: bool = True,
-                 wire: bool = True) -> None:
+    def __init__(self, stages: Iterable[Stage], *, robot: str = DEFAULT_ROBOT, checkpoint_dir: Path | None = None,
+                 checkpoint_period_s: float = checkpoints.PERIOD_S, wire: bool = True) -> None:
         self.wire = wire
-        self._links = [_Link(st, st.build(robot, replay)) for st in stages]
+        self._links = [_Link(st, st.build(robot), checkpoint_dir, checkpoint_period_s) for st in stages]
         # Topics some stage after the i-th decodes: only those outputs need decoding again
         # (a raw stage takes the payload).
         self._later = [frozenset().union(*(lk.wanted for lk in self._links[i + 1:]))
@@ -193,10 +202,13 @@ class Chain:
         yield from (it.msg for it in self.finish_items())
 
     def close(self) -> None:
-        """Close every step, once."""
+        """Save every checkpoint and close every step, once (a chain never closed is a killed process:
+        its last periodic checkpoints stay)."""
         if not self._closed:
             self._closed = True
             for lk in self._links:
+                if lk.checkpointer is not None:
+                    lk.checkpointer.save()
                 lk.step.close()
 
     def __enter__(self) -> Self:
@@ -224,6 +236,8 @@ class Chain:
                 lk.once.warning(counters.ERROR_INPUT, type(exc).__name__, "%s: skipping bad input on %s: %s",
                                 lk.name, msg.name, exc)
                 continue
+            if lk.checkpointer is not None:
+                lk.checkpointer.after(msg.stamp_ns)
             out += [self._item(i, o) for o in produced]
         return out
 
@@ -274,7 +288,7 @@ def replay_recording(stages: Iterable[Stage], robot: str, in_path: RecordingSour
 def _replay(stages: Iterable[Stage], robot: str, in_path: RecordingSource, out_path: Path | None,
             copy_inputs: bool, metadata: dict[str, dict[str, str]], progress: bool) -> dict[str, Counter]:
     name = describe_source(in_path)
-    chain = Chain(stages, robot=robot, replay=True)
+    chain = Chain(stages, robot=robot)
     specs = [st.spec for st in chain.stages]
     produced = {tp.name for sp in specs for tp in sp.outputs}
     consumed = {tp.name: tp for sp in specs for tp in sp.inputs if tp.name not in produced}

@@ -1,4 +1,4 @@
-"""Named arrays in an ``.npz`` file, written atomically (the slam checkpoint's storage)."""
+"""Named arrays in an ``.npz`` file, written atomically (the checkpoints' storage)."""
 
 from __future__ import annotations
 

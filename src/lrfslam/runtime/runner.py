@@ -30,8 +30,8 @@ import zenoh
 from lrfslam.errors import ConfigError, InputError, LrfSlamError, StartupError
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime import checkpoints, health_file
 from lrfslam.runtime import config as config_mod
-from lrfslam.runtime import health_file
 from lrfslam.runtime.bus import (
     BusConfig,
     ZenohBus,
@@ -42,6 +42,7 @@ from lrfslam.runtime.bus import (
     zenoh_config,
 )
 from lrfslam.runtime.chain import Stage, replay_recording
+from lrfslam.runtime.checkpoints import Checkpointer, Resumable
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.latency import LatencyWindow
 from lrfslam.runtime.recording import RecordingSource, describe_source
@@ -91,6 +92,7 @@ def bus_config(args: argparse.Namespace, file: Mapping, env: Mapping[str, str]) 
         ("listen", ",".join(args.listen) if args.listen else None),
         ("join", "true" if getattr(args, "join", None) else None),
         ("health_file", getattr(args, "health_file", None)),
+        ("checkpoint_dir", getattr(args, "checkpoint_dir", None)),
     ) if value]
     return config_mod.load(BusConfig, table=file.get("bus", {}), env=env,
                            env_prefix=f"{config_mod.ENV_PREFIX}_BUS", sets=sets)
@@ -118,6 +120,9 @@ def service_parser(spec: ServiceSpec) -> argparse.ArgumentParser:
     parser.add_argument("--health-file", metavar="FILE",
                         help="also write the service's health to FILE every health period, for a container "
                              "healthcheck: lrfslam status --check-file FILE")
+    parser.add_argument("--checkpoint-dir", metavar="DIR",
+                        help="where a stage that keeps state (slam, mapper) saves it and resumes from, "
+                             "DIR/<service>.checkpoint.npz (same as bus.checkpoint_dir)")
     for flag, name, help_text in spec.flags:
         parser.add_argument(flag, dest=name, help=f"{help_text} (same as --set {name}=...)")
     return parser
@@ -201,6 +206,11 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
             return 0
         # Built once the bus is known to be ours: a recorder opens its segment here, a slam reads its checkpoint.
         step = spec.build(cfg, RunContext(robot))
+        checkpointer = None
+        if bus_cfg.checkpoint_dir and isinstance(step, Resumable):
+            checkpointer = Checkpointer(step, checkpoints.path_for(bus_cfg.checkpoint_dir, spec.name),
+                                        bus_cfg.checkpoint_period_s)
+            checkpointer.restore()
         is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
         bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts, spec.skippable,
                        spec.max_lag_s if bus_cfg.wall_clock_stamps and bus_cfg.skip_stale else 0.0, spec.batched)
@@ -280,6 +290,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                 publish(outs)
                 if outs:
                     latency.add(time.monotonic_ns() - bus.received_ns)
+                if checkpointer is not None:
+                    checkpointer.after(msg.stamp_ns)
             except InputError as exc:
                 counts[counters.ERROR_INPUT] += 1
                 once.warning(counters.ERROR_INPUT, type(exc).__name__, "skipping bad input on %s: %s", msg.name, exc)
@@ -315,6 +327,8 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                     handle(msg)
             bus.discard_pending()
             publish(step.finish())
+            if checkpointer is not None:
+                checkpointer.save()   # a clean stop resumes where it stood
             publish_health()  # the final counts, for supervisors and the recording
         finally:
             step.close()

@@ -115,9 +115,8 @@ class ServiceSpec:
 
 @dataclass(frozen=True)
 class RunContext:
-    """Deployment facts a step may need: which robot, and whether this is a replay."""
+    """Deployment facts a step may need: which robot."""
 
     robot: str
-    replay: bool = False
     extra: dict = field(default_factory=dict)
 

@@ -47,7 +47,7 @@ from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.msgs.v1 import slam_state_pb2 as slam_state_v1
-from lrfslam.runtime import npz_file
+from lrfslam.runtime import checkpoints, npz_file
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.step import Message, Output
@@ -104,13 +104,13 @@ def sim_messages(n_scans: int, seed: int) -> list[Message]:
 
 
 def run_chain(messages: Sequence[Message], stage_names: Sequence[str], sets: dict[str, list[str]] | None = None,
-              replay: bool = True) -> dict[str, list[Message]]:
+              checkpoint_dir: Path | None = None) -> dict[str, list[Message]]:
     """Every message of ``messages`` and of what the named stages made of them, by topic name
     (as the bus carries them: encoded and decoded between stages)."""
     sets = sets or {}
     stages = [services.stage(name, sets=sets.get(name, ()), env={}) for name in stage_names]
     by_topic: dict[str, list[Message]] = defaultdict(list)
-    with Chain(stages, robot="bench", replay=replay) as chain:
+    with Chain(stages, robot="bench", checkpoint_dir=checkpoint_dir, checkpoint_period_s=1e9) as chain:
         for msg in messages:
             by_topic[msg.name].append(msg)
         for msg in chain.feed(messages):
@@ -383,13 +383,12 @@ def codec_rows(n_scans: int, seed: int, repeat: int) -> list[Row]:
     frames = sim_messages(10, seed)
     with tempfile.TemporaryDirectory(prefix="lrfslam_bench_") as tmp:
         for n_lm in STATE_MAP_SIZES:
-            path = Path(tmp) / f"slam_{n_lm}.npz"
-            npz_file.write_atomic(path, checkpoint.encode(random_filter(n_lm, rng), 0, None))
+            folder = Path(tmp) / str(n_lm)
+            npz_file.write_atomic(checkpoints.path_for(folder, "slam"), checkpoint.encode(random_filter(n_lm, rng), 0, None))
             # A slam stage resumed from a filter of n_lm landmarks: its whole map. (Its states are
             # measured on real runs, state_rows: this random filter's landmarks are all correlated
             # with the pose, so each update moves every one of them, as no building does.)
-            outs = run_chain(frames, ["denoise", "features", "slam"], replay=False,
-                             sets={"slam": [f"checkpoint_path={path}", "checkpoint_every_scans=1000000"]})
+            outs = run_chain(frames, ["denoise", "features", "slam"], checkpoint_dir=folder)
             rows += [_codec_row(f"{name}, {n_lm}-landmark map", found, repeat, f"{len(found)} messages")
                      for name, found in outs.items() if name in slam_out and name != topics.SLAM_STATE.name]
     return rows

@@ -58,7 +58,7 @@ from lrfslam.evaluation.truth import RunningTruthError
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.ros2 import wire
 from lrfslam.runtime import config as config_mod
-from lrfslam.runtime.bus import closing, parse_attachment
+from lrfslam.runtime.bus import BusConfig, closing, parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
 from lrfslam.tools import maps
@@ -80,10 +80,6 @@ OPTIONAL = ("mapper", "sensor")
 POLL_S = 0.05
 #: Messages heard but not yet looked at by the supervisor's loop, at most.
 MAX_INBOX = 100_000
-#: The checkpoint file ``up`` gives a stage that keeps state (its config has a ``checkpoint_path``),
-#: unless one is configured: ``<recording folder>/<service>`` + this.
-CHECKPOINT_SUFFIX = ".checkpoint.npz"
-
 
 #: glibc serves an allocation this large (bytes) from mmap, returned to the system when freed.
 #: By default the threshold rises to the largest block freed so far, after which the
@@ -91,6 +87,8 @@ CHECKPOINT_SUFFIX = ".checkpoint.npz"
 #: the mapper grew 245-343 B per scan in a 45,000-scan soak, 145 with the threshold fixed
 #: (docs/operations.md, Soak). deploy/Dockerfile sets the same.
 MMAP_THRESHOLD_BYTES = 131072
+#: The variable that gives a stage ``bus.checkpoint_dir``.
+CHECKPOINT_DIR_ENV = f"{config_mod.ENV_PREFIX}_BUS_CHECKPOINT_DIR"
 
 
 def child_environment() -> dict[str, str]:
@@ -119,9 +117,11 @@ class Child:
     downtimes: list[float] = field(default_factory=list)
     waiting_for: set[str] = field(default_factory=set)   # router: services not reconnected yet
     gave_up: bool = False
+    env: dict[str, str] = field(default_factory=dict)   # set in its environment beside up's own
 
     def start(self, extra: list[str] | tuple[str, ...] = ()) -> None:
-        self.proc = subprocess.Popen(self.argv + list(extra), stdin=subprocess.DEVNULL, env=child_environment())
+        self.proc = subprocess.Popen(self.argv + list(extra), stdin=subprocess.DEVNULL,
+                                     env=child_environment() | self.env)
 
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
@@ -308,6 +308,12 @@ def wait_alive(session: zenoh.Session, robot: str, children: list[Child], timeou
     return True
 
 
+def bus_settings(config: str | None) -> BusConfig:
+    """The bus settings the config file and the environment give every stage."""
+    return config_mod.load(BusConfig, table=config_mod.read_file(config, services.CONFIG_TABLES).get("bus", {}),
+                           env=os.environ, env_prefix=f"{config_mod.ENV_PREFIX}_BUS")
+
+
 def check_configs(sets: dict[str, list[str]], config: str | None) -> dict:
     """Layer every stage's config as its process will, so a bad setting stops ``up`` before it starts anything.
 
@@ -435,11 +441,9 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault(f"{config_mod.ENV_PREFIX}_BUS_WALL_CLOCK_STAMPS", "false")
     topics.check_robot(args.robot)
     configs = check_configs(sets, args.config)
-    for name, cfg in configs.items():
-        if getattr(cfg, "checkpoint_path", None) == "":
-            file = name + CHECKPOINT_SUFFIX
-            # A killed stage resumes from here (its first start finds none: the folder is new).
-            sets[name].append(f"checkpoint_path={recording / file}")
+    # A killed stage that keeps state resumes from its checkpoint in the recording folder (its
+    # first start finds none: the folder is new), unless the config puts checkpoints elsewhere.
+    stage_env = {} if bus_settings(args.config).checkpoint_dir else {CHECKPOINT_DIR_ENV: str(recording)}
     extra = {n: [a for item in items for a in ("--set", item)] for n, items in sets.items()}
 
     endpoint = args.connect or f"tcp/127.0.0.1:{args.port}"
@@ -450,7 +454,7 @@ def main(argv: list[str] | None = None) -> int:
         + (["--zenoh-config", args.zenoh_config] if args.zenoh_config else [])
         + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)])
     router_id = start_router(router) if router else None
-    children = {n: Child(n, child_argv(n, args, endpoint, extra[n])) for n in order}
+    children = {n: Child(n, child_argv(n, args, endpoint, extra[n]), env=stage_env) for n in order}
     monitor = Child("monitor", [sys.executable, "-m", "lrfslam.cli", "monitor", "--connect", endpoint, "--robot",
                                 args.robot, "--dashboard", "--port", str(args.monitor_port), "--http-port",
                                 str(args.http_port), "--log-level", args.log_level]) if args.monitor else None
