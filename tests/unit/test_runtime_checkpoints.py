@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lrfslam.errors import ConfigError, InputError
+from lrfslam.msgs import counters
 from lrfslam.runtime import checkpoints
 from lrfslam.runtime.checkpoints import Checkpointer, Resumable
 from lrfslam.services import stage
@@ -51,9 +52,9 @@ def test_saves_come_once_a_period_of_data_time_has_passed(tmp_path_factory, gaps
     last = stamps[0]
     for i, stamp in enumerate(stamps):
         step.on_input()
-        before = step.counts[checkpoints.SAVED]
+        before = step.counts[counters.CHECKPOINT_SAVED]
         ck.after(int(stamp))
-        saved = step.counts[checkpoints.SAVED] > before
+        saved = step.counts[counters.CHECKPOINT_SAVED] > before
         # Saved exactly when a period has passed since the last save (or the first input).
         assert saved == (i > 0 and stamp - last >= period_ns)
         if saved:
@@ -66,7 +67,7 @@ def test_data_time_going_back_starts_the_period_afresh(tmp_path):
     for stamp_s in (100, 104, 50, 54, 55):   # a second run (or a replayed loop) from 50 s
         step.on_input()
         ck.after(stamp_s * SECOND)
-    assert step.counts[checkpoints.SAVED] == 1   # at 55 s, five seconds into the second run
+    assert step.counts[counters.CHECKPOINT_SAVED] == 1   # at 55 s, five seconds into the second run
 
 
 def test_a_restarted_step_resumes_from_the_file(tmp_path):
@@ -77,7 +78,7 @@ def test_a_restarted_step_resumes_from_the_file(tmp_path):
     assert Checkpointer(first, path, 5.0).save()
     second = Counting()
     Checkpointer(second, path, 5.0).restore()
-    assert second.seen == 7 and second.counts == Counter({checkpoints.RESTORED: 1})
+    assert second.seen == 7 and second.counts == Counter({counters.CHECKPOINT_RESTORED: 1})
 
 
 def test_nothing_to_save_leaves_the_file_as_it_was(tmp_path):
@@ -86,7 +87,7 @@ def test_nothing_to_save_leaves_the_file_as_it_was(tmp_path):
     step = Counting()
     ck = Checkpointer(step, path, 5.0)
     ck.restore()
-    assert step.counts[checkpoints.UNREADABLE] == 1 and step.seen == 0
+    assert step.counts[counters.CHECKPOINT_UNREADABLE] == 1 and step.seen == 0
     assert not ck.save() and path.read_bytes() == b"not a checkpoint"
 
 
@@ -100,7 +101,7 @@ def test_a_damaged_or_foreign_checkpoint_is_counted_and_the_step_starts_afresh(t
         path.write_bytes(content)
     step = Counting()
     Checkpointer(step, path, 5.0).restore()
-    assert step.counts[checkpoints.UNREADABLE] == 1 and step.counts[checkpoints.RESTORED] == 0 and step.seen == 0
+    assert step.counts[counters.CHECKPOINT_UNREADABLE] == 1 and step.counts[counters.CHECKPOINT_RESTORED] == 0 and step.seen == 0
 
 
 def test_a_write_that_fails_is_counted_and_the_stage_goes_on(tmp_path):
@@ -112,7 +113,7 @@ def test_a_write_that_fails_is_counted_and_the_stage_goes_on(tmp_path):
         step.on_input()
         ck.after(stamp_s * SECOND)   # raises nothing
     # Tried once a period (at 1, 2, 3, 4 s), not on every input after the first failure.
-    assert step.counts[checkpoints.FAILED] == 4 and step.counts[checkpoints.SAVED] == 0
+    assert step.counts[counters.CHECKPOINT_FAILED] == 4 and step.counts[counters.CHECKPOINT_SAVED] == 0
 
 
 @pytest.mark.parametrize("service, old", [("slam", "checkpoint_path"), ("slam", "checkpoint_every_scans"),

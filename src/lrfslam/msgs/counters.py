@@ -32,6 +32,13 @@ ERROR_HEALTH_FILE = ERROR + "health_file"  #: the health file could not be writt
 STEP_ERROR = STEP + "error"             #: the step's own errors, counted with ``error.*``
 OUT_HEALTH = OUT + "health"             #: health statuses (not data)
 
+# A resumable step's checkpoints, counted by the runtime among the step's own (``step.restored``;
+# lrfslam/runtime/checkpoints.py).
+CHECKPOINT_SAVED = "checkpoints"                  #: checkpoints written
+CHECKPOINT_FAILED = "checkpoint_failed"           #: checkpoints that could not be written
+CHECKPOINT_RESTORED = "restored"                  #: resumed from a checkpoint at start
+CHECKPOINT_UNREADABLE = "checkpoint_unreadable"   #: a checkpoint found at start but not read
+
 
 def total(counters: Mapping[str, int], *prefixes: str) -> int:
     """Sum of the counters whose names start with one of ``prefixes``."""

@@ -9,7 +9,7 @@ run saves as often per scan as a live one) and at a clean stop, and read back wh
 starts. The live runner and the in-process chain both drive it (``bus.checkpoint_dir``,
 ``bus.checkpoint_period_s``); a replay writes none.
 
-An unreadable file (damaged, another version's) is counted ``checkpoint_unreadable`` and the
+An unreadable file (damaged, another version's) is counted (``step.checkpoint_unreadable``) and the
 stage starts afresh; it is never overwritten until the step has something to save.
 """
 
@@ -24,6 +24,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from lrfslam.errors import InputError
+from lrfslam.msgs import counters
 from lrfslam.runtime import npz_file
 
 log = logging.getLogger("lrfslam.checkpoints")
@@ -32,12 +33,6 @@ log = logging.getLogger("lrfslam.checkpoints")
 PERIOD_S = 5.0
 #: The file a service's checkpoint is kept in, under the checkpoint folder.
 SUFFIX = ".checkpoint.npz"
-
-#: Counter names (a step's own counters, shown as ``step.<name>`` in its health).
-SAVED = "checkpoints"
-FAILED = "checkpoint_failed"
-RESTORED = "restored"
-UNREADABLE = "checkpoint_unreadable"
 
 
 @runtime_checkable
@@ -88,10 +83,10 @@ class Checkpointer:
             where = self.step.restore(npz_file.read(self.path))
         except (OSError, ValueError, KeyError, InputError) as exc:
             log.warning("ignoring unreadable checkpoint %s: %s", self.path, exc)
-            self._count(UNREADABLE)
+            self._count(counters.CHECKPOINT_UNREADABLE)
             return
         log.info("resumed from %s: %s", self.path, where)
-        self._count(RESTORED)
+        self._count(counters.CHECKPOINT_RESTORED)
 
     def after(self, stamp_ns: int) -> None:
         """An input stamped ``stamp_ns`` was handled: save if ``period_s`` of data time has passed.
@@ -115,14 +110,14 @@ class Checkpointer:
         except OSError as exc:
             if not self._failed():
                 log.warning("cannot write the checkpoint %s: %s", self.path, exc)
-            self._count(FAILED)
+            self._count(counters.CHECKPOINT_FAILED)
             return True
-        self._count(SAVED)
+        self._count(counters.CHECKPOINT_SAVED)
         return True
 
     def _failed(self) -> int:
         counts: Counter | None = getattr(self.step, "counts", None)
-        return 0 if counts is None else counts[FAILED]
+        return 0 if counts is None else counts[counters.CHECKPOINT_FAILED]
 
     def _count(self, name: str) -> None:
         counts: Counter | None = getattr(self.step, "counts", None)
