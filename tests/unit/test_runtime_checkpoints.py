@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from lrfslam.services import stage
 
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.msgs import counters
 from lrfslam.runtime import checkpoints
 from lrfslam.runtime.checkpoints import Checkpointer, Resumable
-from lrfslam.services import stage
 
 SECOND = 1_000_000_000
 
@@ -109,7 +109,7 @@ def test_a_write_that_fails_is_counted_and_the_stage_goes_on(tmp_path):
     blocker.write_text("a file where the folder should be")
     step = Counting()
     ck = Checkpointer(step, blocker / "s.checkpoint.npz", 1.0)
-    for stamp_s in range(0, 5):
+    for stamp_s in range(5):
         step.on_input()
         ck.after(stamp_s * SECOND)   # raises nothing
     # Tried once a period (at 1, 2, 3, 4 s), not on every input after the first failure.

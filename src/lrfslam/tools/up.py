@@ -54,7 +54,7 @@ from lrfslam.errors import (
     RecordingError,
     StartupError,
 )
-from lrfslam.evaluation.truth import RunningTruthError
+from lrfslam.evaluation.live_truth import LiveTruth
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.ros2 import wire
 from lrfslam.runtime import config as config_mod
@@ -142,59 +142,19 @@ class Child:
         return self.proc.returncode
 
 
-class SeqRanges:
-    """A set of sequence numbers as sorted, disjoint ``[first, last]`` ranges: memory grows with gaps, not length."""
-
-    def __init__(self) -> None:
-        self.ranges: list[list[int]] = []
-
-    def add(self, seq: int) -> None:
-        if self.ranges and self.ranges[-1][0] <= seq <= self.ranges[-1][1] + 1:
-            self.ranges[-1][1] = max(self.ranges[-1][1], seq)
-        elif not self.ranges or seq > self.ranges[-1][1]:
-            self.ranges.append([seq, seq])
-        else:   # out of order: rare, so a linear merge is fine
-            for r in self.ranges:
-                if r[0] - 1 <= seq <= r[1] + 1:
-                    r[0], r[1] = min(r[0], seq), max(r[1], seq)
-                    break
-            else:
-                self.ranges.append([seq, seq])
-                self.ranges.sort()
-            merged = [self.ranges[0]]
-            for r in self.ranges[1:]:
-                if r[0] <= merged[-1][1] + 1:
-                    merged[-1][1] = max(merged[-1][1], r[1])
-                else:
-                    merged.append(r)
-            self.ranges = merged
-
-    def __len__(self) -> int:
-        return sum(b - a + 1 for a, b in self.ranges)
-
-    def missing_from(self, present: set[int]) -> int:
-        """How many of these numbers are not in ``present``."""
-        return sum(1 for a, b in self.ranges for q in range(a, b + 1) if q not in present)
-
-
 class Observer:
     """What the supervisor hears on the bus: truth, SLAM states, each service's last health, liveliness.
 
     Zenoh's callbacks only queue what arrives; :meth:`process` (the supervisor's loop)
-    decodes it and matches each SLAM state to the ground truth of its stamp as it
-    comes (``errors``, :class:`~lrfslam.evaluation.truth.RunningTruthError`), so memory
-    stays bounded however long ``up`` runs; a state is kept only until the next. ``health`` holds the last health of every run of a service (keyed by
-    service and the producer id of its process), so the summary adds up a restarted service's runs.
+    decodes it: truth and SLAM states go to ``truth`` (:class:`~lrfslam.evaluation.live_truth.LiveTruth`),
+    which matches them as they come. ``health`` holds the last health of every run of a service
+    (keyed by service and the producer id of its process), so the summary adds up a restarted
+    service's runs.
     """
 
     def __init__(self) -> None:
         self._inbox: deque = deque(maxlen=MAX_INBOX)
-        self.errors = RunningTruthError()
-        self.published = SeqRanges()          # sequence numbers of the truth heard (one per scan published)
-        self.first_truth: tuple[int, int] | None = None   # (seq, stamp ns)
-        self.last_truth_stamp = 0
-        self.last_state: bytes | None = None
-        self.last_state_stamp = 0
+        self.truth = LiveTruth()
         self.health: dict[tuple[str, bytes], bytes] = {}   # (service, producer id) -> last health
         self.alive_events: deque = deque(maxlen=MAX_INBOX)   # (service, present, monotonic s)
         self.lock = threading.Lock()
@@ -236,34 +196,15 @@ class Observer:
             try:
                 if kind == "truth":
                     att = parse_attachment(extra)
-                    self.add_truth(att.seq, att.stamp_ns, codec.GROUND_TRUTH.decode(data).pose)
+                    self.truth.add_truth(att.seq, att.stamp_ns, codec.GROUND_TRUTH.decode(data).pose)
                 elif kind == "state":
-                    self.add_state(data)
+                    self.truth.add_state(data)
                 else:
                     key, att = extra
                     with self.lock:
                         self.health[(topics.robot_and_service(key)[1], parse_attachment(att).producer)] = data
             except DecodeError:
                 continue
-
-    def add_truth(self, seq: int, stamp_ns: int, pose: np.ndarray) -> None:
-        if self.first_truth is None:
-            self.first_truth = (seq, stamp_ns)
-        self.published.add(seq)
-        self.last_truth_stamp = max(self.last_truth_stamp, stamp_ns)
-        self.errors.add_truth(stamp_ns, pose)
-
-    def add_state(self, data: bytes) -> None:
-        state = codec.SLAM_STATE.decode(data)
-        self.last_state, self.last_state_stamp = data, state.stamp_ns
-        self.errors.add_estimate(state.stamp_ns, state.pose)
-
-    def epoch_ns(self, rate_hz: float) -> int | None:
-        """Wall-clock time of the simulated run's first frame (a restarted sensor continues from it), if known."""
-        if self.first_truth is None:
-            return None
-        seq, stamp = self.first_truth
-        return stamp - round((seq - 1) / rate_hz * 1e9)   # the sensor stamps frame i at t0 + i / rate
 
 
 def child_argv(name: str, args: argparse.Namespace, endpoint: str, extra: list[str]) -> list[str]:
@@ -539,7 +480,7 @@ def main(argv: list[str] | None = None) -> int:
                 if child is router:
                     router.waiting_for = {c.name for c in children.values() if c.alive()}
                     start_router(router)
-                elif child.name == "sensor" and (epoch := observer.epoch_ns(rate_hz)) is not None:
+                elif child.name == "sensor" and (epoch := observer.truth.epoch_ns(rate_hz)) is not None:
                     # The simulated robot kept moving while its sensor was down, as a real one would.
                     child.start(["--set", f"epoch_ns={epoch}"])
                 else:
@@ -600,13 +541,13 @@ class LiveLine:
         rate = (scans - self.last_scans) / (now_s - self.last_s) if now_s > self.last_s else 0.0
         self.last_s, self.last_scans = now_s, scans
         parts = [f"[{now_s - self.started_s:6.1f} s] scans {scans} ({rate:.1f}/s)"]
-        if observer.last_state is not None:
+        if observer.truth.last_state is not None:
             try:
-                state = codec.SLAM_STATE.decode(observer.last_state)
+                state = codec.SLAM_STATE.decode(observer.truth.last_state)
                 parts.append(f"landmarks {state.n_landmarks} ({state.n_confirmed} confirmed)")
             except DecodeError:
                 pass
-        if (errors := observer.errors).matched:
+        if (errors := observer.truth.errors).matched:
             parts.append(f"pose error {errors.final[0] * 100:.1f} cm, {np.degrees(errors.final[1]):.2f} deg")
         return "  ".join(parts)
 
@@ -676,25 +617,9 @@ def _drain(observer: Observer, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         observer.process()
-        if observer.last_state_stamp >= observer.last_truth_stamp:
+        if observer.truth.caught_up():
             return
         time.sleep(0.1)
-
-
-def pose_errors(observer: Observer) -> dict[str, float] | None:
-    """Final-pose and trajectory errors of SLAM against truth, both anchored at SLAM's first pose."""
-    errors = observer.errors
-    if not errors.matched:
-        return None
-    last = codec.SLAM_STATE.decode(observer.last_state)
-    return {
-        "scans": float(errors.matched),
-        "final_xy_m": errors.final[0],
-        "final_heading_deg": float(np.degrees(errors.final[1])),
-        "ate_rmse_m": errors.ate_rmse_m,
-        "landmarks": float(last.n_landmarks),
-        "confirmed": float(last.n_confirmed),
-    }
 
 
 def summary(observer: Observer, children: dict[str, Child], recording: Path, wall_s: float,
@@ -714,7 +639,7 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
         code = child.proc.returncode if child.proc else None
         lines.append(f"{name:10s} {f['in']:<11d} {f['out']:<11d} {f['dropped']:<8d} {f['gaps']:<7d} "
                      f"{f['skipped']:<8d} {f['errors']:<7d} {child.restarts:<9d} {code}")
-    err = pose_errors(observer)
+    err = observer.truth.pose_errors()
     lines.append("")
     if err is None:
         lines.append("SLAM: no state matched to ground truth")
@@ -732,14 +657,14 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
 
 def unrecorded_lines(observer: Observer, recording: Path, recorder: Child | None) -> list[str]:
     """Scans the sensor published (as up heard them) that the recording lacks, if any."""
-    published = len(observer.published)
+    published = len(observer.truth.published)
     if not published or recorder is None:
         return []
     try:
         recorded = {m.sequence for m in read_recording(recording, [topics.SCAN.name])}
     except RecordingError:
         return []
-    missing = observer.published.missing_from(recorded)
+    missing = observer.truth.published.missing_from(recorded)
     if not missing:
         return []
     why = (f" (the recorder restarted {recorder.restarts} time{'s' * (recorder.restarts > 1)}: each kill loses "

@@ -1,8 +1,5 @@
-"""``lrfslam up``'s bookkeeping: bounded however long it runs, and the same errors as matching everything at the end.
-
-Before, ``up`` kept every ground-truth message in a dict for the summary: hours of a run
-grew it without bound. The observer now matches each SLAM state to its truth as it comes.
-"""
+"""A live run against its truth (evaluation/live_truth.py, ``lrfslam up``'s summary): bounded however
+long it runs, and the same errors as matching everything at the end."""
 
 from __future__ import annotations
 
@@ -14,10 +11,10 @@ from hypothesis import strategies as st
 from lrfslam.services.sensor import SensorConfig, SimSource
 
 from lrfslam.algo.geometry import compose, relative, wrap_angle
+from lrfslam.evaluation.live_truth import LiveTruth, SeqRanges
 from lrfslam.evaluation.truth import MAX_PENDING_TRUTH
 from lrfslam.msgs import codec
 from lrfslam.msgs import types as t
-from lrfslam.tools import up
 
 
 def state(stamp: int, seq: int, pose) -> bytes:
@@ -44,20 +41,20 @@ def test_running_errors_equal_matching_everything_at_the_end(seed, lost):
     kept = [i for i in range(n) if rng.random() >= lost] or [0]
     states = [(int(stamps[i]), compose(relative(offset, truth[int(stamps[i])]), rng.normal(0, 0.01, 3)))
               for i in kept]
-    obs = up.Observer()
+    obs = LiveTruth()
     for i, s in enumerate(stamps):
         obs.add_truth(i + 1, int(s), truth[int(s)])
     for s, pose in states:
         obs.add_state(state(s, 1, pose))
     final, rmse = reference_errors(truth, states)
-    err = up.pose_errors(obs)
+    err = obs.pose_errors()
     assert err["scans"] == len(states)
     assert np.isclose(err["final_xy_m"], final) and np.isclose(err["ate_rmse_m"], rmse)
 
 
 def test_truth_without_states_is_bounded():
     """A dead or stalled slam: truth keeps coming and nothing matches it."""
-    obs = up.Observer()
+    obs = LiveTruth()
     for i in range(MAX_PENDING_TRUTH * 3):
         obs.add_truth(i + 1, 10**15 + i, np.zeros(3))
     assert len(obs.errors.pending) == MAX_PENDING_TRUTH
@@ -65,7 +62,7 @@ def test_truth_without_states_is_bounded():
 
 
 def test_truth_is_released_as_states_come():
-    obs = up.Observer()
+    obs = LiveTruth()
     for i in range(1000):
         obs.add_truth(i + 1, 10**15 + i, np.zeros(3))
         if i % 3 == 0:   # two of three states lost
@@ -75,7 +72,7 @@ def test_truth_is_released_as_states_come():
 
 @given(st.lists(st.integers(0, 300), max_size=200))
 def test_seq_ranges_hold_what_was_added(seqs):
-    r = up.SeqRanges()
+    r = SeqRanges()
     for q in seqs:
         r.add(q)
     assert len(r) == len(set(seqs))
@@ -85,7 +82,7 @@ def test_seq_ranges_hold_what_was_added(seqs):
 
 
 def test_epoch_from_any_truth_message():
-    obs = up.Observer()
+    obs = LiveTruth()
     epoch, rate = 1_700_000_000_000_000_000, 10.0
     obs.add_truth(42, epoch + round(41 / rate * 1e9), np.zeros(3))   # the first one heard need not be seq 1
     assert obs.epoch_ns(rate) == epoch
