@@ -31,7 +31,7 @@ from lrfslam.runtime.recording import RecordingWriter, read_recording
 from lrfslam.sim import SimConfig, Simulator
 from lrfslam.sim.odometry import OdometryNoise
 from lrfslam.sim.world import distance_to_segments, inside_polygons
-from lrfslam.tools import export
+from lrfslam.tools import export, recording_map
 from lrfslam.tools.importers import import_carmen
 from lrfslam.tools.pipeline import DEFAULT_STAGES, build_stages, run_pipeline
 
@@ -144,8 +144,8 @@ def test_the_grid_files_read_as_map_server_reads_them(sim_run):
     assert (meta["image"], meta["mode"], meta["resolution"], meta["negate"]) == ("map.pgm", "trinary", 0.05, 0)
     assert (meta["occupied_thresh"], meta["free_thresh"]) == (0.65, 0.196)
     # The same grid, built again: its shape, origin and every cell are what the files say.
-    sc = export.scene(out, export.collect(out), GridParams())
-    np.testing.assert_array_equal(cells, export.trinary(sc.grid))
+    sc = recording_map.scene(out, recording_map.collect(out), GridParams())
+    np.testing.assert_array_equal(cells, recording_map.trinary(sc.grid))
     np.testing.assert_allclose(meta["origin"], [*sc.grid.origin_xy_m, 0.0], atol=1e-9)
     fig = json.loads((folder / "map.json").read_text())["figures"]
     assert fig["grid_cells"] == [cells.shape[1], cells.shape[0]]
@@ -207,14 +207,14 @@ def test_occupied_cells_lie_on_the_true_walls_and_free_cells_in_the_corridors(si
 
 def test_the_picture_fits_the_map_not_the_odometry(sim_run):
     out, _, _ = sim_run
-    sc = export.scene(out, export.collect(out), GridParams())
+    sc = recording_map.scene(out, recording_map.collect(out), GridParams())
     x0, x1, y0, y1 = sc.view
     lo, hi = sc.estimate[:, :2].min(axis=0), sc.estimate[:, :2].max(axis=0)
     assert x0 < lo[0] and hi[0] < x1 and y0 < lo[1] and hi[1] < y1
     gx0, gx1, gy0, gy1 = sc.grid.extent_m
     assert gx0 - 1.0 <= x0 and x1 <= gx1 + 1.0 and gy0 - 1.0 <= y0 and y1 <= gy1 + 1.0
     far = dataclasses.replace(sc, odometry=sc.odometry + (100.0, -50.0, 0.0))
-    assert export._view(far) == sc.view
+    assert recording_map._view(far) == sc.view
     # Ellipses of a centimetre are magnified, and the title carries the figures.
     assert export.ellipse_scale(sc) > 1
     assert f"{out.name}: {N_SCANS} scans" in export.title(sc) and "RMSE vs truth 0.0" in export.title(sc)
@@ -250,11 +250,11 @@ def test_a_map_too_large_for_the_default_cells_is_drawn_coarser_and_says_so(sim_
     class SmallBudget(GridParams):
         max_cells: int = fine.size // 2
 
-    monkeypatch.setattr(export, "GridParams", SmallBudget)
-    data = export.collect(out)
+    monkeypatch.setattr(recording_map, "GridParams", SmallBudget)
+    data = recording_map.collect(out)
     with pytest.raises(InputError, match="exceeds"):
-        export.scene(out, data, SmallBudget())
-    sc = export.scene(out, data, SmallBudget(), fit=True)
+        recording_map.scene(out, data, SmallBudget())
+    sc = recording_map.scene(out, data, SmallBudget(), fit=True)
     assert sc.grid.resolution_m == 0.1 and sc.grid.log_odds.size <= fine.size // 2
     assert export.main([str(out), "-o", str(folder / "fit"), "--no-png"]) == 0
     meta, _ = read_map_server(folder / "fit" / "map.yaml")
@@ -288,8 +288,8 @@ def check_intel_extent(run_mcap: Path, folder: Path) -> tuple[np.ndarray, np.nda
     doc = json.loads((folder / "map.json").read_text())
     stamps = np.array([p["stamp_ns"] for p in doc["map_trajectory"]])
     est = np.array([[p["x_m"], p["y_m"], p["theta_rad"]] for p in doc["map_trajectory"]])
-    data = export.collect(run_mcap, scans=False)
-    odom = export._in_frame(stamps, est, data["odom"])
+    data = recording_map.collect(run_mcap, scans=False)
+    odom = recording_map._in_frame(stamps, est, data["odom"])
     odom_at = dict(zip(sorted(data["odom"]), odom))
     on_est = placed_hits(run_mcap, stamps, est, GridParams.max_range_m)
     on_odom = placed_hits(run_mcap, stamps, np.array([odom_at[int(s)] for s in stamps]), GridParams.max_range_m)
@@ -327,6 +327,6 @@ def test_intel_grid_follows_the_estimate_not_the_drifting_odometry(tmp_path):
     assert export.main([str(run_mcap), "-o", str(tmp_path / "map")]) == 0
     span, odom_span = check_intel_extent(run_mcap, tmp_path / "map")
     assert np.max(np.abs(span - odom_span)) > 3.0, (span, odom_span)
-    sc = export.scene(run_mcap, export.collect(run_mcap), GridParams())
+    sc = recording_map.scene(run_mcap, recording_map.collect(run_mcap), GridParams())
     x0, x1, y0, y1 = sc.view
     assert x0 >= span[0] - 2 and x1 <= span[2] + 2 and y0 >= span[1] - 2 and y1 <= span[3] + 2

@@ -28,7 +28,7 @@ from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime import saved_map
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.saved_map import SavedMap, load_map, write_map
-from lrfslam.tools import export, maps, up
+from lrfslam.tools import export, maps, recording_map, up
 from lrfslam.tools.pipeline import DEFAULT_STAGES, build_stages, run_pipeline
 
 GOLDEN = Path(__file__).resolve().parents[2] / "tests" / "data" / "golden"
@@ -265,7 +265,7 @@ def maps_in_memory(draw) -> tuple[SavedMap, OccupancyGrid]:
         landmark_ids=rng.integers(0, 1000, n_lm), landmark_xy_m=rng.normal(size=(n_lm, 2)),
         landmark_cov_m2=a @ a.transpose(0, 2, 1), landmark_kind=rng.integers(1, 3, n_lm).astype(np.int8),
         landmark_sightings=rng.integers(1, 50, n_lm), landmark_confirmed=rng.random(n_lm) < 0.5,
-        grid_cells=export.trinary(grid).astype(np.int8), grid_resolution_m=grid.resolution_m,
+        grid_cells=recording_map.trinary(grid).astype(np.int8), grid_resolution_m=grid.resolution_m,
         grid_origin_xy_m=grid.origin_xy_m)
     return saved, grid
 
@@ -276,7 +276,7 @@ def test_save_then_load_gives_the_same_arrays(tmp_path, case):
     saved, grid = case
     folder = tmp_path / f"m{np.random.default_rng().integers(1 << 62)}"
     folder.mkdir()
-    export.write_grid(grid, folder / saved_map.PGM, folder / saved_map.YAML)
+    recording_map.write_grid(grid, folder / saved_map.PGM, folder / saved_map.YAML)
     write_map(folder, saved)
     back = load_map(folder)
     assert back.manifest["format"] == saved_map.FORMAT and back.manifest["counts"] == saved.counts()

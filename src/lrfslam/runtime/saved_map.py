@@ -8,7 +8,7 @@ A saved map is one folder (docs/maps.md describes every file and array):
   local poses), the E odometry edges between consecutive ones, and each keyframe's scan points;
 * ``landmarks.npz``: the EKF's L landmarks with their covariances, in the map frame;
 * ``map.pgm`` + ``map.yaml``: the occupancy grid as ROS map_server reads it (written by
-  ``lrfslam.tools.export.write_grid``, the files ``lrfslam export`` writes).
+  ``lrfslam.tools.recording_map.write_grid``, the files ``lrfslam export`` writes).
 
 The version rule: a reader reads every format up to its own :data:`FORMAT` (an older one
 upgraded in memory, where one exists) and refuses a newer one with :class:`MapFormatError`

@@ -2,7 +2,7 @@
 
 ``save`` turns a recording with the mapper's output (``map/keyframes``) into one folder in the
 versioned format of :mod:`lrfslam.runtime.saved_map` (docs/maps.md): the occupancy grid exactly
-as ``lrfslam export`` builds it (:func:`lrfslam.tools.export.map_of`: the raw scans on the
+as ``lrfslam export`` builds it (:func:`lrfslam.tools.recording_map.map_of`: the raw scans on the
 mapper's final trajectory), the pose graph's keyframes with their scans, the EKF's landmarks
 on the same map, and a manifest. RECORDING is an MCAP file, a recording folder or several files
 (one stream). A folder MAP/ that exists and is not empty is never overwritten (``--force``
@@ -42,7 +42,7 @@ from lrfslam.runtime.recording import (
     recording_files,
 )
 from lrfslam.runtime.saved_map import FORMAT, PGM, YAML, SavedMap, load_map, write_map
-from lrfslam.tools import export
+from lrfslam.tools import recording_map
 
 #: The frame the grid, the keyframes' map poses and the landmarks are in, and the robot's
 #: (the laser's pose on the robot is the identity: the scans' points are the robot's).
@@ -65,8 +65,8 @@ def check_target(out: Path, force: bool = False) -> None:
 
 def build(recording: RecordingSource, resolution_m: float | None = None,
           max_range_m: float = GridParams.max_range_m) -> tuple[SavedMap, OccupancyGrid, list[str]]:
-    """The saved map of ``recording`` (its grid not yet as read back: :func:`export.trinary` of it),
-    the grid to write, and what the user should be told (:func:`export.notes`, :func:`export.resolution_note`).
+    """The saved map of ``recording`` (its grid not yet as read back: :func:`recording_map.trinary` of it),
+    the grid to write, and what the user should be told (:func:`recording_map.notes`, :func:`recording_map.resolution_note`).
 
     Raises
     ------
@@ -77,7 +77,7 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
         The recording cannot be read, or has no ``slam/state``.
     """
     try:
-        data, sc = export.map_of(recording, resolution_m, max_range_m)
+        data, sc = recording_map.map_of(recording, resolution_m, max_range_m)
     except InputError as exc:
         raise MapError(f"{describe_source(recording)}: {exc}") from None
     kf = data["keyframes"]
@@ -124,10 +124,10 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
         point_start=np.concatenate(([0], np.cumsum([b.shape[0] for b in blocks]))).astype(np.int64),
         landmark_ids=lms.ids, landmark_xy_m=sc.landmark_xy, landmark_cov_m2=sc.landmark_cov, landmark_kind=lms.kind,
         landmark_sightings=lms.sightings, landmark_confirmed=lms.confirmed,
-        grid_cells=export.trinary(sc.grid).astype(np.int8), grid_resolution_m=sc.grid.resolution_m,
+        grid_cells=recording_map.trinary(sc.grid).astype(np.int8), grid_resolution_m=sc.grid.resolution_m,
         grid_origin_xy_m=np.asarray(sc.grid.origin_xy_m, dtype=float))
-    note = export.resolution_note(sc, resolution_m)
-    return saved, sc.grid, [*export.notes(data, sc), *([note] if note else [])]
+    note = recording_map.resolution_note(sc, resolution_m)
+    return saved, sc.grid, [*recording_map.notes(data, sc), *([note] if note else [])]
 
 
 def save_map(recording: RecordingSource, out: Path, force: bool = False, resolution_m: float | None = None,
@@ -150,7 +150,7 @@ def save_map(recording: RecordingSource, out: Path, force: bool = False, resolut
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir()
     try:
-        export.write_grid(grid, partial / PGM, partial / YAML,
+        recording_map.write_grid(grid, partial / PGM, partial / YAML,
                           comment=f"lrfslam map save of {saved.manifest['source']['recording']}")
         write_map(partial, saved)
         check_target(out, force)   # taken meanwhile?
