@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from lrfslam.tools.bench import PROCESSES
+from lrfslam.bench.command import PROCESSES
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

@@ -3,7 +3,7 @@ the stages beside it lose nothing.
 
 bus.debug_slow (LRFSLAM_BUS_DEBUG_SLOW=features:40) makes the features stage sleep 40 ms after
 each filtered scan: 25 a second at most, while 75 arrive (``--speedup 7.5``). docs/delivery.md
-has the measured figures (benchmarks/bench_delivery.py).
+has the measured figures (src/lrfslam/bench/delivery.py).
 """
 
 from __future__ import annotations

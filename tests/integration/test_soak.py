@@ -1,6 +1,6 @@
 """A short soak: ``lrfslam up`` for 24,000 scans of 75 Hz data at 75 Hz, every process's memory sampled.
 
-The run of benchmarks/soak.py, shortened: the whole pipeline (router, six services, ``up``
+The run of src/lrfslam/bench/soak.py, shortened: the whole pipeline (router, six services, ``up``
 itself) must lose nothing (no drop, no gap, no restart, every published scan in the recording)
 and no process's resident memory may grow by 10 % or more after warm-up. Warm-up ends at 45 %
 of the run, past the mapper's first loop closure (one lap of the simulator's 62 m loop, ~9,300

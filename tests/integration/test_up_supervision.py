@@ -104,7 +104,7 @@ def baseline(tmp_path_factory) -> Run:
 
 
 def killed_run(cwd: Path, stage: str, children_of) -> Run:
-    """``children_of``: benchmarks/soak.py's, ``{command: pid}`` of what ``up`` started."""
+    """``children_of``: src/lrfslam/bench/soak.py's, ``{command: pid}`` of what ``up`` started."""
     port = free_port()
     up = start_up(cwd, port, "rk")
     try:

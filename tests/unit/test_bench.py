@@ -1,4 +1,4 @@
-"""``lrfslam bench``: the EKF shape check, the table, the verdicts on live runs (src/lrfslam/tools/bench.py).
+"""``lrfslam bench``: the EKF shape check, the table, the verdicts on live runs (src/lrfslam/bench/command.py).
 
 No wall-clock limit is asserted: the check is fed synthetic times of a known shape, and the quick
 sections are held to their structure (a row per measure, positive figures), not to their values.
@@ -16,11 +16,13 @@ import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 
 from lrfslam import cli
+from lrfslam.bench import command as bench
+from lrfslam.bench import cost as bench_cost
+from lrfslam.bench import live as bench_live
 from lrfslam.io.textfile import carmen_logs, log_name
 from lrfslam.msgs import topics
 from lrfslam.runtime.pacing import CreditWindow
 from lrfslam.runtime.recording import read_recording
-from lrfslam.tools import bench, bench_cost, bench_live
 from lrfslam.tools.importers import import_carmen
 from lrfslam.tools.play import Summary, summary_line
 

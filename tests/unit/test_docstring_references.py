@@ -1,6 +1,6 @@
 """Docstrings and comments point only at files in this repository.
 
-Every .py file under src/, services/, benchmarks/ and tests/ is scanned for
+Every .py file under src/, services/ and tests/ is scanned for
 
 * repository paths (``docs/<page>.md``, ``tests/data/<path>``, ``src/<path>.py``): each must
   exist, and a docs page followed by quoted section names (``docs/<page>.md, 'Name'``) must
@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-SCANNED_DIRS = ("src", "services", "benchmarks", "tests")
+SCANNED_DIRS = ("src", "services", "tests")
 
 # A repository path, not the tail of a longer one (``../shared/docs/x.md`` is not ours).
 _PATH = re.compile(r"(?<![\w./-])(docs/[\w./-]+?\.md|tests/data/[\w./*-]*|src/[\w./-]+?\.py)")

@@ -33,7 +33,9 @@ MAY_IMPORT: dict[str, set[str]] = {
     "services": BASE | {"runtime", "viz", "msgs", "algo", "sim", "drivers", "io", "extras"},
     "evaluation": BASE | {"services", "runtime", "msgs", "algo", "sim", "io", "extras"},
     "tools": BASE | {"evaluation", "services", "runtime", "viz", "ros2", "msgs", "algo", "sim", "drivers", "io", "extras"},
-    "cli": BASE | {"services", "runtime", "tools"},
+    "bench": BASE | {"tools", "evaluation", "services", "runtime", "viz", "ros2", "msgs", "algo", "sim", "drivers", "io",
+                     "extras"},
+    "cli": BASE | {"services", "runtime", "tools", "bench"},
 }
 
 

@@ -1,4 +1,4 @@
-"""benchmarks/soak.py reads memory as a level, not a sample: a transient peak is not growth, a step is."""
+"""src/lrfslam/bench/soak.py reads memory as a level, not a sample: a transient peak is not growth, a step is."""
 
 from __future__ import annotations
 

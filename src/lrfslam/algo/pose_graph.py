@@ -40,7 +40,7 @@ Design choices
   it and that small dense matrix, old touched nodes plus new nodes, is inverted.
   The old graph's information about those nodes is all in their marginal, so this
   equals factorising everything again, which on a 3,000-keyframe graph with its
-  revisits' closures takes ~80 ms (benchmarks/bench_mapper_growth.py). The
+  revisits' closures takes ~80 ms (src/lrfslam/bench/mapper_growth.py). The
   factorisation leaves out the leaves (nodes with one edge: the mapper's folded
   revisits), whose edges say nothing about the rest of the graph. The relative pose's
   Jacobian carries the two nodes' joint covariance into ``a``'s frame: the

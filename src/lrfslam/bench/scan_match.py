@@ -13,7 +13,7 @@ recording of it is given. Reports the median time per call and the spread
 
 Run single-threaded for stable numbers::
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_scan_match.py [--intel intel.mcap]
+    OPENBLAS_NUM_THREADS=1 python -m lrfslam.bench.scan_match [--intel intel.mcap]
 
 (``lrfslam import carmen intel.clf.bz2 -o intel.mcap`` makes the recording.) ``lrfslam bench
 --only stages`` gives the tracker step on the simulated scans in its one table.
@@ -28,10 +28,10 @@ import numpy as np
 
 from lrfslam.algo.geometry import polar_to_xy, relative
 from lrfslam.algo.scan_match import ReferenceScan, ScanMatchParams, ScanTracker, match
+from lrfslam.bench.cost import ODOM_COV
 from lrfslam.msgs import topics
 from lrfslam.runtime.recording import read_recording
 from lrfslam.sim.simulator import SimConfig, Simulator
-from lrfslam.tools.bench_cost import ODOM_COV
 
 
 def sim_scans(n: int):

@@ -1,16 +1,16 @@
 """Instructions per scan of noise reduction + feature extraction, both presets, under callgrind.
 
 Wall and CPU time on a shared VM move by 20 % from one run to the next
-(``bench_features.py`` shows it); an instruction count does not: valgrind's callgrind
+(``lrfslam.bench.features`` shows it); an instruction count does not: valgrind's callgrind
 counts the same total for the same code, inputs and environment whatever else the
 machine is doing. So this is the figure to compare two versions of the code by.
 
-The scans are those of ``bench_features.py`` (hallway and rooms, σ = 10 mm). Each
+The scans are those of ``lrfslam.bench.features`` (hallway and rooms, σ = 10 mm). Each
 preset runs the pipeline once (warm-up) plus ``loops`` passes in one process and once
 plus ``3 * loops``; the difference over ``2 * loops`` passes is the steady-state cost,
 without the interpreter's start-up and imports.
 
-    python benchmarks/instructions_features.py [--scans 40] [--loops 1] [--features-only]
+    python -m lrfslam.bench.instructions_features [--scans 40] [--loops 1] [--features-only]
 
 ``--features-only`` counts ``extract_features`` alone: the scans are denoised before the
 passes.
@@ -26,20 +26,15 @@ import re
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
-
-HERE = Path(__file__).resolve().parent
 
 
 def _child(n_scans: int, loops: int, mode: str, features_only: bool) -> None:
     """Run denoise + extract_features (or extract_features alone) over the scans ``1 + loops`` times (inside valgrind)."""
-    sys.path.insert(0, str(HERE))
-    from bench_features import scans
-
     from lrfslam.algo.features import FeatureParams, extract_features
     from lrfslam.algo.histogram import DenoiseParams, denoise
+    from lrfslam.bench.features import scans
 
     data = [(s.ranges_m, s.angles_rad) for s in scans(n_scans, 0)]
     dp, cp = getattr(DenoiseParams, mode)(), getattr(FeatureParams, mode)()
@@ -74,7 +69,7 @@ def main() -> None:
         return
     if shutil.which("valgrind") is None:
         sys.exit("valgrind not found (Debian package valgrind)")
-    from bench_features import scans
+    from lrfslam.bench.features import scans
 
     n = len(scans(args.scans, 0))
     print(f"{n} scans; numpy {np.__version__}; Python {sys.version.split()[0]}\n")

@@ -1,6 +1,6 @@
 """``lrfslam play --rate max`` through live stages against ``lrfslam pipeline --replay`` of the same input.
 
-    python benchmarks/bench_play.py RECORDING [--stages denoise,features,slam] [--window 8] [--no-compare]
+    python -m lrfslam.bench.play RECORDING [--stages denoise,features,slam] [--window 8] [--no-compare]
 
 In a temporary folder: a router, the recorder and each stage as separate processes (Zenoh clients
 over TCP on loopback), then ``lrfslam play RECORDING --rate max``; its one-line summary is printed
@@ -23,8 +23,8 @@ from pathlib import Path
 import zenoh
 
 from lrfslam import services
+from lrfslam.bench.live import free_port
 from lrfslam.runtime.recording import read_recording
-from lrfslam.tools.bench_live import free_port
 from lrfslam.tools.status import client_config, query_status
 
 ROBOT = "bench"

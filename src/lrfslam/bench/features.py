@@ -11,7 +11,7 @@ means. ``--reference`` times the previous implementation instead
 (``tests/unit/reference_features.py``, ``reference_histogram.py``, the oracles of the
 tests), for a before/after comparison on the same machine.
 
-    python benchmarks/bench_features.py [--scans 200] [--repeat 5] [--rounds 3] [--reference]
+    python -m lrfslam.bench.features [--scans 200] [--repeat 5] [--rounds 3] [--reference]
 """
 
 from __future__ import annotations
@@ -44,7 +44,10 @@ def implementation(reference: bool):
     """(DenoiseParams, denoise, FeatureParams, extract_features) of this or the previous implementation."""
     if not reference:
         return DenoiseParams, denoise, FeatureParams, extract_features
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "unit"))
+    oracles = Path(__file__).resolve().parents[3] / "tests" / "unit"   # the source checkout's
+    if not (oracles / "reference_features.py").exists():
+        raise SystemExit("--reference needs a source checkout: the reference implementations are the tests' oracles")
+    sys.path.insert(0, str(oracles))
     import reference_features
     import reference_histogram
 

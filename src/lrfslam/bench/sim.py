@@ -1,6 +1,6 @@
 """Cost of the simulator's pieces on the built-in hallway loop.
 
-Run: ``python benchmarks/bench_sim.py [--n 500]``. Prints mean and p95 milliseconds
+Run: ``python -m lrfslam.bench.sim [--n 500]``. Prints mean and p95 milliseconds
 per call, measured at poses spread round one lap.
 """
 

@@ -1,6 +1,6 @@
 """Soak: a long accelerated run of the whole pipeline under ``lrfslam up``, every process's memory sampled.
 
-    python benchmarks/soak.py [--scans 270000] [--rate-hz 75] [--speedup 1.0] [--interval 5]
+    python -m lrfslam.bench.soak [--scans 270000] [--rate-hz 75] [--speedup 1.0] [--interval 5]
 
 Runs ``lrfslam up`` (router, sensor, denoise, features, slam, mapper, recorder, each its own
 process) on the simulator at ``--rate-hz`` scans per simulated second, ``--speedup`` times faster
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.tools.bench_live import (
+from lrfslam.bench.live import (
     StageRow,
     children_of,
     free_port,

@@ -6,7 +6,7 @@ of RECORDING, beside the v1 message that carried the whole map with every state 
 
     lrfslam import carmen ../shared/datasets/intel/intel.clf.bz2 -o intel.mcap
     lrfslam pipeline --replay intel.mcap --out intel_out.mcap --stages denoise,features,slam -q
-    python benchmarks/bench_map_message.py intel_out.mcap
+    python -m lrfslam.bench.map_message intel_out.mcap
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lrfslam.tools.bench import machine, table
-from lrfslam.tools.bench_cost import state_rows
+from lrfslam.bench.command import machine, table
+from lrfslam.bench.cost import state_rows
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """CPU time per scan of each stage of ``lrfslam pipeline --replay``, in one process.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_stages.py RECORDING [--stages denoise,features,slam,mapper]
+    OPENBLAS_NUM_THREADS=1 python -m lrfslam.bench.stages RECORDING [--stages denoise,features,slam,mapper]
 
 Runs the stages as ``lrfslam pipeline --replay RECORDING`` does (no output file) and charges
 ``time.process_time`` to each stage's steps and, separately, to encoding (and decoding for the

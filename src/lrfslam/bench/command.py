@@ -9,7 +9,7 @@ calls), so figures from two machines can be compared. Sections (``--only``, comm
 
 ``stages``
     Per-scan cost of denoise, corner extraction, wall direction and a scan-matching tracker step on
-    simulated LMS200 scans (src/lrfslam/tools/bench_cost.py); the scan matcher's kernels compiled in
+    simulated LMS200 scans (src/lrfslam/bench/cost.py); the scan matcher's kernels compiled in
     a fresh process with an empty cache, and loaded from it.
 ``ekf``
     One EKF observation update at 50, 200, 500 and 1,000 landmarks against filterpy's dense
@@ -21,7 +21,7 @@ calls), so figures from two machines can be compared. Sections (``--only``, comm
     ``lrfslam up`` (every stage, the recorder and the router as separate processes) at 75 scans/s for
     ``--duration`` s: the scan-to-output ``age`` p50/p99 the slam and mapper report, drops, gaps,
     skipped inputs, every process's CPU time per scan and peak resident memory
-    (src/lrfslam/tools/bench_live.py).
+    (src/lrfslam/bench/live.py).
 ``rates``
     The same at each rate of ``--rates`` in turn (the 75 Hz run shared with ``live``), up to the
     first one not held for ``--duration`` s, then once halfway between the highest held and that
@@ -59,11 +59,10 @@ from pathlib import Path
 
 import numpy as np
 
+from lrfslam.bench import cost, live
 from lrfslam.errors import ConfigError
 from lrfslam.io.carmen import LASER_MESSAGES
 from lrfslam.io.textfile import carmen_logs, log_name, open_log
-from lrfslam.tools import bench_cost as cost
-from lrfslam.tools import bench_live as live
 from lrfslam.tools.importers import import_carmen
 
 SECTIONS = ("stages", "ekf", "codecs", "live", "rates", "logs")

@@ -1,4 +1,4 @@
-"""The live pipeline as ``lrfslam bench`` (src/lrfslam/tools/bench.py) measures it: real processes.
+"""The live pipeline as ``lrfslam bench`` (src/lrfslam/bench/command.py) measures it: real processes.
 
 * :func:`run_up`: ``lrfslam up`` (router, sensor, denoise, features, slam, mapper, recorder, each its
   own process) on the simulator at a given scan rate for a given time. The sensor runs at speedup 1
@@ -13,8 +13,8 @@
   figures (monotonic clock) and the same memory sampling.
 
 The process helpers (:func:`free_port`, :func:`children_of`, :func:`memory_kb`,
-:func:`parse_summary`) serve benchmarks/soak.py, benchmarks/bench_play.py and
-benchmarks/bench_delivery.py too.
+:func:`parse_summary`) serve src/lrfslam/bench/soak.py, src/lrfslam/bench/play.py and
+src/lrfslam/bench/delivery.py too.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """How the mapper's cost grows with its graph: a robot driving the simulator's loop round and round.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_mapper_growth.py [--scans 30000] [--buckets 10]
+    OPENBLAS_NUM_THREADS=1 python -m lrfslam.bench.mapper_growth [--scans 30000] [--buckets 10]
 
 Runs the in-process chain (denoise, features, slam, mapper: ``lrfslam.evaluation.slam_mc``'s
 pipeline, the services' own steps) on the built-in hallway loop at the simulator's default 10 Hz

@@ -1,6 +1,6 @@
 """Delivery under load: `lrfslam up` at a given speedup, each stage's rate, drops and gaps.
 
-    python benchmarks/bench_delivery.py [--duration 60] [--speedup 7.5] [--slow features:40]
+    python -m lrfslam.bench.delivery [--duration 60] [--speedup 7.5] [--slow features:40]
 
 Runs ``lrfslam up`` (router, every stage, the recorder) in a temporary folder. Two status
 snapshots, ``--window`` seconds apart in the middle of the run, give each stage's rate of
@@ -22,7 +22,7 @@ import time
 
 import zenoh
 
-from lrfslam.tools.bench_live import free_port
+from lrfslam.bench.live import free_port
 from lrfslam.tools.status import client_config, query_status, status_table
 
 ROBOT = "bench"

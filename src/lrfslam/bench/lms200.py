@@ -1,7 +1,9 @@
-"""LMS200 driver throughput: how many telegrams per second the pure protocol code handles,
-and, with --rates, the scan rate the emulator delivers per baud rate through the driver.
+"""LMS200 driver throughput: telegrams per second the protocol code handles, and scans per second per baud rate.
 
-    python benchmarks/bench_lms200.py [--telegrams 2000] [--rates]
+How many telegrams per second the pure protocol code handles and, with --rates, the scan rate
+the emulator delivers per baud rate through the driver.
+
+    python -m lrfslam.bench.lms200 [--telegrams 2000] [--rates]
 
 Needed: 75 telegrams/s (181 values at 500 kBd). Timing lives here, not in tests.
 """

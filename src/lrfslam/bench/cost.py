@@ -1,4 +1,4 @@
-"""In-process costs for ``lrfslam bench`` (src/lrfslam/tools/bench.py): stages, the EKF, the codecs.
+"""In-process costs for ``lrfslam bench`` (src/lrfslam/bench/command.py): stages, the EKF, the codecs.
 
 Everything here runs in the calling process on simulated LMS200 scans (the hallway loop, 181
 beams, the sensor service's defaults) and times single calls on the monotonic high-resolution
