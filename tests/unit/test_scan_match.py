@@ -7,12 +7,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lrfslam.algo import scan_match
 from lrfslam.algo.geometry import compose, polar_to_xy, relative, wrap_angle
 from lrfslam.algo.scan_match import (
+    SECOND_GUESS_INLIER_MARGIN,
+    MatchResult,
     MatchStatus,
     ReferenceScan,
     ScanMatchParams,
     ScanTracker,
+    fits_better,
     match,
 )
 from lrfslam.errors import ConfigError, InputError
@@ -214,3 +218,59 @@ def test_matches_against_one_reference_do_not_add_up_as_a_random_walk():
     assert np.trace(total) >= 0.99 * np.trace(one)
     # Every increment's covariance is positive semi-definite.
     assert all(np.linalg.eigvalsh(c).min() >= -1e-18 for c in covs)
+
+
+def _turns(world_name: str, lead_scans: int, starts: int = 8) -> list[float]:
+    """Heading error (deg) of the tracker after each of a set of turns in place, odometry ``lead_scans``
+    early (1: as MIT Killian's log, whose odometry runs about a scan ahead of its laser) or in step (0)."""
+    world = build_world(world_name)
+    sim = Simulator(SimConfig(world_name=world_name, seed=1))
+    frames = [next(sim) for _ in range(3000)]
+    rng = np.random.default_rng(0)
+    errors = []
+    for k in rng.choice(len(frames), starts, replace=False):
+        for turn_deg in (15.0, 20.0, -15.0, -20.0):
+            true = [np.zeros(3)] * 2 + [np.array([0.02, 0.0, np.radians(turn_deg)])] * 5 + [np.array([0.02, 0.0, 0.0])] * 3
+            odom = true[lead_scans:] + true[-1:] * lead_scans
+            tracker, pose, est = ScanTracker(P), frames[k].true_pose, frames[k].true_pose
+            tracker.step(points(world, pose, LidarModel(), rng), np.zeros(3), np.eye(3) * 1e-4)
+            for u, o in zip(true, odom):
+                pose = compose(pose, u)
+                step = tracker.step(points(world, pose, LidarModel(), rng), o, np.diag([1e-4, 1e-4, 4e-4 * abs(o[2]) + 1e-6]))
+                est = compose(est, step.increment)
+            errors.append(abs(np.degrees(wrap_angle(est[2] - pose[2]))))
+    return errors
+
+
+def test_odometry_a_scan_early_in_a_turn_is_caught_by_the_second_guess(monkeypatch):
+    """Matched from odometry a turn's worth off (it stopped turning a scan before the laser did), a
+    scan can settle a turn short; the previous motion as a second guess catches most of those."""
+    with_second = _turns("large_building_empty", lead_scans=1)
+    monkeypatch.setattr(scan_match, "SECOND_GUESS_MIN_RAD", np.inf)
+    without = _turns("large_building_empty", lead_scans=1)
+    lost = lambda errors: sum(e > 1.0 for e in errors)
+    assert lost(without) >= 3 and lost(with_second) <= lost(without) // 2, (lost(without), lost(with_second))
+
+
+def test_odometry_in_step_with_the_laser_tracks_every_turn_either_way(monkeypatch):
+    assert max(_turns("hallway_loop", lead_scans=0, starts=4)) < 1.0
+    monkeypatch.setattr(scan_match, "SECOND_GUESS_MIN_RAD", np.inf)
+    assert max(_turns("hallway_loop", lead_scans=0, starts=4)) < 1.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(first_ok=st.booleans(), other_ok=st.booleans(), unconstrained=st.integers(0, 3),
+       first_inliers=st.floats(0.0, 1.0), other_inliers=st.floats(0.0, 1.0))
+def test_the_second_guess_wins_only_usable_fully_constrained_and_clearly_better(first_ok, other_ok, unconstrained,
+                                                                                first_inliers, other_inliers):
+    def result(ok: bool, inliers: float, free: int) -> MatchResult:
+        status = MatchStatus.OK if ok else MatchStatus.NOT_CONVERGED
+        return MatchResult(status, np.zeros(3), np.eye(3), inlier_ratio=inliers, unconstrained=free)
+    first, other = result(first_ok, first_inliers, 0), result(other_ok, other_inliers, unconstrained)
+    taken = fits_better(other, first)
+    if not other_ok or unconstrained:
+        assert not taken
+    elif not first_ok:
+        assert taken
+    else:
+        assert taken == (other_inliers >= first_inliers + SECOND_GUESS_INLIER_MARGIN)

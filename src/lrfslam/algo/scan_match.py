@@ -466,6 +466,22 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
                        float(lin.eigvals[0]), int((~constrained).sum()))
 
 
+#: The tracker also matches from the previous step's motion where it and odometry's differ by
+#: more than this in heading (rad): beyond the matcher's basin in a turn.
+SECOND_GUESS_MIN_RAD = float(np.radians(3.0))
+#: Share of the scan's line points the second guess's match must fit more than the first's to be
+#: taken: a clear difference, so a rounding never flips the choice.
+SECOND_GUESS_INLIER_MARGIN = 0.05
+
+
+def fits_better(other: MatchResult, first: MatchResult) -> bool:
+    """Is ``other`` the match to take over ``first``: usable, every direction from the scan, and
+    fitting at least :data:`SECOND_GUESS_INLIER_MARGIN` more of the points (or ``first`` failed)."""
+    if not other.ok or other.unconstrained:
+        return False
+    return not first.ok or other.inlier_ratio >= first.inlier_ratio + SECOND_GUESS_INLIER_MARGIN
+
+
 @dataclass(frozen=True, eq=False)
 class TrackStep:
     """What :meth:`ScanTracker.step` returns: the motion to use, and how it was found.
@@ -531,6 +547,7 @@ class ScanTracker:
         # What the last reference scans saw empty (tracker's frame), kept past the recent ones: someone
         # overtaking the robot walks on into space that reference scans from before saw empty.
         self._free: deque[FreeSpace] = deque(maxlen=params.free_space_scans)
+        self._last_increment: np.ndarray | None = None   # the previous step's motion (3,): a second guess
 
     def step(self, points_xy_m, odom_increment, odom_cov) -> TrackStep:
         """Match one scan; returns the increment from the previous scan.
@@ -562,7 +579,16 @@ class ScanTracker:
         free = FreeSpace.of_scan(guess, returns, p.free_space_bin_rad, p.free_space_silent_m)
         moved = self._moved(pts, free)
         pts = pts[~moved]
-        result = match(self._local_map(), pts, guess, self.params, rot @ q0 @ rot.T)
+        prior = rot @ q0 @ rot.T
+        result = match(self._local_map(), pts, guess, self.params, prior)
+        last = self._last_increment
+        if last is not None and abs(wrap_angle(last[2] - u0[2])) > SECOND_GUESS_MIN_RAD:
+            # Odometry and the motion so far disagree on the turn (the odometry of a log stamped
+            # a scan early, a slipping wheel): matched from a guess that far off, the scan can
+            # settle a turn short. The previous motion is the second guess; the fit decides.
+            other = match(self._local_map(), pts, compose(self.pose, last), self.params, prior)
+            if fits_better(other, result):
+                result = other
         increment = relative(self.pose, result.pose) if result.ok else u0.copy()
         if result.ok:
             cov = rot.T @ self._fresh_cov(result) @ rot
@@ -570,6 +596,7 @@ class ScanTracker:
             cov = q0.copy()
             self._budget = None
         self.pose = compose(self.pose, increment)
+        self._last_increment = increment
         since = relative(self.reference_scans[-1].pose, self.pose)
         # After a failure the recent reference scans no longer fit this pose: start afresh from this scan.
         if not result.ok or np.hypot(since[0], since[1]) >= self.params.reference_trans_m \
@@ -625,6 +652,7 @@ class ScanTracker:
     def skip(self, increment) -> None:
         """A scan that will not be matched (lost): move the pose by ``increment`` (3,), e.g. odometry's."""
         self._budget = None
+        self._last_increment = None
         if self.pose is not None:
             self.pose = compose(self.pose, np.asarray(increment, dtype=float))
 
