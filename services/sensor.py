@@ -115,7 +115,7 @@ class SimSource(StepBase):
         ids = frame.visible_corner_ids
         self.counts["scans"] += 1
         return (
-            Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose)),
+            Output(topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose)),
             Output(topics.TRUTH, t.GroundTruth(stamp_ns=stamp, seq=seq, pose=frame.true_pose, corner_ids=ids,
                                                corners_xy_m=self.corners_xy[ids], world=self.cfg.world)),
             Output(topics.SCAN, scan),

@@ -98,7 +98,7 @@ def sim_messages(n_scans: int, seed: int) -> list[Message]:
         scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad,
                                        lidar.angle_increment_rad, lidar.max_range_m,
                                        scan_time_s=1.0 / sim.config.rate_hz, source="sim")
-        out.append(Message.of(Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose))))
+        out.append(Message.of(Output(topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose))))
         out.append(Message.of(Output(topics.SCAN, scan)))
     return out
 

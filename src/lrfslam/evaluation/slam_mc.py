@@ -339,7 +339,7 @@ class _Pipeline:
         scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, self.lidar.angle_min_rad,
                                        self.lidar.angle_increment_rad, self.lidar.max_range_m,
                                        scan_time_s=self.scan_time_s, source="sim")
-        outs = self.chain.push(Message.of(Output(topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose))))
+        outs = self.chain.push(Message.of(Output(topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose))))
         outs += self.chain.push(Message.of(Output(topics.SCAN, scan)))
         (state,) = (m.value for m in outs if m.topic is topics.SLAM_STATE)
         self._take_map(outs)

@@ -231,7 +231,7 @@ def import_carmen(log_path: str | Path, out_path: str | Path, *, robot: str = Bu
             scan = t.LaserScan.from_ranges(ns, scans, ranges, item.angle_min_rad,
                                            item.angle_increment_rad, item.max_range_m,
                                            source=f"carmen:{item.source}")
-            odom = t.Odometry(ns, scans, compose(item.odom_pose, mount) if mounted else item.odom_pose)
+            odom = t.Odometry(stamp_ns=ns, seq=scans, pose=compose(item.odom_pose, mount) if mounted else item.odom_pose)
             for topic, value in ((topics.SCAN, scan), (topics.ODOM, odom)):
                 writer.write(topic.name, topic.schema, topic.codec.encode(value), ns, ns, scans)
         bar.update(reader.lines_read - bar.n)
