@@ -519,8 +519,12 @@ class ScanTracker:
     """Laser odometry: each scan matched against the last reference scans (mutable state).
 
     The tracker keeps its own pose chain in a frame fixed at the first scan; the
-    caller only uses the increments between consecutive scans. Deterministic:
-    the same calls give the same results.
+    caller only uses the increments between consecutive scans. Each scan is matched
+    from the odometry increment; where the previous motion differs from it by more than
+    :data:`SECOND_GUESS_MIN_RAD` in heading, also from the previous motion, and the
+    clearly better fit is taken (:func:`fits_better`): odometry stamped a scan early
+    is a turn's step off at the end of a turn. Deterministic: the same calls give the
+    same results.
 
     Parameters
     ----------
