@@ -103,6 +103,7 @@ class SlamStep(StepBase):
         self.last_state: t.SlamState | None = None
         self.maps = 0                        # slam/map messages published (their sequence numbers)
         self.map_sent_ns: int | None = None  # the stamp of the last one
+        self._last_scan_seq: int | None = None   # the scan of the last update
 
     def on_message(self, msg: Message):
         v = msg.value
@@ -134,8 +135,11 @@ class SlamStep(StepBase):
         f = a.features
         wall = (f.wall_direction_rad, f.wall_direction_sigma_rad) if f.has_wall_direction else None
         # Wire kinds (1 forward, 2 backward; 0 unknown, treated as forward) -> the filter's (0, 1).
+        # Scans lost between two (a restarted router, a skipped input) make one motion of several steps.
+        follows_last = self._last_scan_seq is None or f.scan_seq == self._last_scan_seq + 1
+        self._last_scan_seq = f.scan_seq
         report = self.slam.update(a.odom_pose, a.scan_xy_m, f.xy_m, f.cov_m2,
-                                  (f.kind == t.FEATURE_BACKWARD).astype(np.int8), wall)
+                                  (f.kind == t.FEATURE_BACKWARD).astype(np.int8), wall, follows_last)
         ekf, lm = self.slam.ekf, self.slam.ekf.landmarks()
         self.current = t.Landmarks(ids=lm.ids, xy_m=lm.xy, cov_m2=lm.cov,
                                    kind=np.where(lm.kinds == 0, t.FEATURE_FORWARD, t.FEATURE_BACKWARD),

@@ -220,7 +220,7 @@ def test_matches_against_one_reference_do_not_add_up_as_a_random_walk():
     assert all(np.linalg.eigvalsh(c).min() >= -1e-18 for c in covs)
 
 
-def _turns(world_name: str, lead_scans: int, starts: int = 8) -> list[float]:
+def _turns(world_name: str, lead_scans: int, starts: int = 8, follows_last: bool = True) -> list[float]:
     """Heading error (deg) of the tracker after each of a set of turns in place, odometry ``lead_scans``
     early (1: as MIT Killian's log, whose odometry runs about a scan ahead of its laser) or in step (0)."""
     world = build_world(world_name)
@@ -236,7 +236,8 @@ def _turns(world_name: str, lead_scans: int, starts: int = 8) -> list[float]:
             tracker.step(points(world, pose, LidarModel(), rng), np.zeros(3), np.eye(3) * 1e-4)
             for u, o in zip(true, odom):
                 pose = compose(pose, u)
-                step = tracker.step(points(world, pose, LidarModel(), rng), o, np.diag([1e-4, 1e-4, 4e-4 * abs(o[2]) + 1e-6]))
+                step = tracker.step(points(world, pose, LidarModel(), rng), o,
+                                    np.diag([1e-4, 1e-4, 4e-4 * abs(o[2]) + 1e-6]), follows_last)
                 est = compose(est, step.increment)
             errors.append(abs(np.degrees(wrap_angle(est[2] - pose[2]))))
     return errors
@@ -274,3 +275,11 @@ def test_the_second_guess_wins_only_usable_fully_constrained_and_clearly_better(
         assert taken
     else:
         assert taken == (other_inliers >= first_inliers + SECOND_GUESS_INLIER_MARGIN)
+
+
+def test_across_lost_scans_the_previous_motion_is_no_guess(monkeypatch):
+    """After scans were lost (a restarted router) the previous motion is a step of another length:
+    the tracker matches from odometry alone, as it did before the second guess existed."""
+    across_a_gap = _turns("hallway_loop", lead_scans=1, starts=3, follows_last=False)
+    monkeypatch.setattr(scan_match, "SECOND_GUESS_MIN_RAD", np.inf)
+    assert across_a_gap == _turns("hallway_loop", lead_scans=1, starts=3)

@@ -94,7 +94,8 @@ class CornerSlam:
         self.ekf = EkfSlam(self.ekf.params, pose0=pose)
 
     def update(self, odom_pose: np.ndarray | None, scan_xy_m: np.ndarray | None, xy_m: np.ndarray,
-               cov_m2: np.ndarray, kinds: np.ndarray, wall: tuple[float, float] | None) -> UpdateReport:
+               cov_m2: np.ndarray, kinds: np.ndarray, wall: tuple[float, float] | None,
+               follows_last: bool = True) -> UpdateReport:
         """Process one scan.
 
         Parameters
@@ -110,8 +111,10 @@ class CornerSlam:
             :data:`FORWARD` or :data:`BACKWARD`.
         wall : (direction rad, sigma rad) or None
             The walls' direction modulo 90° in the robot frame, if the scan has one.
+        follows_last : bool
+            The scan is the one after the last scan updated (none lost between them).
         """
-        motion = self.motion.next(odom_pose, scan_xy_m, self.ekf.odometry_cov)
+        motion = self.motion.next(odom_pose, scan_xy_m, self.ekf.odometry_cov, follows_last)
         self.counts.update(motion.events)
         if motion.increment is not None and motion.cov is None:
             self.ekf.predict(motion.increment)

@@ -80,7 +80,7 @@ class MotionSource:
         self._started = started
 
     def next(self, odom_pose: np.ndarray | None, scan_xy_m: np.ndarray | None,
-             odometry_cov: Callable[[np.ndarray], np.ndarray]) -> Motion:
+             odometry_cov: Callable[[np.ndarray], np.ndarray], follows_last: bool = True) -> Motion:
         """The motion to this scan.
 
         Parameters
@@ -91,6 +91,8 @@ class MotionSource:
             The scan's points, robot frame (m); None if the scan was lost.
         odometry_cov : callable
             The filter's odometry model: increment (3,) -> covariance (3, 3).
+        follows_last : bool
+            No scan was lost since the previous one (the tracker's previous motion is then a guess).
         """
         events = []
         increment = None
@@ -114,7 +116,7 @@ class MotionSource:
             # Keep the tracker's chain in step with the filter: this motion is odometry's.
             self._tracker.skip(guess)
             return Motion(increment if started else None, None, tuple(events))
-        step = self._tracker.step(scan_xy_m, guess, guess_cov)
+        step = self._tracker.step(scan_xy_m, guess, guess_cov, follows_last)
         events.append(f"match_{step.match.status.name.lower()}")
         if step.moved_points:
             events.append("scan_moved_points")

@@ -553,7 +553,7 @@ class ScanTracker:
         self._free: deque[FreeSpace] = deque(maxlen=params.free_space_scans)
         self._last_increment: np.ndarray | None = None   # the previous step's motion (3,): a second guess
 
-    def step(self, points_xy_m, odom_increment, odom_cov) -> TrackStep:
+    def step(self, points_xy_m, odom_increment, odom_cov, follows_last: bool = True) -> TrackStep:
         """Match one scan; returns the increment from the previous scan.
 
         Parameters
@@ -564,6 +564,9 @@ class ScanTracker:
             Odometry motion from the previous scan, in its frame (zeros for the first scan).
         odom_cov : array_like, shape (3, 3)
             Its covariance: the fallback's, and the prior of unconstrained directions.
+        follows_last : bool
+            This scan follows the previous one with none lost between them: only then is the
+            previous motion a second guess (across a gap it is a step of another length).
         """
         u0 = np.asarray(odom_increment, dtype=float)
         q0 = np.asarray(odom_cov, dtype=float)
@@ -585,7 +588,7 @@ class ScanTracker:
         pts = pts[~moved]
         prior = rot @ q0 @ rot.T
         result = match(self._local_map(), pts, guess, self.params, prior)
-        last = self._last_increment
+        last = self._last_increment if follows_last else None
         if last is not None and abs(wrap_angle(last[2] - u0[2])) > SECOND_GUESS_MIN_RAD:
             # Odometry and the motion so far disagree on the turn (the odometry of a log stamped
             # a scan early, a slipping wheel): matched from a guess that far off, the scan can
