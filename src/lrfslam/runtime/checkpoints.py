@@ -63,7 +63,8 @@ class Checkpointer:
     Parameters
     ----------
     step : Resumable
-        Counted in its own ``counts``: ``checkpoints``, ``restored``, ``checkpoint_unreadable``.
+        Counted in its own ``counts`` where it has them (a :class:`~lrfslam.runtime.step.StepBase`):
+        ``checkpoints``, ``checkpoint_failed``, ``restored``, ``checkpoint_unreadable``.
     path : Path
     period_s : float
         Data time (s) between two saves; the first comes ``period_s`` after the first input.
@@ -71,6 +72,7 @@ class Checkpointer:
 
     def __init__(self, step: Resumable, path: Path, period_s: float) -> None:
         self.step = step
+        self.counts: Counter = getattr(step, "counts", Counter())
         self.path = path
         self._period_ns = int(period_s * 1e9)
         self._last_ns: int | None = None
@@ -83,10 +85,10 @@ class Checkpointer:
             where = self.step.restore(npz_file.read(self.path))
         except (OSError, ValueError, KeyError, InputError) as exc:
             log.warning("ignoring unreadable checkpoint %s: %s", self.path, exc)
-            self._count(counters.CHECKPOINT_UNREADABLE)
+            self.counts[counters.CHECKPOINT_UNREADABLE] += 1
             return
         log.info("resumed from %s: %s", self.path, where)
-        self._count(counters.CHECKPOINT_RESTORED)
+        self.counts[counters.CHECKPOINT_RESTORED] += 1
 
     def after(self, stamp_ns: int) -> None:
         """An input stamped ``stamp_ns`` was handled: save if ``period_s`` of data time has passed.
@@ -108,18 +110,9 @@ class Checkpointer:
         try:
             npz_file.write_atomic(self.path, arrays)
         except OSError as exc:
-            if not self._failed():
+            if not self.counts[counters.CHECKPOINT_FAILED]:
                 log.warning("cannot write the checkpoint %s: %s", self.path, exc)
-            self._count(counters.CHECKPOINT_FAILED)
+            self.counts[counters.CHECKPOINT_FAILED] += 1
             return True
-        self._count(counters.CHECKPOINT_SAVED)
+        self.counts[counters.CHECKPOINT_SAVED] += 1
         return True
-
-    def _failed(self) -> int:
-        counts: Counter | None = getattr(self.step, "counts", None)
-        return 0 if counts is None else counts[counters.CHECKPOINT_FAILED]
-
-    def _count(self, name: str) -> None:
-        counts: Counter | None = getattr(self.step, "counts", None)
-        if counts is not None:
-            counts[name] += 1
