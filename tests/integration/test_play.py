@@ -73,7 +73,11 @@ def test_loop_numbers_each_topic_on_across_loops_and_a_signal_stops_it(cluster, 
             assert time.monotonic() < deadline, "too few scans played"
             time.sleep(0.05)
         proc.send_signal(sig)
-        out, err = proc.communicate(timeout=30)
+        try:
+            out, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            pytest.fail(f"play did not stop on {sig.name}; its stderr:\n{proc.communicate()[1]}")
         time.sleep(0.5)   # the last samples on their way
         sub.undeclare()
     assert proc.returncode == 128 + sig, err

@@ -284,7 +284,9 @@ class Player:
         self.summary = Summary()
         self._seq: Counter = Counter()
         self._once = LogOnce(log)
-        self._answers: queue.SimpleQueue[int] = queue.SimpleQueue()
+        # Not a SimpleQueue: on CPython 3.11 its get(timeout) waits forever when a signal handler
+        # outlasts the timeout, and Ctrl-C lands here while the main thread waits for answers.
+        self._answers: queue.Queue[int] = queue.Queue()
         self._progress_ns = 0
         self._sub = (session.declare_subscriber(topics.key(robot, watched.name), self._on_answer)
                      if watched is not None else None)
