@@ -82,6 +82,7 @@ def status_out(cluster, session, service, topic):
                             if service in st else 0, 10, f"{service} counters")
 
 
+@pytest.mark.slow   # end to end, long: the slow step (.ci/run step 3)
 def test_the_live_pipeline_opens_in_foxglove_recorded_and_live(cluster):
     port = free_port()
     for name in STAGES:

@@ -31,7 +31,7 @@ COMMANDS = {
 }
 
 
-@pytest.mark.parametrize("name", COMMANDS)
+@pytest.mark.parametrize("name", ["denoise", pytest.param("monitor", marks=pytest.mark.slow)])
 def test_healthy_while_connected_then_not_once_the_router_is_gone(cluster, tmp_path, capsys, name):
     path = tmp_path / "health.json"
     cluster.procs[name] = subprocess.Popen(

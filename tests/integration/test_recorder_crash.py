@@ -65,6 +65,7 @@ def odom(i: int) -> bytes:
     return codec.ODOMETRY.encode(t.Odometry(i * PERIOD_NS, i, (0.1 * i, 0.0, 0.0)))
 
 
+@pytest.mark.slow   # end to end, long: the slow step (.ci/run step 3)
 def test_a_killed_recorder_keeps_all_but_its_last_second_and_a_restart_adds_a_segment(cluster):
     folder = cluster.tmp / "recordings" / "run"
     cluster.start("recorder", "name=run", "flush_period_s=1.0")

@@ -27,8 +27,8 @@ def read_dump(path):
     return sent
 
 
-@pytest.mark.parametrize("faults", [(), ("--fault-bitflip-pct", "2", "--fault-garbage", "10",
-                                         "--fault-truncate", "3")], ids=["clean", "faulty"])
+@pytest.mark.parametrize("faults", [(), pytest.param(("--fault-bitflip-pct", "2", "--fault-garbage", "10",
+                                         "--fault-truncate", "3"), marks=pytest.mark.slow)], ids=["clean", "faulty"])
 def test_published_scans_are_the_emulators(cluster, tmp_path, faults):
     dump, link = tmp_path / "sent.txt", tmp_path / "lms0"
     emu = subprocess.Popen([sys.executable, "-m", "lrfslam.cli", "emulate-lms200", "--seed", "4",

@@ -74,6 +74,7 @@ def test_a_stopped_pipeline_removes_its_output(long_recording, tmp_path, signum)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
 
 
+@pytest.mark.slow   # end to end, long: the slow step (.ci/run step 3)
 def test_a_stopped_import_removes_its_output(long_log, tmp_path):
     proc = cli("import", "carmen", str(long_log), "-o", str(tmp_path / "log.mcap"), "-q", cwd=tmp_path)
     wait_for_partial(tmp_path, proc)

@@ -12,7 +12,7 @@ import pytest
 from lrfslam.msgs import codec
 from lrfslam.runtime.recording import read_recording
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.slow]   # lrfslam up end to end: the slow step
 
 
 def lrfslam(*args: str, cwd, timeout: float = 120) -> subprocess.CompletedProcess:

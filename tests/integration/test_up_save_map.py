@@ -13,7 +13,7 @@ from lrfslam.msgs import topics
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.saved_map import load_map
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.slow]   # lrfslam up end to end: the slow step
 
 
 def test_up_saves_the_runs_map(tmp_path):

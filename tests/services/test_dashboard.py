@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 import socket
 import urllib.request
@@ -17,6 +18,7 @@ import urllib.request
 import numpy as np
 import pytest
 import websockets
+from websockets.sync.client import connect
 from lrfslam.services import stage
 from test_steps import sim_outputs
 
@@ -155,3 +157,14 @@ def test_the_server_serves_the_page_the_snapshot_and_a_websocket(wire):
     with socket.socket() as s:     # closed: the port is free again (as a server takes it, past TIME_WAIT)
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         s.bind(("127.0.0.1", server.port))
+
+
+def test_the_server_closes_at_once_while_a_page_is_open_and_idle(caplog):
+    # A browser left open on an unchanging dashboard: its handler waits for news, and must
+    # still notice the close (a server that waits for it stops seconds late, or never).
+    server = DashboardServer("127.0.0.1", 0, "lrfslam r1", period_s=0.05)
+    with connect(f"ws://127.0.0.1:{server.port}/ws") as ws:
+        assert json.loads(ws.recv(timeout=10))["title"] == "lrfslam r1"
+        with caplog.at_level(logging.WARNING, logger="lrfslam.tools.webserver"):
+            server.close()
+        assert not caplog.records

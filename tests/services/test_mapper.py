@@ -153,6 +153,7 @@ def encoded(messages) -> list[tuple[str, bytes]]:
     return [(m.topic.name, m.topic.codec.encode(m.value)) for m in messages]
 
 
+@pytest.mark.slow   # end to end, long: the slow step (.ci/run step 3)
 def test_a_restarted_mapper_continues_its_graph_exactly(mapped, tmp_path):
     frames, _, outs = mapped
     per_frame = frame_messages(frames)
@@ -171,6 +172,7 @@ def test_a_restarted_mapper_continues_its_graph_exactly(mapped, tmp_path):
     assert step.mapper.stats.accepted > before.accepted and step.counts.get("motion_bridged", 0) == 0
 
 
+@pytest.mark.slow   # end to end, long: the slow step (.ci/run step 3)
 def test_a_killed_mapper_resumes_from_its_checkpoint_and_bridges_the_states_it_missed(mapped, tmp_path):
     frames, _, outs = mapped
     per_frame = frame_messages(frames)

@@ -95,6 +95,7 @@ def test_true_wall_direction_pins_the_heading_of_the_estimator():
     assert ate_rmse(walls.true_poses, walls.est_poses) < 0.5 * ate_rmse(corners.true_poses, corners.est_poses)
 
 
+@pytest.mark.slow   # end to end, long: the slow step (.ci/run step 3)
 def test_with_the_mapper_its_closures_are_judged_by_the_truth():
     # A lap and a half of the hallway loop (59 m): the mapper closes the loop, and each closure
     # it tried is judged against the true poses of its keyframes.

@@ -162,6 +162,7 @@ INTEL = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "in
 
 @pytest.mark.skipif(not (INTEL / "intel.clf.bz2").is_file() or not (INTEL / "intel.relations").is_file(),
                     reason="Intel dataset not present")
+@pytest.mark.slow   # end to end, long: the slow step (.ci/run step 3)
 def test_intel_import_reproduces_the_odometry_baseline(tmp_path):
     """Imported odometry scores as the log's own (7.37 ± 14.35 m), every relation stamp matched exactly."""
     out = tmp_path / "intel.mcap"

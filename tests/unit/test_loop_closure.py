@@ -234,7 +234,7 @@ def test_keyframes_without_points_are_kept_and_never_searched():
     assert mapper.keyframe_stamped_local_poses()[0].shape == (mapper.keyframe_count,)
 
 
-@pytest.mark.parametrize("cut", [330, 470])   # the first closures, the second lap
+@pytest.mark.parametrize("cut", [330, pytest.param(470, marks=pytest.mark.slow)])   # the first closures, the second lap
 def test_a_restored_snapshot_continues_exactly(hallway_run, hallway_frames, cut):
     mapper, _, _, online = hallway_run
     frames = hallway_frames[0]
@@ -293,7 +293,7 @@ def test_revisits_keep_no_points_and_are_never_candidates(hallway_run, hallway_f
     assert not kept["keyframe_revisit"].any() and np.all(kept["keyframe_point_counts"] > 0)
 
 
-@pytest.mark.parametrize("trim", [False, True])
+@pytest.mark.parametrize("trim", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_a_stretch_of_lost_scans_is_never_a_candidate(trim):
     # 16 m of the first lap came without scans: a keyframe there has no points and neither
     # have its neighbours, so its submap would be empty. The later laps search past it.
@@ -348,7 +348,7 @@ def _core(mapper: LoopClosingMapper) -> tuple[int, int]:
     return len(core), len(edges)
 
 
-@pytest.mark.parametrize("fold", [True, False])
+@pytest.mark.parametrize("fold", [True, pytest.param(False, marks=pytest.mark.slow)])
 def test_laps_of_the_same_loop_leave_the_graph_the_size_of_the_place(fold):
     # Four laps, a keyframe a scan: folded, every lap after the first adds leaves on the first
     # lap's keyframes and no node the optimisation works on; unfolded, a lap of nodes each time.

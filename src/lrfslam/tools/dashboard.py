@@ -111,6 +111,12 @@ class DashboardServer:
                 if version != sent:
                     await ws.send(data.decode())
                     sent = version
-                await asyncio.sleep(self.period_s)
+                # Waiting on the connection, not a plain sleep: a handler that never sees its
+                # browser go would keep the server's close waiting.
+                try:
+                    await asyncio.wait_for(ws.wait_closed(), self.period_s)
+                    return
+                except TimeoutError:
+                    pass
         except ConnectionClosed:
             return

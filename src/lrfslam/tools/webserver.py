@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import hmac
+import logging
 import threading
 from collections.abc import Awaitable, Callable
 from http import HTTPStatus
@@ -30,6 +31,9 @@ from websockets.http11 import Request, Response
 from lrfslam.errors import StartupError
 
 ProcessRequest = Callable[[ServerConnection, Request], Response | None]
+log = logging.getLogger(__name__)
+#: s a server's thread gets to close its connections and end (its handlers must notice the close).
+CLOSE_WAIT_S = 5.0
 
 
 def response(status: HTTPStatus, content_type: str, body: bytes, **headers: str) -> Response:
@@ -68,7 +72,10 @@ class ServerThread:
     def close(self) -> None:
         if self._loop is not None and self._stop is not None:
             self._loop.call_soon_threadsafe(lambda: self._stop.done() or self._stop.set_result(None))
-        self._thread.join(5)
+        self._thread.join(CLOSE_WAIT_S)
+        if self._thread.is_alive():
+            log.warning("%s did not stop within %g s (a connection's handler still runs); left behind",
+                        self._thread.name, CLOSE_WAIT_S)
 
     def _serve_forever(self, host: str, port: int, handler, process_request: ProcessRequest, options: dict) -> None:
         try:
