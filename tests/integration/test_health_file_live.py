@@ -4,6 +4,7 @@ healthcheck would."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import time
 
@@ -36,7 +37,8 @@ def test_healthy_while_connected_then_not_once_the_router_is_gone(cluster, tmp_p
     path = tmp_path / "health.json"
     cluster.procs[name] = subprocess.Popen(
         cluster.cmd(*COMMANDS[name], "--robot", cluster.robot, "--connect", cluster.endpoint,
-                    "--log-level", "WARNING", "--health-file", str(path)), cwd=tmp_path)
+                    "--log-level", "WARNING", "--health-file", str(path)), cwd=tmp_path,
+        env={**os.environ, "LRFSLAM_BUS_HEALTH_PERIOD_S": "0.2"})   # the service's file is stale after 2 s
     check_until(path, 0, "ok: ", 30, capsys)
     assert json.loads(path.read_text())["service"] == name
     # The router goes; the service keeps running and retrying, and says it is cut off.

@@ -445,6 +445,7 @@ def test_the_search_looks_where_the_online_estimate_puts_the_robot(hallway_frame
         guided.add_scan(stamps[-1] + 1, local[-1], frames[-1][2], None, online_pose=[0.0, np.nan, 0.0])
 
 
+@pytest.mark.slow   # two mappers round the loop twice more: the slow step
 def test_a_restored_snapshot_keeps_the_online_poses_and_an_older_one_has_none(hallway_frames):
     """Restored before the first lap's end, the mapper searches where the online estimate says
     as one never stopped; from a snapshot without online poses (an older format) it cannot."""
