@@ -18,9 +18,9 @@ import urllib.request
 import numpy as np
 import pytest
 import websockets
-from websockets.sync.client import connect
 from lrfslam.services import stage
 from test_steps import sim_outputs
+from websockets.sync.client import connect
 
 from lrfslam.errors import StartupError
 from lrfslam.msgs import topics

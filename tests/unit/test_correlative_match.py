@@ -7,7 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lrfslam.algo.correlative_match import CorrelativeParams, LikelihoodGrid, search
+from lrfslam.algo.correlative_match import (
+    ANGLE_STEP_RAD,
+    CorrelativeParams,
+    LikelihoodGrid,
+    search,
+)
 from lrfslam.algo.geometry import from_frame, to_frame
 from lrfslam.errors import ConfigError, InputError
 
@@ -49,7 +54,7 @@ def test_finds_the_true_pose_from_far_off():
 def brute_force(grid: LikelihoodGrid, pts, centre, half_width_m, half_angle_rad):
     """Every leaf of the search, scored one by one (the reference the bound must reproduce)."""
     p = grid.params
-    step = p.angle_step_rad
+    step = ANGLE_STEP_RAD
     n_ang = int(np.ceil(half_angle_rad / step))
     n_xy = int(np.ceil(half_width_m / p.cell_m))
     best = -1.0

@@ -102,8 +102,8 @@ def test_forward_sighting_upgrades_a_backward_landmark():
 
 
 def test_landmark_cap_and_too_close_features_are_rejected():
-    f = EkfSlam(EkfParams(max_landmarks=2, min_feature_range_m=0.1))
-    rep = f.observe(np.array([[3.0, 0.0], [0.0, 3.0], [-3.0, 0.0], [0.05, 0.0]]))
+    f = EkfSlam(EkfParams(max_landmarks=2))
+    rep = f.observe(np.array([[3.0, 0.0], [0.0, 3.0], [-3.0, 0.0], [0.04, 0.0]]))   # nearer than MIN_FEATURE_RANGE_M
     np.testing.assert_array_equal(
         rep.status, [ObsStatus.NEW, ObsStatus.NEW, ObsStatus.REJECTED, ObsStatus.REJECTED]
     )
@@ -207,7 +207,6 @@ def test_restore_rejects_broken_snapshots(edit):
         {"odom_trans_sigma_per_sqrt_m": -0.1},
         {"corner_range_sigma_m": 0.0},
         {"gate_new_chi2": 5.0},
-        {"backward_sigma_scale": 0.5},
         {"min_sightings_to_confirm": 0},
         {"corner_bearing_sigma_rad": float("nan")},
     ],

@@ -13,7 +13,13 @@ from filterpy.kalman import ExtendedKalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lrfslam.algo.ekf_slam import EkfParams, EkfSlam, ObsStatus, WallStatus
+from lrfslam.algo.ekf_slam import (
+    BACKWARD_SIGMA_SCALE,
+    EkfParams,
+    EkfSlam,
+    ObsStatus,
+    WallStatus,
+)
 from lrfslam.algo.geometry import compose, wrap_angle
 from lrfslam.algo.wall_direction import wrap_quarter
 
@@ -119,7 +125,7 @@ def test_known_update_matches_filterpy(n_lm, seed):
 def test_observe_of_confirmed_landmark_matches_filterpy(seed):
     """The whole observe() path: cartesian input → polar z and R → full update."""
     rng = np.random.default_rng(seed)
-    params = EkfParams(corner_range_sigma_m=0.02, corner_bearing_sigma_rad=0.01, backward_sigma_scale=1.5)
+    params = EkfParams(corner_range_sigma_m=0.02, corner_bearing_sigma_rad=0.01)
     f = random_filter(rng, 3, params)
     x, P = f.state_mean, f.state_cov
     i = int(rng.integers(3))
@@ -130,7 +136,7 @@ def test_observe_of_confirmed_landmark_matches_filterpy(seed):
     cov_xy = np.diag([4e-4, 1e-4])
     jac = np.array([[np.cos(z[1]), np.sin(z[1])], [-np.sin(z[1]) / z[0], np.cos(z[1]) / z[0]]])
     R = jac @ cov_xy @ jac.T + np.diag([0.02**2, 0.01**2])
-    R *= 1.5**2 if kind else 1.0
+    R *= BACKWARD_SIGMA_SCALE**2 if kind else 1.0
     x_ref, P_ref = filterpy_update(x, P, z, R, i)
     rep = f.observe(point[None], cov_xy[None], np.array([kind]))
     assert rep.status[0] == ObsStatus.MATCHED and rep.landmark_ids[0] == 10 + i

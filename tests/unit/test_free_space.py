@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lrfslam.algo import scan_match as sm
 from lrfslam.algo.free_space import MAX_SPREAD_BINS, FreeSpace, seen_through
 from lrfslam.algo.geometry import compose, polar_to_xy
 from lrfslam.algo.scan_match import ScanMatchParams, ScanTracker
@@ -16,9 +17,9 @@ from lrfslam.sim.floor_plans import build_world
 from lrfslam.sim.lidar import LidarModel, simulate_scan
 from lrfslam.sim.simulator import SimConfig, Simulator
 
-BIN = ScanMatchParams().free_space_bin_rad
+BIN = sm.FREE_SPACE_BIN_RAD
 P = ScanMatchParams()
-MARGINS = (P.free_space_margin_m, P.free_space_margin_per_m, P.free_space_lateral_m, P.free_space_bearing_rad)
+MARGINS = (sm.FREE_SPACE_MARGIN_M, sm.FREE_SPACE_MARGIN_PER_M, sm.FREE_SPACE_LATERAL_M, sm.FREE_SPACE_BEARING_RAD)
 LIDAR = LidarModel()  # 1 cm noise, 1 cm quantum, mixed pixels
 # Mixed pixels lie between an edge and what is behind it, in space seen empty from elsewhere:
 # rightly left out by the check, so the static-world properties are without them.

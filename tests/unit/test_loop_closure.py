@@ -17,6 +17,7 @@ from lrfslam.algo.geometry import (
     wrap_angle,
 )
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
+from lrfslam.algo.loop_closure.params import ODOMETRY_KEYFRAMES
 from lrfslam.algo.loop_closure.search import window_covariance
 from lrfslam.errors import ConfigError, InputError
 from lrfslam.sim.simulator import OdometryNoise, SimConfig, Simulator
@@ -278,7 +279,7 @@ def test_revisits_keep_no_points_and_are_never_candidates(hallway_run, hallway_f
     snap = mapper.snapshot()
     counts, revisit, first_scan = snap["keyframe_point_counts"], snap["keyframe_revisit"], snap["keyframe_scan_index"]
     second_lap = first_scan >= len(hallway_frames[0]) // 2
-    recent = max(mapper.params.query_keyframes, mapper.params.odometry_keyframes)
+    recent = max(mapper.params.query_keyframes, ODOMETRY_KEYFRAMES)
     # The second lap closes into the first: most of its keyframes are revisits, and the old
     # ones have dropped their points; every closure's old keyframe is a first visit.
     assert revisit[second_lap].mean() > 0.8 and not revisit[~second_lap][:10].any()

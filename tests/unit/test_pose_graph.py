@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lrfslam.algo.geometry import compose, relative, wrap_angle
-from lrfslam.algo.pose_graph import PoseGraph, PoseGraphParams
-from lrfslam.errors import ConfigError, InputError
+from lrfslam.algo.pose_graph import PoseGraph
+from lrfslam.errors import InputError
 
 SIGMA = np.array([0.02, 0.02, 0.01])  # odometry noise per edge (m, m, rad)
 
@@ -27,9 +27,8 @@ def square_loop(laps: int = 1, side: int = 10, step_m: float = 0.5) -> np.ndarra
     return np.array(poses)
 
 
-def noisy_graph(truth: np.ndarray, rng: np.random.Generator, loops: list[tuple[int, int]],
-                params: PoseGraphParams | None = None) -> PoseGraph:
-    graph = PoseGraph(params)
+def noisy_graph(truth: np.ndarray, rng: np.random.Generator, loops: list[tuple[int, int]]) -> PoseGraph:
+    graph = PoseGraph()
     info = np.diag(1.0 / SIGMA**2)
     pose = truth[0].copy()
     graph.add_node(pose)
@@ -179,8 +178,6 @@ def test_relative_covariance_follows_the_graph_as_it_changes():
 
 
 def test_bad_input_is_refused():
-    with pytest.raises(ConfigError):
-        PoseGraphParams(cauchy_scale=0.0)
     graph = PoseGraph()
     graph.add_node(np.zeros(3))
     with pytest.raises(InputError):
@@ -203,7 +200,7 @@ def test_a_restored_snapshot_optimises_to_the_same_poses(seed, removed):
     np.savez(buffer, **graph.snapshot())   # as the mapper's checkpoint stores it
     buffer.seek(0)
     with np.load(buffer) as data:
-        again = PoseGraph.restore(None, {k: data[k] for k in data.files})
+        again = PoseGraph.restore({k: data[k] for k in data.files})
     assert again.edge_count() == graph.edge_count() == n - 1 + 5 - removed
     graph.optimize()
     again.optimize()
@@ -221,7 +218,7 @@ def test_a_bad_snapshot_is_refused():
                    {**snap, "graph_edge_measurement": snap["graph_edge_measurement"][:-1]},
                    {**snap, "graph_poses": np.full_like(snap["graph_poses"], np.nan)}):
         with pytest.raises(InputError, match="pose graph snapshot"):
-            PoseGraph.restore(None, broken)
+            PoseGraph.restore(broken)
 
 
 @settings(max_examples=15, deadline=None)
@@ -286,7 +283,7 @@ def test_what_was_added_since_the_factorisation_enters_exactly():
     assert graph._factor.covered == lap + 5   # not factorised again
     # A restored graph computes from the same factorisation: the same covariance to the last bit,
     # so a restarted mapper searches exactly the windows the one it continues would have.
-    restored = PoseGraph.restore(None, graph.snapshot())
+    restored = PoseGraph.restore(graph.snapshot())
     last = len(graph) - 1
     np.testing.assert_array_equal(restored.relative_covariance(3, last), graph.relative_covariance(3, last))
 
@@ -311,7 +308,7 @@ def test_taking_leaves_out_changes_no_other_pose_or_covariance(seed):
     for host, leaf in zip(hosts, leaves, strict=True):
         z = graph.edge_measurement(int(graph.edges_of(leaf)[0]))
         assert np.allclose(relative(before[host], before[leaf]), z, atol=1e-6)
-    with_leaves = PoseGraph.restore(None, graph.snapshot())
+    with_leaves = PoseGraph.restore(graph.snapshot())
     covariance = graph.relative_covariance(2, 11)
     edges = graph.edge_count()
     node_map, edge_map = graph.remove_nodes(leaves)

@@ -39,7 +39,7 @@ def points(world, pose, lidar=EXACT, rng=None):
 
 def test_a_known_rigid_motion_is_recovered_to_a_millimetre_and_a_tenth_of_a_degree():
     true = np.array([0.12, -0.03, 0.06])
-    ref = ReferenceScan.build(points(HALL, CORNER_POSE), P)
+    ref = ReferenceScan.build(points(HALL, CORNER_POSE))
     res = match(ref, points(HALL, compose(CORNER_POSE, true)), np.zeros(3), P)
     assert res.status is MatchStatus.OK and res.unconstrained == 0
     err = relative(true, res.pose)
@@ -51,7 +51,7 @@ def test_with_lidar_noise_the_error_stays_within_the_reported_covariance():
     rng = np.random.default_rng(1)
     true = np.array([0.08, 0.02, -0.04])
     lidar = LidarModel()  # 1 cm noise, 1 cm quantum, mixed pixels
-    ref = ReferenceScan.build(points(HALL, CORNER_POSE, lidar, rng), P)
+    ref = ReferenceScan.build(points(HALL, CORNER_POSE, lidar, rng))
     res = match(ref, points(HALL, compose(CORNER_POSE, true), lidar, rng), true + [0.05, -0.05, 0.03], P)
     assert res.ok
     err = res.pose - true
@@ -61,7 +61,7 @@ def test_with_lidar_noise_the_error_stays_within_the_reported_covariance():
 
 
 def test_too_few_points_and_a_scan_of_another_place_fall_back_to_the_guess():
-    ref = ReferenceScan.build(points(HALL, CORNER_POSE), P)
+    ref = ReferenceScan.build(points(HALL, CORNER_POSE))
     guess = np.array([0.1, 0.0, 0.0])
     few = match(ref, points(HALL, CORNER_POSE)[:10], guess, P)
     assert few.status is MatchStatus.TOO_FEW_POINTS and not few.ok
@@ -76,10 +76,10 @@ def test_a_single_wall_leaves_the_motion_along_it_to_the_guess():
     wall = straight_wall(length_m=30.0, distance_m=1.5)  # across the view, 1.5 m ahead: x = 1.5
     true = np.array([0.03, 0.2, 0.02])
     guess = np.array([0.0, 0.27, 0.0])  # 7 cm too far along the wall, 3 cm and 1.1° off across it
-    ref = ReferenceScan.build(points(wall, np.zeros(3)), P)
+    ref = ReferenceScan.build(points(wall, np.zeros(3)))
     cur = points(wall, true)
     alone = match(ref, cur, guess, P)
-    assert alone.status is MatchStatus.DEGENERATE and alone.information_ratio < P.min_information_ratio
+    assert alone.status is MatchStatus.DEGENERATE and alone.information_ratio < scan_match.MIN_INFORMATION_RATIO
     guess_cov = np.diag([0.05**2, 0.05**2, 0.02**2])
     res = match(ref, cur, guess, P, guess_cov)
     assert res.ok and res.unconstrained == 1
@@ -99,7 +99,7 @@ def test_monte_carlo_nees_of_matches_on_the_simulator_is_consistent():
     nees = []
     for a, b in zip(frames[::7], frames[1::7]):
         true = relative(a.true_pose, b.true_pose)
-        ref = ReferenceScan.build(points(sim.world, a.true_pose, sim.config.lidar, rng), P)
+        ref = ReferenceScan.build(points(sim.world, a.true_pose, sim.config.lidar, rng))
         res = match(ref, points(sim.world, b.true_pose, sim.config.lidar, rng), b.odom_delta, P)
         assert res.ok
         err = res.pose - true
@@ -116,7 +116,7 @@ def test_matching_a_scan_to_itself_gives_the_identity(s_m, noisy, seed):
     sim = Simulator(SimConfig(seed=0))
     pose = sim.trajectory.path.pose_at(s_m)
     pts = points(HALL, pose, LidarModel() if noisy else EXACT, np.random.default_rng(seed))
-    res = match(ReferenceScan.build(pts, P), pts, np.zeros(3), P, np.diag([1e-2, 1e-2, 1e-2]))
+    res = match(ReferenceScan.build(pts), pts, np.zeros(3), P, np.diag([1e-2, 1e-2, 1e-2]))
     assert res.ok
     np.testing.assert_allclose(res.pose, np.zeros(3), atol=1e-9)
 
@@ -151,7 +151,7 @@ def test_the_tracker_beats_its_noisy_odometry_and_is_deterministic():
     # Along a corridor the scans leave the motion to odometry, so its scale error still shows.
     assert max(err_sm) < 0.2 * max(err_odo) and max(err_sm) < 0.2, (max(err_sm), max(err_odo))
     # Only the recent reference scans are kept (memory of a long run); more were made.
-    assert len(tracker.reference_scans) == P.references_kept and tracker._dropped >= 5
+    assert len(tracker.reference_scans) == scan_match.REFERENCES_KEPT and tracker._dropped >= 5
 
 
 def test_the_tracker_falls_back_to_odometry_and_skip_moves_its_pose():
@@ -167,24 +167,23 @@ def test_the_tracker_falls_back_to_odometry_and_skip_moves_its_pose():
 
 
 def test_bad_inputs_and_params_are_rejected():
-    ref = ReferenceScan.build(points(HALL, CORNER_POSE), P)
+    ref = ReferenceScan.build(points(HALL, CORNER_POSE))
     with pytest.raises(InputError):
         match(ref, points(HALL, CORNER_POSE), [0.0, np.nan, 0.0], P)
     with pytest.raises(InputError):
         match(ref, points(HALL, CORNER_POSE), np.zeros(3), P, np.eye(2))
     with pytest.raises(InputError):
         ScanTracker(P).step(np.zeros((0, 2)), np.zeros(3), np.eye(2))
-    for bad in ({"robust_scale_m": 0.0}, {"normal_neighbours": 2}, {"min_inlier_ratio": -0.1},
-                {"references_kept": 0}, {"cov_scale": float("nan")}):
+    for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ConfigError):
-            ScanMatchParams(**bad)
+            ScanMatchParams(max_point_range_m=bad)
 
 
 def test_a_constrained_match_ignores_a_tight_guess_in_its_estimate_and_so_in_its_covariance():
     """The estimate does not use the guess where the scan decides; the covariance must not either."""
     rng = np.random.default_rng(3)
     lidar = LidarModel()
-    ref = ReferenceScan.build(points(HALL, CORNER_POSE, lidar, rng), P)
+    ref = ReferenceScan.build(points(HALL, CORNER_POSE, lidar, rng))
     cur = points(HALL, compose(CORNER_POSE, [0.05, 0.0, 0.01]), lidar, rng)
     free = match(ref, cur, np.array([0.05, 0.0, 0.01]), P)
     tight = match(ref, cur, np.array([0.05, 0.0, 0.01]), P, np.diag([1e-8, 1e-8, 1e-10]))

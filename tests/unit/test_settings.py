@@ -168,8 +168,8 @@ def test_a_retired_setting_is_refused_in_one_line_naming_what_replaced_it(name):
 
 def test_a_fixed_parameter_and_an_unknown_name_are_refused_in_one_line():
     slam = services.spec("slam")
-    with pytest.raises(ConfigError, match=r"^'ekf.jcbb_max_nodes' \(--set\) is a fixed parameter \(100000\)"):
-        config.service_config(slam, sets=["ekf.jcbb_max_nodes=5"])
+    with pytest.raises(ConfigError, match=r"^'ekf.tentative_max_age_updates' \(--set\) is a fixed parameter \(30\)"):
+        config.service_config(slam, sets=["ekf.tentative_max_age_updates=5"])
     with pytest.raises(ConfigError, match=r"^unknown setting 'scan_matchng' \(config file\); "
                                           r"did you mean 'scan_matching'\?$"):
         config.service_config(slam, file={"slam": {"scan_matchng": False}})
@@ -177,6 +177,6 @@ def test_a_fixed_parameter_and_an_unknown_name_are_refused_in_one_line():
 
 def test_the_environment_sets_settings_and_nothing_else():
     slam = services.spec("slam")
-    env = {"LRFSLAM_SLAM_EKF__ASSOCIATION": "jcbb", "LRFSLAM_SLAM_EKF__JCBB_MAX_NODES": "5"}
+    env = {"LRFSLAM_SLAM_EKF__ASSOCIATION": "jcbb", "LRFSLAM_SLAM_EKF__TENTATIVE_MAX_AGE_UPDATES": "5"}
     cfg = config.service_config(slam, env=env)
-    assert cfg.ekf.association == "jcbb" and cfg.ekf.jcbb_max_nodes == 100_000
+    assert cfg.ekf.association == "jcbb" and cfg.ekf.tentative_max_age_updates == 30

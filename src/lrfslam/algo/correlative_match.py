@@ -52,6 +52,19 @@ from lrfslam.algo import _correlative_kernel as kernel
 from lrfslam.algo.checks import require_finite
 from lrfslam.errors import ConfigError, InputError
 
+#: Standard deviation of the likelihood around each map point (m).
+HIT_SIGMA_M = 0.1
+#: Rotation step (rad). Hess et al. take the step that moves the farthest point by one cell; that
+#: makes hundreds of angles for 20 m returns, and the far points are the least reliable anyway: this
+#: step moves a point at ``cell_m / ANGLE_STEP_RAD`` by one cell, farther ones by a little more,
+#: which the likelihood's blur and the refinement absorb.
+ANGLE_STEP_RAD = 0.01
+#: Candidates kept per level at most (then best first; see module notes).
+MAX_FRONTIER = 20_000
+#: A second peak must be this far from the best in translation (m) or rotation (rad).
+PEAK_SEPARATION_M = 1.0
+PEAK_SEPARATION_RAD = 0.35
+
 
 @dataclass(frozen=True)
 class CorrelativeParams:
@@ -61,37 +74,18 @@ class CorrelativeParams:
     ----------
     cell_m : float
         Grid cell side (m): the resolution of the search.
-    hit_sigma_m : float
-        Standard deviation of the likelihood around each map point (m).
     levels : int
         Pooled grids, level 0 (the grid) to ``levels − 1`` (blocks of
         ``2^(levels−1)`` cells).
-    angle_step_rad : float
-        Rotation step (rad). Hess et al. take the step that moves the farthest
-        point by one cell; that makes hundreds of angles for 20 m returns, and
-        the far points are the least reliable anyway: this step moves a point
-        at ``cell_m / angle_step_rad`` by one cell, farther ones by a little
-        more, which the likelihood's blur and the refinement absorb.
-    max_frontier : int
-        Candidates kept per level at most (then best first; see module notes).
-    peak_separation_m, peak_separation_rad : float
-        A second peak must be this far from the best in translation (m) or
-        rotation (rad).
     """
 
     cell_m: float = 0.1
-    hit_sigma_m: float = 0.1
     levels: int = 7
-    angle_step_rad: float = 0.01
-    max_frontier: int = 20_000
-    peak_separation_m: float = 1.0
-    peak_separation_rad: float = 0.35
 
     def __post_init__(self) -> None:
-        require_finite(self, ("cell_m", "hit_sigma_m", "angle_step_rad", "peak_separation_m",
-                              "peak_separation_rad"), positive=True, what="correlative matching ")
-        if not 1 <= self.levels <= 12 or self.max_frontier < 1:
-            raise ConfigError("correlative matching needs 1 <= levels <= 12 and max_frontier >= 1")
+        require_finite(self, ("cell_m",), positive=True, what="correlative matching ")
+        if not 1 <= self.levels <= 12:
+            raise ConfigError("correlative matching needs 1 <= levels <= 12")
 
 
 class LikelihoodGrid:
@@ -122,7 +116,7 @@ class LikelihoodGrid:
         col, row = np.floor((pts - self.origin_xy_m) / cell).astype(int).T
         occupied[row, col] = True
         dist_m = distance_transform_edt(~occupied) * cell
-        grid = np.exp(-0.5 * (dist_m / params.hit_sigma_m) ** 2)
+        grid = np.exp(-0.5 * (dist_m / HIT_SIGMA_M) ** 2)
         grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = 0.0
         # float32 halves the memory the search gathers from; scores are means of <= 1 numbers.
         grid = grid.astype(np.float32)
@@ -208,7 +202,7 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     centre = np.asarray(centre, dtype=float)
     if pts.shape[0] == 0 or centre.shape != (3,) or not np.all(np.isfinite(centre)):
         raise InputError("search needs points and a finite (3,) centre")
-    step = p.angle_step_rad
+    step = ANGLE_STEP_RAD
     n_ang = int(np.ceil(max(half_angle_rad, 0.0) / step))
     angles = centre[2] + step * np.arange(-n_ang, n_ang + 1)
     n_xy = int(np.ceil(max(half_width_m, 0.0) / p.cell_m))
@@ -245,8 +239,8 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         admitted = keep(roots, block) & (root_scores >= bound)
         frontier, front_scores = roots[admitted], root_scores[admitted]
         for level in range(top, 0, -1):
-            if frontier.shape[0] > p.max_frontier:
-                best_first = np.argsort(-front_scores, kind="stable")[: p.max_frontier]
+            if frontier.shape[0] > MAX_FRONTIER:
+                best_first = np.argsort(-front_scores, kind="stable")[: MAX_FRONTIER]
                 frontier, is_exact = frontier[best_first], False
             frontier = children(level, frontier)
             frontier = frontier[keep(frontier, 1 << (level - 1))]
@@ -289,8 +283,8 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     best_score = float(found_scores.max())
     best_pose = to_pose(best)
 
-    sep_cells = p.peak_separation_m / p.cell_m
-    sep_angles = p.peak_separation_rad / step
+    sep_cells = PEAK_SEPARATION_M / p.cell_m
+    sep_angles = PEAK_SEPARATION_RAD / step
 
     def separated(cand: np.ndarray, size: int) -> np.ndarray:
         """Blocks of side ``size`` cells holding a leaf separated from the best (its farthest corner is)."""

@@ -85,6 +85,19 @@ _PSI = 3  # index of the building orientation in the state
 _LM0 = 4  # index of the first landmark coordinate
 _ROW_BLOCK = 64  # rows of P per block of the covariance downdate (64 × n doubles fit in L2)
 
+#: Factor on every standard deviation of a backward-search feature. A jump edge's point is the last
+#: beam on the near surface: it errs 2–3× its reported sigma, biased towards the robot the same way in
+#: every scan, so the error does not average out over scans as the model assumes; the factor keeps the
+#: filter's position NEES in its band on the simulator without letting door jambs' faces swap.
+BACKWARD_SIGMA_SCALE = 6.0
+#: Features (and landmark predictions) closer than this (m) are not used: the bearing is ill-defined
+#: at the sensor.
+MIN_FEATURE_RANGE_M = 0.05
+#: Search budget of JCBB per scan (nodes).
+JCBB_MAX_NODES = 100_000
+#: χ²₁ gate on the NIS of a wall-direction measurement (6.63 = 99 %).
+GATE_WALL_CHI2 = 6.63
+
 
 class ObsStatus(enum.IntEnum):
     """What :meth:`EkfSlam.observe` did with one observation."""
@@ -100,7 +113,7 @@ class WallStatus(enum.IntEnum):
 
     INITIALISED = 0  # first accepted measurement: set the building orientation
     APPLIED = 1  # inside the gate: full update
-    GATED = 2  # NIS above gate_wall_chi2: discarded
+    GATED = 2  # NIS above GATE_WALL_CHI2: discarded
     AMBIGUOUS = 3  # the gate spans ±45°: a quarter-turn alias fits as well; discarded
 
 
@@ -130,8 +143,6 @@ class EkfParams:
     corner_range_sigma_m, corner_bearing_sigma_rad : float
         Model error of a feature in range (m) and bearing (rad), added to the
         extractor's covariance; > 0.
-    backward_sigma_scale : float
-        Factor (≥ 1) on every standard deviation of a backward-search feature.
     association : {"nn", "jcbb"}
         Gated nearest neighbour, or joint compatibility branch and bound.
     gate_assoc_chi2 : float
@@ -156,17 +167,10 @@ class EkfParams:
         calls after its creation.
     max_landmarks : int
         Cap on the number of landmarks (tentative and confirmed).
-    min_feature_range_m : float
-        Features (and landmark predictions) closer than this are not used: the
-        bearing is ill-defined at the sensor.
-    jcbb_max_nodes : int
-        Search budget of JCBB per scan.
     wall_model_sigma_rad : float
         Model error of a wall-direction measurement (rad), added in quadrature to
         the extractor's sigma: walls that are not quite square or straight give an
         error that does not average out over scans.
-    gate_wall_chi2 : float
-        χ²₁ gate on the NIS of a wall-direction measurement (6.63 = 99 %).
     """
 
     # The simulator's default odometry noise (lrfslam.sim.odometry.OdometryNoise),
@@ -180,13 +184,6 @@ class EkfParams:
     # conservative in simulation (2-dof NEES 0.45-0.65 below 3.2 m, docs/slam.md).
     corner_range_sigma_m: float = 0.005
     corner_bearing_sigma_rad: float = 0.002
-    # Jump edges err 2-3x their reported sigma (bearing 11 mrad against 5, range
-    # biased by up to 3 cm towards the robot: the edge point is the last beam on
-    # the near surface), docs/slam.md. The bias repeats in every scan, so it does
-    # not average out: with the heading pinned by the walls, x 3 left the position
-    # NEES above its band; x 6 brings it inside and lowers the ATE (x 8 lets the
-    # door jambs' faces swap), docs/slam.md.
-    backward_sigma_scale: float = 6.0
     association: str = "nn"
     gate_assoc_chi2: float = 9.21
     gate_new_chi2: float = 25.0
@@ -195,18 +192,15 @@ class EkfParams:
     backward_min_view_change_rad: float = 0.2
     tentative_max_age_updates: int = 30
     max_landmarks: int = 1000
-    min_feature_range_m: float = 0.05
-    jcbb_max_nodes: int = 100_000
     # Real walls are square to a fraction of a degree; in the simulator (exact
     # walls) this guard costs under 1 mm of ATE, docs/slam.md.
     wall_model_sigma_rad: float = 0.002
-    gate_wall_chi2: float = 6.63
 
     def __post_init__(self) -> None:
         sigmas = (
             "odom_trans_sigma_per_sqrt_m", "odom_rot_sigma_per_sqrt_rad", "odom_rot_sigma_per_sqrt_m",
             "odom_trans_sigma_floor_m", "odom_rot_sigma_floor_rad", "corner_range_sigma_m",
-            "corner_bearing_sigma_rad", "backward_min_view_change_rad", "min_feature_range_m",
+            "corner_bearing_sigma_rad", "backward_min_view_change_rad",
             "wall_model_sigma_rad",
         )
         require_finite(self, sigmas, positive=False)
@@ -215,12 +209,9 @@ class EkfParams:
             raise ConfigError("corner_range_sigma_m and corner_bearing_sigma_rad must be > 0")
         if self.association not in ("nn", "jcbb"):
             raise ConfigError(f"association must be 'nn' or 'jcbb', got {self.association!r}")
-        if not self.backward_sigma_scale >= 1.0:
-            raise ConfigError(f"backward_sigma_scale must be >= 1, got {self.backward_sigma_scale!r}")
         if not 0 < self.gate_assoc_chi2 <= self.gate_new_chi2:
             raise ConfigError("need 0 < gate_assoc_chi2 <= gate_new_chi2")
-        require_finite(self, ("gate_wall_chi2",), positive=True)
-        for name in ("min_sightings_to_confirm", "tentative_max_age_updates", "jcbb_max_nodes"):
+        for name in ("min_sightings_to_confirm", "tentative_max_age_updates"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")
         if self.max_landmarks < 0:
@@ -600,10 +591,10 @@ class EkfSlam:
         s = float(pht[_PSI] - pht[2]) + r
         nu = wrap_quarter(z - (self._x[_PSI] - self._x[2]))
         nis = nu * nu / s
-        if p.gate_wall_chi2 * s >= (0.25 * np.pi) ** 2:
+        if GATE_WALL_CHI2 * s >= (0.25 * np.pi) ** 2:
             # The gate reaches a quarter turn away: an alias of the walls would pass it too.
             return WallUpdate(WallStatus.AMBIGUOUS, nis)
-        if nis > p.gate_wall_chi2:
+        if nis > GATE_WALL_CHI2:
             return WallUpdate(WallStatus.GATED, nis)
         self._full_update(pht[:, None] / np.sqrt(s), np.array([nu / np.sqrt(s)]))
         return WallUpdate(WallStatus.APPLIED, nis)
@@ -697,7 +688,7 @@ class EkfSlam:
         """Polar measurements (K, 2), their covariances (K, 2, 2), usable mask (K,)."""
         p = self.params
         rng = np.hypot(pts[:, 0], pts[:, 1])
-        valid = rng >= max(p.min_feature_range_m, 1e-9)
+        valid = rng >= MIN_FEATURE_RANGE_M
         safe = np.where(valid, rng, 1.0)
         z = np.column_stack((rng, np.arctan2(pts[:, 1], pts[:, 0])))
         # d(range, bearing) / d(x, y) at each point.
@@ -707,7 +698,7 @@ class EkfSlam:
         r_obs = jac @ covs_xy @ jac.transpose(0, 2, 1)
         r_obs[:, 0, 0] += p.corner_range_sigma_m**2
         r_obs[:, 1, 1] += p.corner_bearing_sigma_rad**2
-        r_obs[kinds_arr == BACKWARD] *= p.backward_sigma_scale**2
+        r_obs[kinds_arr == BACKWARD] *= BACKWARD_SIGMA_SCALE**2
         return z, 0.5 * (r_obs + r_obs.transpose(0, 2, 1)), valid
 
     def _model(self, idx: np.ndarray):
@@ -720,7 +711,7 @@ class EkfSlam:
         m = self._x[_LM0:].reshape(-1, 2)[idx]
         dx, dy = m[:, 0] - xr, m[:, 1] - yr
         q = dx * dx + dy * dy
-        ok = q >= max(self.params.min_feature_range_m, 1e-9) ** 2
+        ok = q >= MIN_FEATURE_RANGE_M**2
         q = np.where(ok, q, 1.0)
         r = np.sqrt(q)
         h = np.column_stack((r, wrap_angle(np.arctan2(dy, dx) - th)))
@@ -770,7 +761,7 @@ class EkfSlam:
         confidence = float(chi2.cdf(self.params.gate_assoc_chi2, 2))
         return association.jcbb(
             nu.shape[0], cand_obs, cand_lm, nu[cand_obs, cand_lm], joint, confidence,
-            self.params.jcbb_max_nodes, self.params.unique_match_required,
+            JCBB_MAX_NODES, self.params.unique_match_required,
         )
 
     def _correct(self, i: int, z: np.ndarray, r_obs: np.ndarray, full: bool) -> float:

@@ -63,7 +63,6 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from lrfslam.algo.checks import require_finite
 from lrfslam.algo.geometry import (
     compose,
     compose_with_covariance,
@@ -71,41 +70,19 @@ from lrfslam.algo.geometry import (
     relative,
     wrap_angle,
 )
-from lrfslam.errors import ConfigError, InputError
+from lrfslam.errors import InputError
 
-
-@dataclass(frozen=True)
-class PoseGraphParams:
-    """Parameters of :meth:`PoseGraph.optimize`.
-
-    Attributes
-    ----------
-    max_iterations : int
-        Levenberg–Marquardt steps at most.
-    cauchy_scale : float
-        ``c`` of the Cauchy kernel on loop edges, in units of the edge's
-        Mahalanobis distance (dimensionless): a loop edge with ``χ² = c²`` has half
-        its weight.
-    initial_damping : float
-        ``λ`` of the first step (dimensionless, relative to diag(H)).
-    converged_step : float
-        The iteration stops once the largest step component is below this
-        (m and rad alike)...
-    converged_cost : float
-        ...or a step lowered the cost by less than this fraction of it.
-    """
-
-    max_iterations: int = 10
-    cauchy_scale: float = 3.0
-    initial_damping: float = 1e-4
-    converged_step: float = 1e-4
-    converged_cost: float = 1e-4
-
-    def __post_init__(self) -> None:
-        require_finite(self, ("cauchy_scale", "initial_damping", "converged_step", "converged_cost"), positive=True,
-                       what="pose graph ")
-        if self.max_iterations < 1:
-            raise ConfigError("pose graph max_iterations must be >= 1")
+#: Levenberg–Marquardt steps at most in :meth:`PoseGraph.optimize`.
+MAX_ITERATIONS = 10
+#: ``c`` of the Cauchy kernel on loop edges, in units of the edge's Mahalanobis distance
+#: (dimensionless): a loop edge with ``χ² = c²`` has half its weight.
+CAUCHY_SCALE = 3.0
+#: ``λ`` of the first step (dimensionless, relative to diag(H)).
+INITIAL_DAMPING = 1e-4
+#: The iteration stops once the largest step component is below ``CONVERGED_STEP`` (m and rad
+#: alike), or a step lowered the cost by less than ``CONVERGED_COST`` of it.
+CONVERGED_STEP = 1e-4
+CONVERGED_COST = 1e-4
 
 
 @dataclass(frozen=True)
@@ -128,18 +105,13 @@ class OptimizeReport:
 class PoseGraph:
     """Nodes (poses) and relative-pose edges; the poses are optimised in place (mutable).
 
-    Parameters
-    ----------
-    params : PoseGraphParams
-
     Attributes
     ----------
     poses : ndarray, shape (K, 3)
         Current estimate of every node, ``(x_m, y_m, theta_rad)``.
     """
 
-    def __init__(self, params: PoseGraphParams | None = None) -> None:
-        self.params = params or PoseGraphParams()
+    def __init__(self) -> None:
         self._poses = np.zeros((0, 3))
         self._n = 0
         # Edges in arrays grown by doubling (a list of small arrays costs ~4x the memory):
@@ -371,7 +343,7 @@ class PoseGraph:
         }
 
     @classmethod
-    def restore(cls, params: PoseGraphParams | None, arrays) -> PoseGraph:
+    def restore(cls, arrays) -> PoseGraph:
         """The graph :meth:`snapshot` gave ``arrays`` of (e.g. loaded from an ``.npz``).
 
         Raises
@@ -395,7 +367,7 @@ class PoseGraph:
         if not (np.all(np.isfinite(poses)) and np.all(np.isfinite(z)) and np.all(np.isfinite(info))) \
                 or np.any(nodes < 0) or np.any(nodes >= poses.shape[0]):
             raise InputError("pose graph snapshot: non-finite values or edges to missing nodes")
-        graph = cls(params)
+        graph = cls()
         graph._poses, graph._n = poses.copy(), poses.shape[0]
         graph._m = e
         graph._nodes, graph._z, graph._info, graph._robust, graph._alive = nodes, z, info, robust, alive
@@ -458,7 +430,7 @@ class PoseGraph:
 
     def _robust_terms(self, chi2: np.ndarray, robust: np.ndarray):
         """Per-edge robust cost ρ(χ²) and IRLS weight ρ'(χ²)."""
-        c2 = self.params.cauchy_scale ** 2
+        c2 = CAUCHY_SCALE ** 2
         cost = np.where(robust, c2 * np.log1p(chi2 / c2), chi2)
         weight = np.where(robust, 1.0 / (1.0 + chi2 / c2), 1.0)
         return cost, weight
@@ -547,9 +519,9 @@ class PoseGraph:
             return OptimizeReport(0, 0.0, 0.0)
         cost = self._cost(poses, i, j, z, info, robust_edges)
         initial = cost
-        lam = self.params.initial_damping
+        lam = INITIAL_DAMPING
         it = 0
-        for it in range(1, self.params.max_iterations + 1):
+        for it in range(1, MAX_ITERATIONS + 1):
             h, b, _ = self._normal_equations(poses, i, j, z, info, robust_edges, gauge=0)
             diag = h.diagonal()
             if np.any(diag <= 0):
@@ -569,8 +541,8 @@ class PoseGraph:
                     lam = max(lam / 10.0, 1e-12)
                     break
                 lam *= 10.0
-            if step is None or np.max(np.abs(step)) < self.params.converged_step \
-                    or previous - cost <= self.params.converged_cost * previous:
+            if step is None or np.max(np.abs(step)) < CONVERGED_STEP \
+                    or previous - cost <= CONVERGED_COST * previous:
                 break
         self._poses[: self._n] = poses
         self._factor = None

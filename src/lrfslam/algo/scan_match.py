@@ -100,7 +100,7 @@ from lrfslam.algo import _scan_match_kernel as kernel
 from lrfslam.algo.checks import require_finite
 from lrfslam.algo.free_space import FreeSpace, seen_through
 from lrfslam.algo.geometry import compose, from_frame, relative, thin_points, wrap_angle
-from lrfslam.errors import ConfigError, InputError
+from lrfslam.errors import InputError
 
 
 class MatchStatus(enum.IntEnum):
@@ -115,140 +115,116 @@ class MatchStatus(enum.IntEnum):
     NO_REFERENCE = 6  # ScanTracker: first scan, nothing to match against yet
 
 
+#: A point's normal: a line fitted to its nearest points (itself included), at most
+#: ``NORMAL_NEIGHBOURS`` of those within ``NORMAL_RADIUS_M`` (m), at least ``NORMAL_MIN_NEIGHBOURS``.
+NORMAL_NEIGHBOURS = 10
+NORMAL_RADIUS_M = 0.3
+NORMAL_MIN_NEIGHBOURS = 4
+
+#: Largest ratio of the line fit's minor to major standard deviation for a neighbourhood to count as a line
+#: (dimensionless, 0 = perfect line): loose enough for cluttered walls to keep their line points, tight
+#: enough to drop corners.
+NORMAL_MAX_THICKNESS = 0.35
+
+#: Largest distance between a current point and its nearest reference point for a correspondence: during the
+#: first ``WIDE_GATE_ITERATIONS`` iterations, then after (m).
+WIDE_GATE_M = 0.5
+NARROW_GATE_M = 0.15
+
+#: The reference grid's cell (m): as wide as the widest gate, so the 3×3 cells round a point hold every pair.
+GRID_CELL_M = max(WIDE_GATE_M, NARROW_GATE_M)
+
+#: Iterations run with the wide gate.
+WIDE_GATE_ITERATIONS = 3
+
+#: Scale ``s`` of the Cauchy weight on the point-to-line residual (m).
+ROBUST_SCALE_M = 0.03
+
+#: Gauss–Newton iterations at most.
+MAX_ITERATIONS = 40
+
+#: An iteration whose step is below both ends the search (m, rad); so does a correspondence set met before (a
+#: cycle).
+CONVERGED_TRANS_M = 1e-6
+CONVERGED_ROT_RAD = 1e-6
+
+#: A current point pairs only with a reference point whose normal is within this angle of its own (rad).
+MAX_NORMAL_ANGLE_RAD = 0.5
+
+#: Current and reference points with normals (line points) needed, and paired points at every iteration.
+MIN_POINTS = 30
+
+#: Fraction of the current line points that must have a correspondence at the end.
+MIN_INLIER_RATIO = 0.3
+
+#: Directions whose normalised information eigenvalue is below this are unconstrained (dimensionless; 1/3 for
+#: ideal isotropic geometry, 0 for the direction along a corridor).
+MIN_INFORMATION_RATIO = 0.01
+
+#: A result that differs from the initial guess by more than this is rejected as a false minimum (m, rad).
+MAX_CORRECTION_TRANS_M = 0.5
+MAX_CORRECTION_ROT_RAD = 0.35
+
+#: Floor of the estimated per-point residual standard deviation (m): a near-perfect fit must not make the scan
+#: infinitely certain.
+MIN_RESIDUAL_SIGMA_M = 0.005
+
+#: Factor on the scan's Gauss–Newton covariance that makes the matches' NEES consistent on the simulator
+#: (see **Covariance** in the module docstring).
+COV_SCALE = 1.6
+
+#: :class:`ScanTracker` makes the current scan a reference scan once it is this far (m) or turned this much
+#: (rad) from the last reference scan.
+REFERENCE_TRANS_M = 0.3
+REFERENCE_ROT_RAD = 0.2
+
+#: The last this many reference scans are kept and matched against.
+REFERENCES_KEPT = 3
+
+#: The reference scans' points are merged to one point per square of this side (m).
+MAP_CELL_M = 0.05
+
+#: The free-space check (``ScanMatchParams.free_space_check``): a point is seen through when it is nearer
+#: than a later return along its beam by ``FREE_SPACE_MARGIN_M + FREE_SPACE_MARGIN_PER_M * r`` (m, and m per
+#: m of its range ``r``), and so is every return within ``FREE_SPACE_LATERAL_M`` across the beam (m) plus
+#: ``FREE_SPACE_BEARING_RAD`` of its bearing (rad).
+FREE_SPACE_MARGIN_M = 0.5
+FREE_SPACE_MARGIN_PER_M = 0.1
+FREE_SPACE_LATERAL_M = 0.05
+FREE_SPACE_BEARING_RAD = 0.0175
+
+#: Width of the bearing bins the free space is kept in (rad).
+FREE_SPACE_BIN_RAD = 0.0175
+
+#: A bin without a return inside a scan's field of view saw empty space to this range (m; 0: unknown).
+FREE_SPACE_SILENT_M = 8.0
+
+#: The free space of this many last reference scans is kept and checked (>= 1).
+FREE_SPACE_SCANS = 10
+
+
 @dataclass(frozen=True)
 class ScanMatchParams:
-    """Parameters of :func:`match` and :class:`ScanTracker`.
+    """The settings of :func:`match` and :class:`ScanTracker` (the rest are this module's constants).
 
     Attributes
     ----------
     max_point_range_m : float
         Current-scan points farther than this from the sensor are not used (m).
-    normal_neighbours : int
-        At most this many nearest points (the point included) are fitted with a
-        line for the normal at a point...
-    normal_radius_m : float
-        ...of those within this distance of it (m)...
-    normal_min_neighbours : int
-        ...and at least this many are needed.
-    normal_max_thickness : float
-        Largest ratio of the line fit's minor to major standard deviation for a
-        neighbourhood to count as a line (dimensionless, 0 = perfect line).
-    wide_gate_m, narrow_gate_m : float
-        Largest distance between a current point and its nearest reference point
-        for a correspondence: during the first ``wide_gate_iterations``
-        iterations, then after (m).
-    wide_gate_iterations : int
-        Iterations run with the wide gate.
-    robust_scale_m : float
-        Scale ``s`` of the Cauchy weight on the point-to-line residual (m).
-    max_iterations : int
-        Gauss–Newton iterations at most.
-    converged_trans_m, converged_rot_rad : float
-        An iteration whose step is below both ends the search (m, rad); so does
-        a correspondence set met before (a cycle).
-    max_normal_angle_rad : float
-        A current point pairs only with a reference point whose normal is within
-        this angle of its own (rad).
-    min_points : int
-        Current and reference points with normals (line points) needed, and
-        paired points at every iteration.
-    min_inlier_ratio : float
-        Fraction of the current line points that must have a correspondence at the end.
-    min_information_ratio : float
-        Directions whose normalised information eigenvalue is below this are
-        unconstrained (dimensionless; 1/3 for ideal isotropic geometry, 0 for
-        the direction along a corridor).
-    max_correction_trans_m, max_correction_rot_rad : float
-        A result that differs from the initial guess by more than this is
-        rejected as a false minimum (m, rad).
-    min_residual_sigma_m : float
-        Floor of the estimated per-point residual standard deviation (m): a
-        near-perfect fit must not make the scan infinitely certain.
-    cov_scale : float
-        Factor on the scan's Gauss–Newton covariance (see **Covariance** in the module docstring).
-    reference_trans_m, reference_rot_rad : float
-        :class:`ScanTracker` makes the current scan a reference scan once it is this
-        far (m) or turned this much (rad) from the last reference scan.
-    references_kept : int
-        The last this many reference scans are kept and matched against.
-    map_cell_m : float
-        The reference scans' points are merged to one point per square of this side (m).
     free_space_check : bool
         :class:`ScanTracker` leaves out of the match, and out of its reference scans, the
         points that lie where one of the last reference scans' beams passed on to farther
-        returns (or to none: ``free_space_silent_m``), and drops
+        returns (or to none: ``FREE_SPACE_SILENT_M``), and drops
         from the recent reference scans the points the current scan sees through:
         things that moved (:mod:`lrfslam.algo.free_space`).
-    free_space_margin_m, free_space_margin_per_m : float
-        A point must be nearer than those returns by ``margin_m + margin_per_m * r``
-        (m, and m per m of its range ``r``)...
-    free_space_lateral_m, free_space_bearing_rad : float
-        ...and so must every return within this distance across the beam (m) plus
-        this angle (rad) of its bearing.
-    free_space_bin_rad : float
-        Width of the bearing bins the free space is kept in (rad).
-    free_space_silent_m : float
-        A bin without a return inside a scan's field of view saw empty space to this
-        range (m; 0: unknown).
-    free_space_scans : int
-        The free space of this many last reference scans is kept and checked (>= 1).
     """
 
     # Farther than the paper's 4 m: scan matching needs the long walls that pin its heading.
     max_point_range_m: float = 8.0
-    normal_neighbours: int = 10
-    normal_radius_m: float = 0.3
-    normal_min_neighbours: int = 4
-    # Loose enough for cluttered walls to keep their line points, tight enough to drop corners.
-    normal_max_thickness: float = 0.35
-    wide_gate_m: float = 0.5
-    narrow_gate_m: float = 0.15
-    wide_gate_iterations: int = 3
-    robust_scale_m: float = 0.03
-    max_iterations: int = 40
-    converged_trans_m: float = 1e-6
-    converged_rot_rad: float = 1e-6
-    max_normal_angle_rad: float = 0.5
-    min_points: int = 30
-    min_inlier_ratio: float = 0.3
-    min_information_ratio: float = 0.01
-    max_correction_trans_m: float = 0.5
-    max_correction_rot_rad: float = 0.35
-    min_residual_sigma_m: float = 0.005
-    cov_scale: float = 1.6  # makes the matches' NEES consistent on the simulator (**Covariance** above)
-    reference_trans_m: float = 0.3
-    reference_rot_rad: float = 0.2
-    references_kept: int = 3
-    map_cell_m: float = 0.05
     free_space_check: bool = True
-    free_space_margin_m: float = 0.5
-    free_space_margin_per_m: float = 0.1
-    free_space_lateral_m: float = 0.05
-    free_space_bearing_rad: float = 0.0175
-    free_space_bin_rad: float = 0.0175
-    free_space_silent_m: float = 8.0
-    free_space_scans: int = 10
 
     def __post_init__(self) -> None:
-        positive = ("max_point_range_m", "normal_radius_m", "wide_gate_m", "narrow_gate_m", "robust_scale_m",
-                    "max_correction_trans_m", "max_correction_rot_rad", "min_residual_sigma_m", "cov_scale",
-                    "max_normal_angle_rad", "map_cell_m", "free_space_bin_rad")
-        require_finite(self, positive, positive=True, what="scan matching ")
-        non_negative = ("normal_max_thickness", "converged_trans_m", "converged_rot_rad", "min_inlier_ratio",
-                        "min_information_ratio", "reference_trans_m", "reference_rot_rad", "free_space_margin_m",
-                        "free_space_margin_per_m", "free_space_lateral_m", "free_space_bearing_rad",
-                        "free_space_silent_m")
-        require_finite(self, non_negative, positive=False, what="scan matching ")
-        if not 3 <= self.normal_min_neighbours <= self.normal_neighbours:
-            raise ConfigError("need 3 <= normal_min_neighbours <= normal_neighbours")
-        if self.max_iterations < 1 or self.min_points < 3:
-            raise ConfigError("need max_iterations >= 1 and min_points >= 3")
-        if self.wide_gate_iterations < 0:
-            raise ConfigError("wide_gate_iterations must be >= 0")
-        if self.free_space_scans < 1:
-            raise ConfigError("need free_space_scans >= 1")
-        if self.references_kept < 1:
-            raise ConfigError("need references_kept >= 1")
+        require_finite(self, ("max_point_range_m",), positive=True, what="scan matching ")
 
 
 @dataclass(frozen=True, eq=False)
@@ -268,21 +244,21 @@ class ReferenceScan:
     _grid: list = field(default_factory=list, repr=False)   # [cell m, Grid] once asked for
 
     @classmethod
-    def build(cls, points_xy_m, params: ScanMatchParams) -> ReferenceScan:
+    def build(cls, points_xy_m) -> ReferenceScan:
         """Fit a line to each point's neighbourhood; keep the points on a line.
 
         ``points_xy_m`` (N, 2) in one frame (m): a scan's, or several scans'
         moved into one frame; non-finite rows are ignored.
         """
         pts = _usable(points_xy_m, np.inf)
-        if pts.shape[0] < params.normal_min_neighbours:
+        if pts.shape[0] < NORMAL_MIN_NEIGHBOURS:
             return cls(np.zeros((0, 2)), np.zeros((0, 2)))
         # Up to k neighbours within the radius: near the sensor the beams are dense and k spans
         # enough wall for the line to stand out of the range noise. Over several scans, a wall
         # seen twice out of register is thick here and drops out, so a misaligned old reference scan
         # cannot drag the match.
-        line, normals = kernel.line_normals(pts, params.normal_neighbours, params.normal_radius_m,
-                                            params.normal_min_neighbours, params.normal_max_thickness)
+        line, normals = kernel.line_normals(pts, NORMAL_NEIGHBOURS, NORMAL_RADIUS_M,
+                                            NORMAL_MIN_NEIGHBOURS, NORMAL_MAX_THICKNESS)
         return cls(pts[line], normals[line])
 
     def grid(self, cell_m: float) -> kernel.Grid:
@@ -335,10 +311,10 @@ class MatchResult:
         return self.status is MatchStatus.OK
 
 
-def _residual_variance(lin: kernel.Linearised, params: ScanMatchParams) -> float:
+def _residual_variance(lin: kernel.Linearised) -> float:
     """Per-point residual variance (m²) of a linearisation: weighted, 3 degrees of freedom used, floored."""
     sigma2 = float(np.sum(lin.weight * lin.residual_m**2) / max(float(lin.weight.sum()) - 3.0, 1.0))
-    return max(sigma2, params.min_residual_sigma_m**2)
+    return max(sigma2, MIN_RESIDUAL_SIGMA_M**2)
 
 
 def _usable(points_xy_m, max_range_m: float) -> np.ndarray:
@@ -349,17 +325,13 @@ def _usable(points_xy_m, max_range_m: float) -> np.ndarray:
     return pts[finite]
 
 
-def _linearise(reference: ReferenceScan, current: ReferenceScan, u: np.ndarray, gate_m: float,
-               params: ScanMatchParams) -> kernel.Linearised:
+def _linearise(reference: ReferenceScan, current: ReferenceScan, u: np.ndarray, gate_m: float) -> kernel.Linearised:
     """Correspondences and normal equations at pose ``u`` (the compiled kernel)."""
-    return kernel.linearise(reference.points_xy_m, reference.normals, reference.grid(_grid_cell(params)),
-                            current.points_xy_m, current.normals, u, gate_m, params.max_normal_angle_rad,
-                            params.robust_scale_m)
+    return kernel.linearise(reference.points_xy_m, reference.normals, reference.grid(GRID_CELL_M),
+                            current.points_xy_m, current.normals, u, gate_m, MAX_NORMAL_ANGLE_RAD,
+                            ROBUST_SCALE_M)
 
 
-def _grid_cell(params: ScanMatchParams) -> float:
-    """The reference grid's cell (m): as wide as the widest gate, so the 3×3 cells round a point hold every pair."""
-    return max(params.wide_gate_m, params.narrow_gate_m)
 
 
 def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatchParams,
@@ -400,8 +372,8 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
     # Only line points of the current scan take part, with their own normals: clutter
     # and corner points have no line to be compared along, and a scan matched to
     # itself is then exactly the identity.
-    current = ReferenceScan.build(_usable(points_xy_m, params.max_point_range_m), params)
-    if len(current) < params.min_points or len(reference) < params.min_points:
+    current = ReferenceScan.build(_usable(points_xy_m, params.max_point_range_m))
+    if len(current) < MIN_POINTS or len(reference) < MIN_POINTS:
         return MatchResult(MatchStatus.TOO_FEW_POINTS, guess.copy(), np.full((3, 3), np.nan))
 
     def failed(status: MatchStatus, lin: kernel.Linearised, iterations: int) -> MatchResult:
@@ -412,13 +384,13 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
     converged = False
     iterations = 0
     seen: set[bytes] = set()  # correspondence sets met with the narrow gate
-    for it in range(params.max_iterations):
+    for it in range(MAX_ITERATIONS):
         iterations = it + 1
-        gate = params.wide_gate_m if it < params.wide_gate_iterations else params.narrow_gate_m
-        lin = _linearise(reference, current, u, gate, params)
-        if lin.paired.sum() < params.min_points:
+        gate = WIDE_GATE_M if it < WIDE_GATE_ITERATIONS else NARROW_GATE_M
+        lin = _linearise(reference, current, u, gate)
+        if lin.paired.sum() < MIN_POINTS:
             return failed(MatchStatus.FEW_INLIERS, lin, iterations)
-        constrained = lin.eigvals >= params.min_information_ratio
+        constrained = lin.eigvals >= MIN_INFORMATION_RATIO
         if not constrained.all() and (guess_cov is None or not constrained.any()):
             return failed(MatchStatus.DEGENERATE, lin, iterations)
         # Gauss–Newton step in the constrained directions only (in scaled coordinates,
@@ -427,9 +399,9 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
         step = -lin.scale * (v @ ((v.T @ (lin.scale * lin.gradient)) / (lin.eigvals[constrained] * lin.weight.sum())))
         u = u + step
         u[2] = wrap_angle(u[2])
-        if it + 1 < params.wide_gate_iterations:
+        if it + 1 < WIDE_GATE_ITERATIONS:
             continue
-        small = np.hypot(step[0], step[1]) < params.converged_trans_m and abs(step[2]) < params.converged_rot_rad
+        small = np.hypot(step[0], step[1]) < CONVERGED_TRANS_M and abs(step[2]) < CONVERGED_ROT_RAD
         # Nearest neighbours can swap back and forth between a few sets with
         # sub-mm steps: meeting a set again (narrow gate) ends the search too.
         key = lin.pairs.tobytes()
@@ -438,18 +410,18 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
             break
         seen.add(key)
 
-    lin = _linearise(reference, current, u, params.narrow_gate_m, params)
+    lin = _linearise(reference, current, u, NARROW_GATE_M)
     if not converged:
         return failed(MatchStatus.NOT_CONVERGED, lin, iterations)
     inlier_ratio = float(lin.paired.mean())
-    if inlier_ratio < params.min_inlier_ratio or lin.paired.sum() < params.min_points:
+    if inlier_ratio < MIN_INLIER_RATIO or lin.paired.sum() < MIN_POINTS:
         return failed(MatchStatus.FEW_INLIERS, lin, iterations)
-    constrained = lin.eigvals >= params.min_information_ratio
+    constrained = lin.eigvals >= MIN_INFORMATION_RATIO
     if not constrained.all() and guess_cov is None:
         return failed(MatchStatus.DEGENERATE, lin, iterations)
     correction = relative(guess, u)
-    if np.hypot(correction[0], correction[1]) > params.max_correction_trans_m \
-            or abs(correction[2]) > params.max_correction_rot_rad:
+    if np.hypot(correction[0], correction[1]) > MAX_CORRECTION_TRANS_M \
+            or abs(correction[2]) > MAX_CORRECTION_ROT_RAD:
         return failed(MatchStatus.IMPLAUSIBLE, lin, iterations)
     # The estimate takes the guess only in the unconstrained directions, so its
     # covariance does too: the guess's information elsewhere would make it
@@ -458,7 +430,7 @@ def match(reference: ReferenceScan, points_xy_m, initial_guess, params: ScanMatc
     free = lin.eigvecs[:, ~constrained]
     to_free = free @ free.T
     inv_scale = 1.0 / lin.scale
-    info_scaled = np.outer(lin.scale, lin.scale) * lin.info / (params.cov_scale * _residual_variance(lin, params)) \
+    info_scaled = np.outer(lin.scale, lin.scale) * lin.info / (COV_SCALE * _residual_variance(lin)) \
         + to_free @ (np.outer(inv_scale, inv_scale) * prior_info) @ to_free
     cov = np.outer(lin.scale, lin.scale) * np.linalg.inv(info_scaled)
     rms = float(np.sqrt(np.sum(lin.weight * lin.residual_m**2) / lin.weight.sum()))
@@ -550,7 +522,7 @@ class ScanTracker:
         self._budget: tuple[tuple[int, ...], np.ndarray] | None = None
         # What the last reference scans saw empty (tracker's frame), kept past the recent ones: someone
         # overtaking the robot walks on into space that reference scans from before saw empty.
-        self._free: deque[FreeSpace] = deque(maxlen=params.free_space_scans)
+        self._free: deque[FreeSpace] = deque(maxlen=FREE_SPACE_SCANS)
         self._last_increment: np.ndarray | None = None   # the previous step's motion (3,): a second guess
 
     def step(self, points_xy_m, odom_increment, odom_cov, follows_last: bool = True) -> TrackStep:
@@ -574,16 +546,15 @@ class ScanTracker:
             raise InputError("odom_increment must be (3,) and odom_cov (3, 3), finite")
         returns = _usable(points_xy_m, np.inf)
         pts = _usable(returns, self.params.max_point_range_m)
-        p = self.params
         if self.pose is None:
             self.pose = np.zeros(3)
-            self._add_reference_scan(pts, FreeSpace.of_scan(self.pose, returns, p.free_space_bin_rad, p.free_space_silent_m))
+            self._add_reference_scan(pts, FreeSpace.of_scan(self.pose, returns, FREE_SPACE_BIN_RAD, FREE_SPACE_SILENT_M))
             return TrackStep(u0.copy(), q0.copy(), MatchResult(MatchStatus.NO_REFERENCE, u0.copy(),
                                                                np.full((3, 3), np.nan)))
         guess = compose(self.pose, u0)
         # The odometry covariance rotated from the previous robot frame into the tracker's frame.
         rot = _rotation3(self.pose[2])
-        free = FreeSpace.of_scan(guess, returns, p.free_space_bin_rad, p.free_space_silent_m)
+        free = FreeSpace.of_scan(guess, returns, FREE_SPACE_BIN_RAD, FREE_SPACE_SILENT_M)
         moved = self._moved(pts, free)
         pts = pts[~moved]
         prior = rot @ q0 @ rot.T
@@ -606,8 +577,8 @@ class ScanTracker:
         self._last_increment = increment
         since = relative(self.reference_scans[-1].pose, self.pose)
         # After a failure the recent reference scans no longer fit this pose: start afresh from this scan.
-        if not result.ok or np.hypot(since[0], since[1]) >= self.params.reference_trans_m \
-                or abs(since[2]) >= self.params.reference_rot_rad:
+        if not result.ok or np.hypot(since[0], since[1]) >= REFERENCE_TRANS_M \
+                or abs(since[2]) >= REFERENCE_ROT_RAD:
             self._add_reference_scan(pts, replace(free, pose=self.pose.copy()))
         return TrackStep(increment, 0.5 * (cov + cov.T), result, int(np.count_nonzero(moved)))
 
@@ -619,11 +590,11 @@ class ScanTracker:
         p = self.params
         if not p.free_space_check:
             return np.zeros(pts.shape[0], dtype=bool)
-        margins = (p.free_space_margin_m, p.free_space_margin_per_m, p.free_space_lateral_m, p.free_space_bearing_rad)
+        margins = (FREE_SPACE_MARGIN_M, FREE_SPACE_MARGIN_PER_M, FREE_SPACE_LATERAL_M, FREE_SPACE_BEARING_RAD)
         moved = seen_through(self._free, from_frame(pts, free.pose), *margins)
         # Something walking away hides behind its old place from this side, and matched there
         # it would pull the robot after it; but this scan sees through where it was.
-        recent = range(max(0, len(self.reference_scans) - p.references_kept), len(self.reference_scans))
+        recent = range(max(0, len(self.reference_scans) - REFERENCES_KEPT), len(self.reference_scans))
         kept = [self.reference_scans[k].points_xy_m for k in recent]
         gone = np.split(free.contains(np.concatenate(kept), *margins), np.cumsum([len(x) for x in kept])[:-1])
         for k, points, out in zip(recent, kept, gone):
@@ -665,10 +636,9 @@ class ScanTracker:
 
     def _add_reference_scan(self, pts: np.ndarray, free: FreeSpace) -> None:
         """Keep the scan at :attr:`pose`: its points ``pts`` (N, 2; robot frame) and what it saw empty."""
-        p = self.params
         self.reference_scans.append(_KeptScan(self.pose.copy(), from_frame(pts, self.pose)))
         self._free.append(free)
-        while len(self.reference_scans) > p.references_kept:
+        while len(self.reference_scans) > REFERENCES_KEPT:
             del self.reference_scans[0]
             self._dropped += 1
 
@@ -681,7 +651,7 @@ class ScanTracker:
             # filter. Thinned to one point per cell first, or k neighbours of a
             # dense stack of scans would span less than the range noise.
             merged = np.vstack([kf.points_xy_m for kf in self.reference_scans])
-            self._reference = ReferenceScan.build(thin_points(merged, self.params.map_cell_m), self.params)
+            self._reference = ReferenceScan.build(thin_points(merged, MAP_CELL_M))
         return self._reference
 
 

@@ -63,7 +63,7 @@ def intel_scans(path: str, n: int):
 
 def bench(scans, params: ScanMatchParams) -> dict[str, np.ndarray]:
     match_ms, tracker_ms, iterations = [], [], []
-    refs = [ReferenceScan.build(p, params) for p, _ in scans]
+    refs = [ReferenceScan.build(p) for p, _ in scans]
     for k in range(1, len(scans)):
         t0 = time.perf_counter()
         res = match(refs[k - 1], scans[k][0], scans[k][1], params, ODOM_COV)

@@ -41,7 +41,7 @@ Design choices
 * **Search window from the graph.** A candidate is an old keyframe (at least
   ``min_travel_m`` back along the trajectory) near the predicted pose. The
   covariance of the new keyframe relative to it (:meth:`PoseGraph.relative_covariance`)
-  sets the window, ``window_sigmas`` standard deviations, clamped: after a long
+  sets the window, ``WINDOW_SIGMAS`` standard deviations, clamped: after a long
   loop without a closure the window is metres wide, right after one it is small.
   The search is only worth it if the candidate's map can overlap the query
   anywhere in the window (``candidate_radius_m``).
@@ -55,7 +55,7 @@ Design choices
   searched around the online relative pose, with the window and every check of the
   others: the gate stays against the graph's own prediction, drift model included.
   The online poses only say where to look; a closure is still the scans' match.
-* **Submaps.** The candidate and its ``submap_keyframes`` neighbours on each
+* **Submaps.** The candidate and its ``SUBMAP_KEYFRAMES`` neighbours on each
   side (more where the window is wider than they reach: a map narrower than the
   window favours a look-alike place inside it over the true one at its edge),
   placed by their graph poses in the candidate's frame, make the map
@@ -70,7 +70,7 @@ Design choices
   it the robot is), and gives the covariance; the match must agree with the
   graph's prediction within ``gate_chi2`` (Mahalanobis, the drift-scaled relative and the
   match covariances summed). Accepted closures are Cauchy-robust edges; after
-  each optimisation, a closure whose weight fell below ``min_weight`` (the rest
+  each optimisation, a closure whose weight fell below ``MIN_WEIGHT`` (the rest
   of the graph disagrees) is removed and the graph optimised again. A closure
   found in a wide window (after a long excursion) waits for the next wide one
   to agree with it (``confirm_*``): in two identical corridors the best peak
@@ -78,8 +78,8 @@ Design choices
   keyframes do not agree with each other (``tests/unit/test_loop_closure.py``).
 
 * **Cost.** A search's cost grows with its window's area, so wide searches
-  are spaced (``wide_search_spacing_m``); a closure the graph already agrees
-  with is not solved for at once (``optimise_chi2``, ``max_pending_closures``).
+  are spaced (``WIDE_SEARCH_SPACING_M``); a closure the graph already agrees
+  with is not solved for at once (``OPTIMISE_CHI2``, ``MAX_PENDING_CLOSURES``).
 
 Everything is deterministic: same calls, same results.
 

@@ -23,11 +23,24 @@ from lrfslam.algo.loop_closure.keyframes import (
     RetiredKeyframes,
     place_scans,
 )
-from lrfslam.algo.loop_closure.params import LoopClosureParams
+from lrfslam.algo.loop_closure.params import (
+    EKF_JUMP_M,
+    EKF_JUMP_RAD,
+    KEYFRAME_CELL_M,
+    MAX_PENDING_CLOSURES,
+    MAX_SCAN_STEP_M,
+    MIN_WEIGHT,
+    ODOM_ROT_SIGMA_RAD,
+    ODOM_TRANS_SIGMA_M,
+    ODOMETRY_KEYFRAMES,
+    OPTIMISE_CHI2,
+    SCAN_MATCH,
+    LoopClosureParams,
+)
 from lrfslam.algo.loop_closure.search import ClosureAttempt, ClosureSearch, ClosureStats
 from lrfslam.algo.loop_closure.snapshot import restore as restore_arrays
 from lrfslam.algo.loop_closure.snapshot import snapshot as snapshot_arrays
-from lrfslam.algo.pose_graph import PoseGraph
+from lrfslam.algo.pose_graph import CAUCHY_SCALE, PoseGraph
 from lrfslam.algo.scan_match import ReferenceScan, match
 from lrfslam.errors import ConfigError, InputError
 
@@ -53,7 +66,7 @@ class LoopClosingMapper:
 
     def __init__(self, params: LoopClosureParams | None = None, keep_scans: bool = True) -> None:
         self.params = params or LoopClosureParams()
-        self.graph = PoseGraph(self.params.graph)
+        self.graph = PoseGraph()
         self._keyframes: list[Keyframe] = []   # the graph's, node i the i-th
         self._made = 0   # keyframes made, retired ones included
         self._retired: list[Retired] = []   # retired since the last take_retired()
@@ -125,7 +138,7 @@ class LoopClosingMapper:
                 self._reference = None
             last = self._keyframes[-1]
             moved = relative(last.local_pose, pose)
-            jumped = np.hypot(*(pose[:2] - self._last_local_pose[:2])) > p.max_scan_step_m
+            jumped = np.hypot(*(pose[:2] - self._last_local_pose[:2])) > MAX_SCAN_STEP_M
             if jumped or np.hypot(moved[0], moved[1]) >= p.keyframe_trans_m or abs(moved[2]) >= p.keyframe_rot_rad:
                 self._add_keyframe(pose, points_xy_m, moved, stamp_ns, online)
                 self._reference = np.zeros(3)
@@ -242,7 +255,7 @@ class LoopClosingMapper:
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < p.max_range_m]
-        pts = thin_points(pts, p.keyframe_cell_m)
+        pts = thin_points(pts, KEYFRAME_CELL_M)
         self._made += 1
         if moved is None:
             self.graph.add_node(local_pose)
@@ -266,7 +279,7 @@ class LoopClosingMapper:
     @property
     def _recent_keyframes(self) -> int:
         """The last this many keyframes keep their points whatever they are (the query and the edge checks use them)."""
-        return max(self.params.query_keyframes, self.params.odometry_keyframes)
+        return max(self.params.query_keyframes, ODOMETRY_KEYFRAMES)
 
     def _mark_revisit(self, k: int) -> None:
         """Keyframe ``k`` closed a loop: with ``trim_revisits``, no candidate, and no points once not recent."""
@@ -285,40 +298,38 @@ class LoopClosingMapper:
     def _step_or_jump(self, moved: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """``moved`` (3,), or ``reference`` (3,) where the two differ by more than ``ekf_jump_*``."""
         jump = relative(moved, reference)
-        if np.hypot(jump[0], jump[1]) > self.params.ekf_jump_m or abs(jump[2]) > self.params.ekf_jump_rad:
+        if np.hypot(jump[0], jump[1]) > EKF_JUMP_M or abs(jump[2]) > EKF_JUMP_RAD:
             self._counts["ekf_jumps"] += 1
             return reference
         return moved
 
     def _checked_motion(self, prev: int, pts: np.ndarray, moved: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """``moved`` (3,), the local motion from keyframe ``prev`` to the new one, or the scans' match where it jumped."""
-        p = self.params
         # The EKF's poses hold its landmark corrections as jumps (2.3 m at once
         # on ACES), which are not motion. The keyframes' scans, matched with
         # the local motion as the guess, say what the motion was:
         # where the two disagree by more than ``ekf_jump_*`` the match is taken.
         recent = self._recent_map(prev)
-        found = match(recent, pts, moved, p.scan_match, cov)
+        found = match(recent, pts, moved, SCAN_MATCH, cov)
         if not found.ok:
             # A jump beyond the matcher's reach (its largest correction): the keyframes
             # are at most ``keyframe_*`` apart, so standing still is a guess within it.
-            found = match(recent, pts, np.zeros(3), p.scan_match, cov)
+            found = match(recent, pts, np.zeros(3), SCAN_MATCH, cov)
         return self._step_or_jump(moved, found.pose) if found.ok else moved
 
     def _recent_map(self, last: int) -> ReferenceScan:
-        """The ``odometry_keyframes`` keyframes up to ``last`` merged in ``last``'s frame by their graph poses."""
-        p = self.params
+        """The ``ODOMETRY_KEYFRAMES`` keyframes up to ``last`` merged in ``last``'s frame by their graph poses."""
         poses = self.graph.poses
-        first = max(0, last - p.odometry_keyframes + 1)
+        first = max(0, last - ODOMETRY_KEYFRAMES + 1)
         pts = np.vstack([from_frame(self._keyframes[i].points_xy_m, relative(poses[last], poses[i]))
                          for i in range(first, last + 1)])
-        return ReferenceScan.build(thin_points(pts, p.keyframe_cell_m), p.scan_match)
+        return ReferenceScan.build(thin_points(pts, KEYFRAME_CELL_M))
 
     def _odometry_cov(self, dist_m: float, turn_rad: float) -> np.ndarray:
         """Covariance (3, 3) of an odometry edge over ``dist_m`` metres and ``turn_rad`` radians."""
         p = self.params
-        var_xy = p.odom_trans_sigma_m**2 + (p.odom_trans_sigma_per_m * dist_m) ** 2
-        var_th = p.odom_rot_sigma_rad**2 + (p.odom_rot_sigma_per_m * dist_m) ** 2 \
+        var_xy = ODOM_TRANS_SIGMA_M**2 + (p.odom_trans_sigma_per_m * dist_m) ** 2
+        var_th = ODOM_ROT_SIGMA_RAD**2 + (p.odom_rot_sigma_per_m * dist_m) ** 2 \
             + (p.odom_rot_sigma_per_rad * turn_rad) ** 2
         return np.diag([var_xy, var_xy, var_th])
 
@@ -326,8 +337,7 @@ class LoopClosingMapper:
 
     def _close_loops(self) -> None:
         """Search the newest keyframe's closures; add those found as robust edges, and optimise
-        when one disagrees with the graph or enough wait (``optimise_chi2``, ``max_pending_closures``)."""
-        p = self.params
+        when one disagrees with the graph or enough wait (``OPTIMISE_CHI2``, ``MAX_PENDING_CLOSURES``)."""
         found = self._search.find(self._keyframes, self.graph)
         urgent = False
         for k, n_, z, cov, innovation in found:
@@ -338,9 +348,9 @@ class LoopClosingMapper:
             self._observe(k, n_, z, cov, "accepted")
             edge_chi2 = float(innovation @ info @ innovation)
             self._pending += 1
-            urgent |= edge_chi2 > p.optimise_chi2
-            self._pending_strong |= edge_chi2 > p.graph.cauchy_scale**2
-        if urgent or self._pending >= p.max_pending_closures:
+            urgent |= edge_chi2 > OPTIMISE_CHI2
+            self._pending_strong |= edge_chi2 > CAUCHY_SCALE**2
+        if urgent or self._pending >= MAX_PENDING_CLOSURES:
             self._optimise()
 
     def _observe(self, k: int, n: int, pose: np.ndarray, cov: np.ndarray | None, verdict: str) -> None:
@@ -351,7 +361,6 @@ class LoopClosingMapper:
 
     def _optimise(self) -> None:
         """Optimise; drop closures the graph disagrees with (the worst first) and optimise again."""
-        p = self.params
         # Every closure passed the gate against the graph. One that disagrees
         # strongly with the estimate would start with a tiny robust weight: solve
         # with all of them first, then let the kernel find the ones the others disagree with.
@@ -366,7 +375,7 @@ class LoopClosingMapper:
                 break
             weights = self.graph.loop_weights()[self._loop_edges]
             worst = int(np.argmin(weights))
-            if weights[worst] >= p.min_weight:
+            if weights[worst] >= MIN_WEIGHT:
                 break
             edge = self._loop_edges.pop(worst)
             if self.observer is not None:

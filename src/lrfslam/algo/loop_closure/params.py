@@ -7,9 +7,59 @@ from dataclasses import dataclass, field
 
 from lrfslam.algo.checks import require_finite
 from lrfslam.algo.correlative_match import CorrelativeParams
-from lrfslam.algo.pose_graph import PoseGraphParams
 from lrfslam.algo.scan_match import ScanMatchParams
 from lrfslam.errors import ConfigError
+
+#: The closures' refinement and the odometry edges' matches: the slam's scan tracker's defaults
+#: (its ``max_point_range_m`` limits the matched points there).
+SCAN_MATCH = ScanMatchParams()
+
+#: A scan that moved this far since the previous one (m) starts a keyframe whatever the keyframe
+#: spacing: faster than a robot drives, so the local trajectory jumped (an EKF correction); the jump
+#: then falls between two keyframes, where the scan match replaces it, not inside a keyframe's scans.
+MAX_SCAN_STEP_M = 0.2
+#: A keyframe's points are thinned to one per square of this side (m).
+KEYFRAME_CELL_M = 0.05
+#: The map of a candidate is it and this many keyframes on each side of it.
+SUBMAP_KEYFRAMES = 10
+#: The query is thinned to one point per square of this side (m): the search's cost is linear in its points.
+QUERY_CELL_M = 0.1
+#: Floors of the odometry edges' position (m) and heading (rad) standard deviations.
+ODOM_TRANS_SIGMA_M = 0.005
+ODOM_ROT_SIGMA_RAD = 0.002
+#: Search half-widths in standard deviations of the relative pose.
+WINDOW_SIGMAS = 3.0
+#: Bounds of the rotation half-width (rad).
+MIN_WINDOW_RAD = 0.1
+MAX_WINDOW_RAD = 0.5
+#: A closure whose robust weight falls below this after optimisation is removed.
+MIN_WEIGHT = 0.25
+#: Submaps kept for re-use (the same old place is searched from consecutive keyframes).
+CACHED_SUBMAPS = 8
+#: A search whose translation half-width exceeds ``WIDE_WINDOW_M`` (m) is run at most once per
+#: ``WIDE_SEARCH_SPACING_M`` of travel (m): its cost grows with the window's area, and while the robot
+#: is lost in a place it saw long ago consecutive keyframes would search the same ground.
+WIDE_WINDOW_M = 2.0
+WIDE_SEARCH_SPACING_M = 2.0
+#: A closure found in a wide window is added only once the next one found in a wide window, at most
+#: ``CONFIRM_WITHIN_M`` of travel later (m), puts the robot within ``CONFIRM_M`` (m) and
+#: ``CONFIRM_RAD`` (rad) of where it does.
+CONFIRM_WITHIN_M = 10.0
+CONFIRM_M = 0.5
+CONFIRM_RAD = 0.05
+#: A new closure whose own χ² at the current estimate exceeds ``OPTIMISE_CHI2`` is solved for at
+#: once; smaller ones (the graph agrees already) wait until ``MAX_PENDING_CLOSURES`` have gathered
+#: (or :meth:`LoopClosingMapper.trajectory` is asked for): each solve costs a sparse factorisation
+#: of the whole graph.
+OPTIMISE_CHI2 = 9.0
+MAX_PENDING_CLOSURES = 10
+#: The new keyframe's scan is matched against this many last keyframes, merged.
+ODOMETRY_KEYFRAMES = 3
+#: An odometry edge is the local motion between the keyframes unless it differs from the keyframes'
+#: scans matched (point-to-line, the local motion as the guess) by more than this (m, rad): then it
+#: is the match.
+EKF_JUMP_M = 0.05
+EKF_JUMP_RAD = 0.02
 
 
 @dataclass(frozen=True)
@@ -20,23 +70,12 @@ class LoopClosureParams:
     ----------
     keyframe_trans_m, keyframe_rot_rad : float
         A scan becomes a keyframe once the local trajectory has moved this far (m) or turned
-        this much (rad) since the last keyframe...
-    max_scan_step_m : float
-        ...or moved this far since the previous scan (m): faster than the robot
-        drives, so the local trajectory jumped (an EKF correction); the jump then falls between two keyframes,
-        where the scan match replaces it, and not inside a keyframe's scans.
+        this much (rad) since the last keyframe (or jumped: :data:`MAX_SCAN_STEP_M`).
     max_range_m : float
         Points farther than this from the sensor are ignored (m); also drops a
         log's "no return" placeholder ranges (ACES writes 50 m).
-    keyframe_cell_m : float
-        A keyframe's points are thinned to one per square of this side (m).
-    submap_keyframes : int
-        The map of a candidate is it and this many keyframes on each side of it.
     query_keyframes : int
         The query is the new keyframe and the ones before it, this many in all.
-    query_cell_m : float
-        The query is thinned to one point per square of this side (m): the
-        search's cost is linear in its points.
     min_travel_m : float
         A candidate must be at least this far back along the trajectory (m).
     candidate_radius_m : float
@@ -45,26 +84,20 @@ class LoopClosureParams:
         overlap the query.
     max_candidates : int
         Candidates searched per keyframe at most, the nearest first, at least
-        ``2 submap_keyframes + 1`` keyframes apart (so their maps differ).
-    odom_trans_sigma_m : float
-        Floor of the odometry edges' position standard deviation (m)...
+        ``2 SUBMAP_KEYFRAMES + 1`` keyframes apart (so their maps differ).
     odom_trans_sigma_per_m : float
-        ...plus this much per metre travelled (dimensionless)...
-    odom_rot_sigma_rad : float
-        ...and heading standard deviation floor (rad)...
+        The odometry edges' position standard deviation: :data:`ODOM_TRANS_SIGMA_M` plus this much per
+        metre travelled (dimensionless)...
     odom_rot_sigma_per_m, odom_rot_sigma_per_rad : float
-        ...plus this much per metre travelled (rad/m) and per radian turned (dimensionless).
-    window_sigmas : float
-        Search half-widths in standard deviations of the relative pose.
+        ...and their heading's: :data:`ODOM_ROT_SIGMA_RAD` plus this much per metre travelled (rad/m)
+        and per radian turned (dimensionless).
     drift_onset_rad : float
         The systematic drift model of the search window and the gate: the graph's relative
         covariance times ``1 + σθ² / drift_onset_rad²``, σθ its heading standard deviation (rad).
         Below the onset the drift is the edges' random walk; past it the error grows with
         the loop, not its square root. 0: no model (the covariance as the graph gives it).
     min_window_m, max_window_m : float
-        Bounds of the translation half-width (m).
-    min_window_rad, max_window_rad : float
-        Bounds of the rotation half-width (rad).
+        Bounds of the translation half-width (m) of a search window :data:`WINDOW_SIGMAS` wide.
     min_score : float
         Mean likelihood (0–1) a closure must reach.
     max_second_ratio : float
@@ -74,41 +107,11 @@ class LoopClosureParams:
     match_cov_scale : float
         Factor on the point-to-line matcher's covariance for a loop edge (it
         ignores that neighbouring beams' errors correlate, and the map's own error).
-    min_weight : float
-        A closure whose robust weight falls below this after optimisation is removed.
     correlative : CorrelativeParams
-    scan_match : ScanMatchParams
-        Of the closures' refinement and the odometry edges' matches (its
-        ``max_point_range_m`` limits the matched points there).
-    graph : PoseGraphParams
-    cached_submaps : int
-        Submaps kept for re-use (the same old place is searched from consecutive keyframes).
-    wide_window_m, wide_search_spacing_m : float
-        A search whose translation half-width exceeds ``wide_window_m`` (m) is
-        run at most once per ``wide_search_spacing_m`` of travel (m): its cost
-        grows with the window's area, and while the robot is lost in a place it
-        saw long ago consecutive keyframes would search the same ground.
-    confirm_within_m, confirm_m, confirm_rad : float
-        A closure found in a wide window is added only once the next one found
-        in a wide window, at most ``confirm_within_m`` of travel later (m), puts
-        the robot within ``confirm_m`` (m) and ``confirm_rad`` (rad) of where it does.
-    optimise_chi2 : float
-        A new closure whose own χ² at the current estimate exceeds this is
-        solved for at once; smaller ones (the graph agrees already) wait...
-    max_pending_closures : int
-        ...until this many have gathered (or :meth:`LoopClosingMapper.trajectory`
-        is asked for): each solve costs a sparse factorisation of the whole graph.
-    odometry_keyframes : int
-        The new keyframe's scan is matched against this many last keyframes, merged.
-    ekf_jump_m, ekf_jump_rad : float
-        An odometry edge is the local motion between the keyframes unless it
-        differs from the keyframes' scans matched (point-to-line, the local
-        motion as the guess) by more than this (m, rad): then it is the match.
-        0 always takes the match, a large value (1e9) always the local motion.
     trim_revisits : bool
         A keyframe that closed a loop (a revisit of a mapped place) is never a
         candidate, and its points are dropped once it is no longer one of the last
-        ``max(query_keyframes, odometry_keyframes)``: a place's map is the visit that
+        ``max(query_keyframes, ODOMETRY_KEYFRAMES)``: a place's map is the visit that
         first mapped it, and a robot driving the same rounds adds a node and its edges
         per keyframe (~0.3 KB), not a scan's points (~2.4 KB).
     fold_revisits : bool
@@ -129,65 +132,36 @@ class LoopClosureParams:
 
     keyframe_trans_m: float = 0.5
     keyframe_rot_rad: float = 0.35
-    max_scan_step_m: float = 0.2
     max_range_m: float = 20.0
-    keyframe_cell_m: float = 0.05
-    submap_keyframes: int = 10
     query_keyframes: int = 5
-    query_cell_m: float = 0.1
     min_travel_m: float = 10.0
     candidate_radius_m: float = 3.0
     max_candidates: int = 2
-    odom_trans_sigma_m: float = 0.005
     odom_trans_sigma_per_m: float = 0.01
-    odom_rot_sigma_rad: float = 0.002
     odom_rot_sigma_per_m: float = 0.006
     odom_rot_sigma_per_rad: float = 0.03
-    window_sigmas: float = 3.0
     drift_onset_rad: float = 0.02
     min_window_m: float = 0.5
     max_window_m: float = 12.0
-    min_window_rad: float = 0.1
-    max_window_rad: float = 0.5
     min_score: float = 0.5
     max_second_ratio: float = 0.9
     gate_chi2: float = 16.0
     match_cov_scale: float = 16.0
-    min_weight: float = 0.25
     correlative: CorrelativeParams = field(default_factory=CorrelativeParams)
-    scan_match: ScanMatchParams = field(default_factory=ScanMatchParams)
-    graph: PoseGraphParams = field(default_factory=PoseGraphParams)
-    cached_submaps: int = 8
-    wide_window_m: float = 2.0
-    wide_search_spacing_m: float = 2.0
-    confirm_within_m: float = 10.0
-    confirm_m: float = 0.5
-    confirm_rad: float = 0.05
-    optimise_chi2: float = 9.0
-    max_pending_closures: int = 10
-    odometry_keyframes: int = 3
-    ekf_jump_m: float = 0.05
-    ekf_jump_rad: float = 0.02
     trim_revisits: bool = True
     fold_revisits: bool = True
     fold_after_keyframes: int = 50
 
     def __post_init__(self) -> None:
-        positive = ("max_range_m", "keyframe_cell_m", "query_cell_m", "odom_trans_sigma_m", "odom_rot_sigma_rad",
-                    "window_sigmas", "min_window_m", "max_window_m", "min_window_rad", "max_window_rad",
-                    "gate_chi2", "match_cov_scale", "candidate_radius_m")
+        positive = ("max_range_m", "min_window_m", "max_window_m", "gate_chi2", "match_cov_scale", "candidate_radius_m")
         require_finite(self, positive, positive=True, what="loop closure ")
-        non_negative = ("keyframe_trans_m", "max_scan_step_m", "keyframe_rot_rad", "min_travel_m", "odom_trans_sigma_per_m",
-                        "odom_rot_sigma_per_m", "odom_rot_sigma_per_rad", "drift_onset_rad", "min_score", "max_second_ratio",
-                        "min_weight", "optimise_chi2", "ekf_jump_m", "ekf_jump_rad", "wide_window_m",
-                        "wide_search_spacing_m", "confirm_within_m", "confirm_m", "confirm_rad")
+        non_negative = ("keyframe_trans_m", "keyframe_rot_rad", "min_travel_m", "odom_trans_sigma_per_m",
+                        "odom_rot_sigma_per_m", "odom_rot_sigma_per_rad", "drift_onset_rad", "min_score", "max_second_ratio")
         require_finite(self, non_negative, positive=False, what="loop closure ")
-        if self.min_window_m > self.max_window_m or self.min_window_rad > self.max_window_rad:
-            raise ConfigError("loop closure window minima must not exceed the maxima")
-        if self.submap_keyframes < 0 or self.query_keyframes < 1 or self.max_candidates < 0 \
-                or self.cached_submaps < 1 or self.max_pending_closures < 1 or self.odometry_keyframes < 1:
-            raise ConfigError("loop closure needs submap_keyframes >= 0, query_keyframes >= 1, "
-                              "max_candidates >= 0 cached_submaps >= 1, max_pending_closures >= 1 and odometry_keyframes >= 1")
+        if self.min_window_m > self.max_window_m:
+            raise ConfigError("loop closure min_window_m must not exceed max_window_m")
+        if self.query_keyframes < 1 or self.max_candidates < 0:
+            raise ConfigError("loop closure needs query_keyframes >= 1 and max_candidates >= 0")
         if self.fold_after_keyframes < 0:
             raise ConfigError("loop closure fold_after_keyframes must be >= 0")
         if self.fold_revisits and not self.trim_revisits:

@@ -20,7 +20,22 @@ import numpy as np
 from lrfslam.algo.correlative_match import LikelihoodGrid, search
 from lrfslam.algo.geometry import compose, from_frame, relative, thin_points
 from lrfslam.algo.loop_closure.keyframes import Keyframe
-from lrfslam.algo.loop_closure.params import LoopClosureParams
+from lrfslam.algo.loop_closure.params import (
+    CACHED_SUBMAPS,
+    CONFIRM_M,
+    CONFIRM_RAD,
+    CONFIRM_WITHIN_M,
+    KEYFRAME_CELL_M,
+    MAX_WINDOW_RAD,
+    MIN_WINDOW_RAD,
+    QUERY_CELL_M,
+    SCAN_MATCH,
+    SUBMAP_KEYFRAMES,
+    WIDE_SEARCH_SPACING_M,
+    WIDE_WINDOW_M,
+    WINDOW_SIGMAS,
+    LoopClosureParams,
+)
 from lrfslam.algo.pose_graph import PoseGraph
 from lrfslam.algo.scan_match import ReferenceScan, match
 
@@ -164,7 +179,7 @@ class ClosureSearch:
                 if dist[i] > reach or taken == p.max_candidates:
                     break
                 k = int(near[i])
-                if all(abs(ordinal[k] - ordinal[c]) > 2 * p.submap_keyframes for c, _ in chosen):
+                if all(abs(ordinal[k] - ordinal[c]) > 2 * SUBMAP_KEYFRAMES for c, _ in chosen):
                     chosen.append((k, online))
                     taken += 1
 
@@ -181,9 +196,9 @@ class ClosureSearch:
             window = self._window(keyframes, graph, k, n, online)
             if window is None:
                 continue
-            wide = window[2] > p.wide_window_m
+            wide = window[2] > WIDE_WINDOW_M
             if wide:
-                if travel[n] - self.last_wide_search_m < p.wide_search_spacing_m:
+                if travel[n] - self.last_wide_search_m < WIDE_SEARCH_SPACING_M:
                     continue
                 self.last_wide_search_m = travel[n]
             if query is None:
@@ -199,7 +214,7 @@ class ClosureSearch:
             # A closure from a wide window is the one kind a look-alike place can
             # fake (a twin corridor): it waits for a second one that agrees.
             earlier = self.tentative
-            if earlier is not None and travel[n] - travel[earlier[1]] <= p.confirm_within_m \
+            if earlier is not None and travel[n] - travel[earlier[1]] <= CONFIRM_WITHIN_M \
                     and self._agree(graph, earlier, closure):
                 found += [earlier, closure]
                 self.tentative = None
@@ -216,14 +231,13 @@ class ClosureSearch:
         Each is ``(old keyframe, new keyframe, measurement, covariance, innovation)``;
         the first's placement is carried to the second's keyframe along the graph.
         """
-        p = self.params
         poses = graph.poses
         k1, n1, z1 = first[:3]
         k2, n2, z2 = second[:3]
         via_first = compose(compose(poses[k1], z1), relative(poses[n1], poses[n2]))
         via_second = compose(poses[k2], z2)
         diff = relative(via_first, via_second)
-        return bool(np.hypot(diff[0], diff[1]) <= p.confirm_m and abs(diff[2]) <= p.confirm_rad)
+        return bool(np.hypot(diff[0], diff[1]) <= CONFIRM_M and abs(diff[2]) <= CONFIRM_RAD)
 
     def _window(self, keyframes: list[Keyframe], graph: PoseGraph, k: int, n: int, online: bool = False
                 ) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray] | None:
@@ -239,8 +253,8 @@ class ClosureSearch:
         rel_cov = window_covariance(graph, k, n, p.drift_onset_rad)
         sigma_xy = float(np.sqrt(max(np.linalg.eigvalsh(rel_cov[:2, :2])[-1], 0.0)))
         sigma_th = float(np.sqrt(max(rel_cov[2, 2], 0.0)))
-        half_m = float(np.clip(p.window_sigmas * sigma_xy, p.min_window_m, p.max_window_m))
-        half_rad = float(np.clip(p.window_sigmas * sigma_th, p.min_window_rad, p.max_window_rad))
+        half_m = float(np.clip(WINDOW_SIGMAS * sigma_xy, p.min_window_m, p.max_window_m))
+        half_rad = float(np.clip(WINDOW_SIGMAS * sigma_th, MIN_WINDOW_RAD, MAX_WINDOW_RAD))
         centre = relative(keyframes[k].online_pose, keyframes[n].online_pose) if online else predicted
         if np.hypot(centre[0], centre[1]) > half_m + p.candidate_radius_m:
             return None
@@ -251,24 +265,24 @@ class ClosureSearch:
         first = max(0, n - self.params.query_keyframes + 1)
         poses = graph.poses
         parts = [from_frame(keyframes[i].points_xy_m, relative(poses[n], poses[i])) for i in range(first, n + 1)]
-        return thin_points(np.vstack(parts), self.params.query_cell_m)
+        return thin_points(np.vstack(parts), QUERY_CELL_M)
 
     def _submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int,
                 half_m: float) -> tuple[LikelihoodGrid, ReferenceScan]:
         """The likelihood grid and line reference of keyframe ``k``'s neighbourhood, in its frame.
 
-        The neighbourhood covers the search window (``half_m``, m): at least ``submap_keyframes``
+        The neighbourhood covers the search window (``half_m``, m): at least ``SUBMAP_KEYFRAMES``
         keyframes each side, more where the window is wider than they reach. A map narrower than
         the window favours the placements that fall inside it: in a corridor of alike doors a
         twin a door period along, wholly inside the map, outscores the true place at its edge;
         with the window covered, twins inside it score alike and the ambiguity test sees them. A
         wider map takes only keyframes at least ``min_travel_m`` older than the newest (never the
         query's own). The usual neighbourhood is cached; a wider one (a wide window, searched at
-        most once per ``wide_search_spacing_m``) is not.
+        most once per ``WIDE_SEARCH_SPACING_M``) is not.
         """
         p = self.params
-        span = max(p.submap_keyframes, math.ceil(half_m / p.keyframe_trans_m))
-        if span == p.submap_keyframes:
+        span = max(SUBMAP_KEYFRAMES, math.ceil(half_m / p.keyframe_trans_m))
+        if span == SUBMAP_KEYFRAMES:
             if k in self.submaps:
                 self.submaps.move_to_end(k)
                 return self.submaps[k][1:]
@@ -287,9 +301,9 @@ class ClosureSearch:
         still takes its place. The cache keeps ``last``: a submap built before all its later
         neighbours existed must be rebuilt the same way when a checkpoint is restored.
         """
-        self.submaps[k] = (last, *self._build_submap(keyframes, graph, k, keyframes[k].ordinal - self.params.submap_keyframes,
+        self.submaps[k] = (last, *self._build_submap(keyframes, graph, k, keyframes[k].ordinal - SUBMAP_KEYFRAMES,
                                                      last))
-        if len(self.submaps) > self.params.cached_submaps:
+        if len(self.submaps) > CACHED_SUBMAPS:
             self.submaps.popitem(last=False)
 
     def _build_submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int, first: int,
@@ -302,8 +316,8 @@ class ClosureSearch:
         end = int(np.searchsorted(ordinals, last, side="right"))
         pts = np.vstack([from_frame(keyframes[i].points_xy_m, relative(poses[k], poses[i]))
                          for i in range(start, end)])
-        pts = thin_points(pts, p.keyframe_cell_m)
-        return LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts, p.scan_match)
+        pts = thin_points(pts, KEYFRAME_CELL_M)
+        return LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts)
 
     def _try_closure(self, keyframes: list[Keyframe], graph: PoseGraph, k: int, n: int, query: np.ndarray,
                      centre: np.ndarray, rel_cov: np.ndarray, half_m: float, half_rad: float,
@@ -326,7 +340,7 @@ class ClosureSearch:
             count["ambiguous"] += 1
             self._observe(k, n, found.pose, None, "ambiguous")
             return None
-        refined = match(reference, query, found.pose, p.scan_match)
+        refined = match(reference, query, found.pose, SCAN_MATCH)
         if not refined.ok:
             count["refine_failed"] += 1
             self._observe(k, n, found.pose, None, "refine_failed")

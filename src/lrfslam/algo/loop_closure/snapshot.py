@@ -86,7 +86,7 @@ def restore(cls: type[LoopClosingMapper], params: LoopClosureParams | None, arra
         if fmt != SNAPSHOT_FORMAT:
             raise InputError(f"mapper snapshot format {fmt} is not {SNAPSHOT_FORMAT}")
         mapper = cls(params, keep_scans=bool(arrays["keep_scans"]))
-        mapper.graph = PoseGraph.restore(mapper.params.graph, arrays)
+        mapper.graph = PoseGraph.restore(arrays)
         counts = np.array(arrays["keyframe_point_counts"], dtype=np.int64)
         points = np.array(arrays["keyframe_points"], dtype=float).reshape(-1, 2)
         local = np.array(arrays["keyframe_local_pose"], dtype=float).reshape(-1, 3)
