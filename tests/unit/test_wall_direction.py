@@ -120,8 +120,8 @@ def test_too_few_points_and_bad_input():
 
 @pytest.mark.parametrize(
     "kwargs",
-    [{"split_tol_m": 0.0}, {"min_support_frac": 0.0}, {"min_support_frac": 1.5}, {"align_tol_rad": 1.0},
-     {"min_points": 2}, {"trim_points": -1}, {"sigma_scale": float("nan")}],
+    [{"min_support_frac": 0.0}, {"min_support_frac": 1.5}, {"min_support_length_m": 0.0},
+     {"min_support_length_m": float("nan")}],
 )
 def test_bad_params_raise(kwargs):
     with pytest.raises(ConfigError):

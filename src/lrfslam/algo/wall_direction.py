@@ -9,17 +9,17 @@ use it (``EkfSlam.observe_wall_direction``).
 
 Method, on the denoised points of one scan in scan order:
 
-1. Split them into runs at gaps wider than ``max_gap_m``, and each run into
+1. Split them into runs at gaps wider than ``MAX_GAP_M``, and each run into
    straight pieces by iterative end-point fit (split where a point lies more than
-   ``split_tol_m`` from the chord).
-2. Drop ``trim_points`` at both ends of each piece (the points next to a corner
+   ``SPLIT_TOL_M`` from the chord).
+2. Drop ``TRIM_POINTS`` at both ends of each piece (the points next to a corner
    or a mixed pixel belong to neither wall) and fit a total-least-squares line to
-   the rest. Keep lines of at least ``min_points`` points and ``min_length_m``.
+   the rest. Keep lines of at least ``MIN_POINTS`` points and ``MIN_LENGTH_M``.
    A line's direction variance is ``σ_r² / Σ t²``, with ``σ_r`` its residual
-   standard deviation (floored at ``point_sigma_floor_m``) and ``t`` the points'
+   standard deviation (floored at ``POINT_SIGMA_FLOOR_M``) and ``t`` the points'
    centred positions along the line.
 3. Consensus: the line whose direction, modulo 90°, agrees within
-   ``align_tol_rad`` with the largest total length of lines fixes the dominant
+   ``ALIGN_TOL_RAD`` with the largest total length of lines fixes the dominant
    direction; the agreeing lines are its support. A scan whose support is less
    than ``min_support_frac`` of the length of all lines, or shorter than
    ``min_support_length_m``, has no dominant direction (clutter, a single short
@@ -27,8 +27,7 @@ Method, on the denoised points of one scan in scan order:
 4. The direction is the inverse-variance weighted mean of the supporting lines
    (modulo 90°). Its variance ``1 / Σ wᵢ`` is multiplied by the Birge ratio
    ``χ² / (m − 1)`` when the m lines scatter more than their own errors say
-   (walls that are not quite square), and the standard deviation by
-   ``sigma_scale``.
+   (walls that are not quite square).
 
 Angles are in the sensor frame; a direction ``α`` modulo 90° is reported in
 [−π/4, π/4). For a robot at heading ``θ`` in a building whose walls run at
@@ -45,6 +44,22 @@ from lrfslam.algo.checks import require_finite
 from lrfslam.errors import ConfigError, InputError
 
 QUARTER_TURN_RAD = 0.5 * np.pi
+#: Successive points farther apart than this (m) start a new run.
+MAX_GAP_M = 0.3
+#: A run is split where a point lies farther than this (m) from the chord of its piece (about 3–4
+#: times the scanner's range σ).
+SPLIT_TOL_M = 0.04
+#: Points dropped at each end of a piece before the line fit.
+TRIM_POINTS = 1
+#: Points a line needs after trimming (≥ 3).
+MIN_POINTS = 8
+#: Length a line needs, end to end after trimming (m).
+MIN_LENGTH_M = 0.5
+#: Floor on a line's residual standard deviation (m), so a lucky fit of few points does not claim a
+#: tiny error.
+POINT_SIGMA_FLOOR_M = 0.003
+#: Lines whose directions agree within this modulo 90° (rad) support one direction.
+ALIGN_TOL_RAD = 0.06
 
 
 def wrap_quarter(a):
@@ -55,59 +70,25 @@ def wrap_quarter(a):
 
 @dataclass(frozen=True)
 class WallDirectionParams:
-    """Knobs of :func:`wall_direction`; see the module docstring for the method.
+    """Settings of :func:`wall_direction` (the rest are this module's constants); see the module
+    docstring for the method.
 
     Attributes
     ----------
-    max_gap_m : float
-        Successive points farther apart than this start a new run.
-    split_tol_m : float
-        A run is split where a point lies farther than this from the chord of its
-        piece (about 3–4 times the scanner's range σ).
-    trim_points : int
-        Points dropped at each end of a piece before the line fit.
-    min_points : int
-        Points a line needs after trimming (≥ 3).
-    min_length_m : float
-        Length a line needs, end to end after trimming.
-    point_sigma_floor_m : float
-        Floor on a line's residual standard deviation, so a lucky fit of few
-        points does not claim a tiny error.
-    align_tol_rad : float
-        Lines whose directions agree within this modulo 90° support one direction.
     min_support_frac : float
         Smallest share of the total line length that must support the dominant
         direction, in (0, 1].
     min_support_length_m : float
         Smallest total length of the supporting lines.
-    sigma_scale : float
-        Factor (> 0) on the reported standard deviation, from calibration on the
-        simulator (docs/slam.md).
     """
 
-    max_gap_m: float = 0.3
-    split_tol_m: float = 0.04
-    trim_points: int = 1
-    min_points: int = 8
-    min_length_m: float = 0.5
-    point_sigma_floor_m: float = 0.003
-    align_tol_rad: float = 0.06
     min_support_frac: float = 0.6
     min_support_length_m: float = 1.0
-    sigma_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        positive = ("max_gap_m", "split_tol_m", "min_length_m", "point_sigma_floor_m", "align_tol_rad",
-                    "min_support_length_m", "sigma_scale")
-        require_finite(self, positive, positive=True)
-        if not self.align_tol_rad < 0.25 * np.pi:
-            raise ConfigError(f"align_tol_rad must be < pi/4, got {self.align_tol_rad!r}")
+        require_finite(self, ("min_support_length_m",), positive=True)
         if not 0 < self.min_support_frac <= 1:
             raise ConfigError(f"min_support_frac must be in (0, 1], got {self.min_support_frac!r}")
-        if not (isinstance(self.trim_points, int) and self.trim_points >= 0):
-            raise ConfigError(f"trim_points must be an integer >= 0, got {self.trim_points!r}")
-        if not (isinstance(self.min_points, int) and self.min_points >= 3):
-            raise ConfigError(f"min_points must be an integer >= 3, got {self.min_points!r}")
 
 
 @dataclass(frozen=True)
@@ -161,15 +142,15 @@ def _pieces(points: np.ndarray, tol_m: float) -> list[tuple[int, int]]:
 def _fit_lines(points: np.ndarray, params: WallDirectionParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lines of straight pieces: directions (J,) mod π, direction variances (J,) rad², lengths (J,) m."""
     steps = np.hypot(*np.diff(points, axis=0).T)
-    cuts = np.concatenate(([0], np.flatnonzero(steps > params.max_gap_m) + 1, [points.shape[0]]))
-    trim = params.trim_points
+    cuts = np.concatenate(([0], np.flatnonzero(steps > MAX_GAP_M) + 1, [points.shape[0]]))
+    trim = TRIM_POINTS
     spans = [
         (r0 + a + trim, r0 + b - trim)
         for r0, r1 in zip(cuts[:-1].tolist(), cuts[1:].tolist(), strict=True)
-        if r1 - r0 >= params.min_points + 2 * trim
-        for a, b in _pieces(points[r0:r1], params.split_tol_m)
+        if r1 - r0 >= MIN_POINTS + 2 * trim
+        for a, b in _pieces(points[r0:r1], SPLIT_TOL_M)
     ]
-    spans = np.array([s for s in spans if s[1] - s[0] >= params.min_points], dtype=np.intp).reshape(-1, 2)
+    spans = np.array([s for s in spans if s[1] - s[0] >= MIN_POINTS], dtype=np.intp).reshape(-1, 2)
     lo, hi = spans[:, 0], spans[:, 1]
     # Scatter matrices of all pieces at once from cumulative sums (points relative
     # to the scan's first point, so the sums lose no precision).
@@ -187,8 +168,8 @@ def _fit_lines(points: np.ndarray, params: WallDirectionParams) -> tuple[np.ndar
     along_ss, resid_ss = half_trace + radius, np.maximum(half_trace - radius, 0.0)
     chord = points[hi - 1] - points[lo]
     length = np.abs(chord[:, 0] * np.cos(direction) + chord[:, 1] * np.sin(direction))
-    resid_var = np.maximum(resid_ss / (n - 2.0), params.point_sigma_floor_m**2)
-    ok = length >= params.min_length_m
+    resid_var = np.maximum(resid_ss / (n - 2.0), POINT_SIGMA_FLOOR_M**2)
+    ok = length >= MIN_LENGTH_M
     return direction[ok], resid_var[ok] / along_ss[ok], length[ok]
 
 
@@ -215,13 +196,13 @@ def wall_direction(points_xy: np.ndarray, params: WallDirectionParams) -> WallDi
     pts = np.asarray(points_xy, dtype=float).reshape(-1, 2)
     if not np.all(np.isfinite(pts)):
         raise InputError("points_xy must be finite")
-    if pts.shape[0] < params.min_points:
+    if pts.shape[0] < MIN_POINTS:
         return None
     dirs, variances, lengths = _fit_lines(pts, params)
     if dirs.size == 0:
         return None
     # Consensus by length: for each line, the total length of the lines agreeing with it mod 90°.
-    agree = np.abs(wrap_quarter(dirs[:, None] - dirs[None, :])) <= params.align_tol_rad
+    agree = np.abs(wrap_quarter(dirs[:, None] - dirs[None, :])) <= ALIGN_TOL_RAD
     support = agree @ lengths
     best = int(np.argmax(support))
     members = agree[best]
@@ -240,7 +221,7 @@ def wall_direction(points_xy: np.ndarray, params: WallDirectionParams) -> WallDi
         variance *= max(1.0, birge)
     return WallDirection(
         direction_rad=wrap_quarter(dirs[best] + mean_offset),
-        sigma_rad=params.sigma_scale * float(np.sqrt(variance)),
+        sigma_rad=float(np.sqrt(variance)),
         n_lines=n_lines,
         support_frac=support_frac,
     )
