@@ -2,7 +2,8 @@
 
 Real sessions over loopback TCP: a router, a publisher and a subscriber made as the services
 and tools make theirs. A 10 KB message (over Zenoh's 3 KB threshold) arrives without any
-16 MiB pool appearing in /dev/shm; a config file that enables shared memory gets it.
+16 MiB pool mapped from /dev/shm; a config file that enables shared memory gets it. Only the files
+this process maps (``/proc/self/maps``) are looked at and removed.
 """
 
 from __future__ import annotations
@@ -23,9 +24,18 @@ SHM = Path("/dev/shm")
 POOL_BYTES = 16 * 2**20
 
 
-def zenoh_files() -> dict[str, int]:
-    """Zenoh's shared-memory files now in /dev/shm: name -> size (bytes)."""
-    return {p.name: p.stat().st_size for p in SHM.glob("*.zenoh")}
+MAPS = Path("/proc/self/maps")
+
+
+def own_zenoh_files() -> dict[str, int]:
+    """The Zenoh shared-memory files this process has mapped now: name -> size (bytes). Only
+    these are looked at and removed: other processes' files in /dev/shm are none of the test's."""
+    names = set()
+    for line in MAPS.read_text().splitlines():
+        path = line.split(maxsplit=5)[5] if len(line.split(maxsplit=5)) == 6 else ""
+        if path.startswith(f"{SHM}/") and path.endswith(".zenoh"):
+            names.add(Path(path).name)
+    return {name: (SHM / name).stat().st_size for name in names if (SHM / name).exists()}
 
 
 def send_big_message(port: int, zenoh_config: str | None) -> set[str]:
@@ -33,7 +43,6 @@ def send_big_message(port: int, zenoh_config: str | None) -> set[str]:
     router = base_config("router", [], zenoh_config)
     router.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     got = threading.Event()
-    before = zenoh_files()
     with zenoh.open(router), zenoh.open(base_config("client", [f"tcp/127.0.0.1:{port}"], zenoh_config)) as sub_s, \
             zenoh.open(base_config("client", [f"tcp/127.0.0.1:{port}"], zenoh_config)) as pub_s:
         sub = sub_s.declare_subscriber("lrf/shm_test/big", lambda s: got.set() if len(s.payload.to_bytes()) == 10_000 else None)
@@ -42,7 +51,7 @@ def send_big_message(port: int, zenoh_config: str | None) -> set[str]:
             pub.put(b"x" * 10_000)
             if got.wait(0.1):
                 break
-        appeared = {name: size for name, size in zenoh_files().items() if name not in before}
+        appeared = own_zenoh_files()
         sub.undeclare()
     for name in appeared:   # Zenoh leaves a closed session's files for the next session to clean
         (SHM / name).unlink(missing_ok=True)
@@ -50,12 +59,12 @@ def send_big_message(port: int, zenoh_config: str | None) -> set[str]:
     return {name for name, size in appeared.items() if size >= POOL_BYTES}
 
 
-@pytest.mark.skipif(not SHM.is_dir(), reason="no /dev/shm on this system")
+@pytest.mark.skipif(not (SHM.is_dir() and MAPS.is_file()), reason="no /dev/shm or /proc on this system")
 def test_no_shared_memory_pool_without_a_config_file():
     assert send_big_message(free_port(), None) == set()
 
 
-@pytest.mark.skipif(not SHM.is_dir(), reason="no /dev/shm on this system")
+@pytest.mark.skipif(not (SHM.is_dir() and MAPS.is_file()), reason="no /dev/shm or /proc on this system")
 def test_a_config_file_can_turn_shared_memory_on(tmp_path):
     conf = tmp_path / "shm.json5"
     conf.write_text("{ transport: { shared_memory: { enabled: true } } }")

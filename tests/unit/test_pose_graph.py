@@ -242,7 +242,7 @@ def test_leaves_are_left_out_of_the_factorisation_and_change_no_covariance(seed)
         if a != b:
             want = gauge_a_covariance(graph, a, b)
             assert np.allclose(graph.relative_covariance(a, b), want, rtol=1e-7, atol=1e-12 * np.abs(want).max())
-    assert graph._factor.block.shape == (len(graph),)
+    assert graph.factorised_through == len(graph)
     # A new node joined to a leaf: the leaf is one no more.
     graph.add_node(compose(graph.poses[leaves[4]], (0.5, 0.0, 0.1)))
     graph.add_edge(leaves[4], len(graph) - 1, (0.5, 0.0, 0.1), np.diag(1.0 / SIGMA**2))
@@ -261,9 +261,9 @@ def test_the_factorisation_leaves_the_leaves_out():
     graph.relative_covariance(2, 9)
     # Left out: the gauge, the leaves but the newest node (the next one's edge will join it), and
     # the first lap's last node, whose only edge is the one from its predecessor.
-    left_out = np.flatnonzero(graph._factor.block == -1).tolist()
+    assert graph.factorised_through == len(graph)
+    left_out = sorted(set(range(len(graph))) - set(graph.factorised_nodes.tolist()))
     assert left_out == [0, len(truth) - 1, *range(len(truth), len(graph) - 1)]
-    assert graph._factor.lu.shape == (3 * (len(graph) - len(left_out)),) * 2
 
 
 def test_what_was_added_since_the_factorisation_enters_exactly():
@@ -280,7 +280,7 @@ def test_what_was_added_since_the_factorisation_enters_exactly():
         graph.add_edge(k - lap, k, relative(truth[k - lap], truth[k]), np.diag(4.0 / SIGMA**2), robust=True)
         for a, b in ((k - lap, k), (2, k), (k, 7), (0, k)):
             assert np.allclose(graph.relative_covariance(a, b), gauge_a_covariance(graph, a, b), rtol=1e-7)
-    assert graph._factor.covered == lap + 5   # not factorised again
+    assert graph.factorised_through == lap + 5   # not factorised again
     # A restored graph computes from the same factorisation: the same covariance to the last bit,
     # so a restarted mapper searches exactly the windows the one it continues would have.
     restored = PoseGraph.restore(graph.snapshot())

@@ -548,6 +548,22 @@ class PoseGraph:
         self._factor = None
         return OptimizeReport(it, initial, cost)
 
+    @property
+    def factorised_through(self) -> int:
+        """How many first nodes the covariances' factorisation was built over (0: none yet). Nodes
+        added since enter :meth:`relative_covariance` exactly without a new factorisation, up to
+        ``_MAX_NEW_NODES`` of them."""
+        return 0 if self._factor is None else self._factor.covered
+
+    @property
+    def factorised_nodes(self) -> np.ndarray:
+        """The nodes (K,) int that factorisation holds, ascending: the gauge (node 0) and leaves left out
+        (a leaf adds a block and no fill; its covariance comes from its one edge). Empty before it is
+        built (a restored graph builds it when first asked)."""
+        if self._factor is None or self._factor.block is None:
+            return np.zeros(0, dtype=np.int64)
+        return np.flatnonzero(self._factor.block >= 0)
+
     def relative_covariance(self, a: int, b: int) -> np.ndarray:
         """Covariance (3, 3) of node ``b``'s pose in node ``a``'s frame, at the current estimate.
 
