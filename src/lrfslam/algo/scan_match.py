@@ -587,8 +587,7 @@ class ScanTracker:
 
         Also drops from the recent reference scans the points this scan (``free``) sees through.
         """
-        p = self.params
-        if not p.free_space_check:
+        if not self.params.free_space_check:
             return np.zeros(pts.shape[0], dtype=bool)
         margins = (FREE_SPACE_MARGIN_M, FREE_SPACE_MARGIN_PER_M, FREE_SPACE_LATERAL_M, FREE_SPACE_BEARING_RAD)
         moved = seen_through(self._free, from_frame(pts, free.pose), *margins)
