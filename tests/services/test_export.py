@@ -214,7 +214,7 @@ def test_the_picture_fits_the_map_not_the_odometry(sim_run):
     gx0, gx1, gy0, gy1 = sc.grid.extent_m
     assert gx0 - 1.0 <= x0 and x1 <= gx1 + 1.0 and gy0 - 1.0 <= y0 and y1 <= gy1 + 1.0
     far = dataclasses.replace(sc, odometry=sc.odometry + (100.0, -50.0, 0.0))
-    assert recording_map._view(far) == sc.view
+    assert recording_map.view_limits(far) == sc.view
     # Ellipses of a centimetre are magnified, and the title carries the figures.
     assert export.ellipse_scale(sc) > 1
     assert f"{out.name}: {N_SCANS} scans" in export.title(sc) and "RMSE vs truth 0.0" in export.title(sc)
@@ -289,7 +289,7 @@ def check_intel_extent(run_mcap: Path, folder: Path) -> tuple[np.ndarray, np.nda
     stamps = np.array([p["stamp_ns"] for p in doc["map_trajectory"]])
     est = np.array([[p["x_m"], p["y_m"], p["theta_rad"]] for p in doc["map_trajectory"]])
     data = recording_map.collect(run_mcap, scans=False)
-    odom = recording_map._in_frame(stamps, est, data["odom"])
+    odom = recording_map.in_frame(stamps, est, data["odom"])
     odom_at = dict(zip(sorted(data["odom"]), odom))
     on_est = placed_hits(run_mcap, stamps, est, GridParams.max_range_m)
     on_odom = placed_hits(run_mcap, stamps, np.array([odom_at[int(s)] for s in stamps]), GridParams.max_range_m)

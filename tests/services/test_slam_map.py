@@ -9,7 +9,7 @@ from lrfslam.services.slam import LANDMARK_TOLERANCE_M
 
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
-from lrfslam.msgs.landmark_map import LandmarkMapReplica, _sigmas, by_id
+from lrfslam.msgs.landmark_map import LandmarkMapReplica, axis_sigmas, by_id
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.recording import RecordingWriter, read_recording
 from lrfslam.runtime.step import Message
@@ -56,7 +56,7 @@ def test_a_recording_rebuilds_the_filters_map_at_every_state(tmp_path):
         np.testing.assert_array_equal(held.sightings, want.sightings)
         np.testing.assert_array_equal(held.confirmed, want.confirmed)
         assert np.all(np.hypot(*(held.xy_m - want.xy_m).T) <= LANDMARK_TOLERANCE_M)
-        assert np.all(np.abs(_sigmas(held.cov_m2) - _sigmas(want.cov_m2)) <= LANDMARK_TOLERANCE_M)
+        assert np.all(np.abs(axis_sigmas(held.cov_m2) - axis_sigmas(want.cov_m2)) <= LANDMARK_TOLERANCE_M)
         assert value.n_landmarks == len(want)
         checked += 1
     assert checked == len(exact) >= 390 and maps >= 3

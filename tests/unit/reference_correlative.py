@@ -1,4 +1,4 @@
-"""The NumPy form of the correlative search's compiled scores (lrfslam/algo/_correlative_kernel.py):
+"""The NumPy form of the correlative search's compiled scores (lrfslam/algo/correlative_kernel.py):
 the oracle its tests hold it to."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The NumPy form of one ICP linearisation: the oracle of lrfslam/algo/_scan_match_kernel.py.
+"""The NumPy form of one ICP linearisation: the oracle of lrfslam/algo/scan_match_kernel.py.
 
 A k-d tree gives each moved current point its nearest reference point within the gate, and
 array operations give the residuals, weights and normal equations, as scan matching did
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lrfslam.algo._scan_match_kernel import Linearised
+from lrfslam.algo.scan_match_kernel import Linearised
 
 
 def linearise(ref_pts, ref_normals, cur_pts, cur_normals, u, gate_m, max_normal_angle_rad,

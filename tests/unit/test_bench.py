@@ -183,7 +183,10 @@ def test_the_dense_update_timed_against_ours_is_the_same_update():
     f = bench_cost.random_filter(6, rng)
     k = f.state_mean.size - 12 + 2 * 4   # landmark 4's x
     R = np.diag([0.015**2, 0.005**2])
-    z = bench_cost._range_bearing(f.state_mean, k)[0].ravel() + [0.05, 0.01]
+    x = f.state_mean
+    dx, dy = x[k] - x[0], x[k + 1] - x[1]
+    bearing = (np.arctan2(dy, dx) - x[2] + np.pi) % (2 * np.pi) - np.pi
+    z = np.array([np.hypot(dx, dy), bearing]) + [0.05, 0.01]
     dense = ExtendedKalmanFilter(dim_x=f.state_mean.size, dim_z=2)
     dense.x, dense.P = f.state_mean.reshape(-1, 1).copy(), f.state_cov.copy()
     bench_cost.dense_update(dense, z, R, k)

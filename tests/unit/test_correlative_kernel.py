@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from reference_correlative import scores as oracle
 
-from lrfslam.algo import _correlative_kernel as kernel
+from lrfslam.algo import correlative_kernel as kernel
 
 
 @settings(max_examples=60, deadline=None)

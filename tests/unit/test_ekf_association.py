@@ -103,7 +103,8 @@ def test_jcbb_finds_the_brute_force_optimum(seed, n_obs, n_lm):
     joint = a @ a.T / len(pairs) + 0.3 * np.eye(2 * len(pairs))
     innov = rng.normal(scale=1.2, size=(len(pairs), 2))
     # The filter hands JCBB individually compatible candidates only.
-    nis, _ = association.nis_2d(innov, association._diag_blocks(joint))
+    blocks = np.stack([joint[2 * k: 2 * k + 2, 2 * k: 2 * k + 2] for k in range(len(pairs))])
+    nis, _ = association.nis_2d(innov, blocks)
     keep = nis < chi2.ppf(0.99, 2)
     if not keep.any():
         return

@@ -1,4 +1,4 @@
-"""The accelerated forward search (algo._forward_search_kernel) piece by piece.
+"""The accelerated forward search (algo.forward_search_kernel) step by step.
 
 Its picks against a point-by-point walk with the search windows made tiny and wide, and
 the screen's bound against corners built to lie on it. ``test_features_oracle.py``
@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lrfslam.algo import _forward_search_kernel as K
+from lrfslam.algo import forward_search_kernel as K
 from lrfslam.algo.features import FeatureParams
 
 DEFAULT = FeatureParams.default()
@@ -46,19 +46,16 @@ def naive_picks(p, first, last, dists, euclidean):
 
 
 def arms_by_scan_column(arms, m):
-    """_arm_picks output as {base: (2 sides, A) pick columns in scan order}."""
+    """arm_picks output as {base: (2 sides, A) pick columns in scan order}."""
     cols = np.where(arms[0] >= m, 2 * m - 1 - arms[0], arms[0])
     return {int(j): np.stack((cols[:, 1:][i], arms[1, i, 1:])) for i, j in enumerate(arms[1, :, 0])}
 
 
 @pytest.mark.parametrize("near, far", [(4, 12), (1, 2), (16, 32)])
 @pytest.mark.parametrize("metric", ["euclidean", "arclength"])
-def test_arm_picks_match_a_point_by_point_walk(metric, near, far, monkeypatch):
+def test_arm_picks_match_a_point_by_point_walk(metric, near, far):
     # The search windows change speed only: tiny ones send most picks through the
     # slow paths, wide ones through none.
-    monkeypatch.setattr(K, "_NEAR", near)
-    monkeypatch.setattr(K, "_FAR", far)
-    monkeypatch.setattr(K, "_TAIL", np.full(max(near, far) + 1, complex(K._FAR_AWAY, 0.0)))
     rng = np.random.default_rng(11)
     # No straightness check: no screen, so every base with both arms is returned.
     params = dataclasses.replace(DEFAULT, arm_metric=metric, arm_max_resid_m=None)
@@ -72,7 +69,7 @@ def test_arm_picks_match_a_point_by_point_walk(metric, near, far, monkeypatch):
         ends = np.concatenate((breaks - 1, [m - 1]))
         first, last = starts[run], ends[run]
         z = p[:, 0] + 1j * p[:, 1]
-        got = arms_by_scan_column(K._arm_picks(*K._doubled(z, np.abs(np.diff(z)), (breaks - 1).tolist()), params), m)
+        got = arms_by_scan_column(K.arm_picks(*K.doubled(z, np.abs(np.diff(z)), (breaks - 1).tolist(), far), params, near, far), m)
         expect = naive_picks(p, first, last, params.arm_dists_m, metric == "euclidean")
         full = np.flatnonzero(np.all(expect >= 0, axis=(1, 2)))
         assert sorted(got) == full.tolist()
@@ -96,7 +93,7 @@ def test_the_screen_never_drops_a_corner():
     # Wherever the reference's TLS test sees a corner, the chords to the nearest
     # picks must pass the screen.
     rng = np.random.default_rng(12)
-    tan_tol = K._screen_tan(DEFAULT)
+    tan_tol = K.screen_tan(DEFAULT)
     rho, dists = DEFAULT.arm_max_resid_m, np.array(DEFAULT.arm_dists_m)
     n = 4000
     direction = rng.uniform(0, 2 * np.pi, n)
@@ -110,9 +107,9 @@ def test_the_screen_never_drops_a_corner():
         off = np.concatenate((-a, a, b2, np.zeros((n, 1)), -b2), axis=1)  # Σoff = 0, Σ along·off = 0
         arms.append((along + 1j * (off - off[:, :1])) * np.exp(1j * theta)[:, None])  # base point at 0
     arms = np.stack(arms)  # (2, n, A + 1)
-    theta, max_resid = (v.reshape(2, n) for v in K._arm_fit(arms.reshape(2 * n, -1).T))
+    theta, max_resid = (v.reshape(2, n) for v in K.arm_fit(arms.reshape(2 * n, -1).T))
     corner = (90.0 - line_angle_deg(theta[0], theta[1]) <= DEFAULT.corner_tol_deg) & np.all(max_resid <= rho, axis=0)
     assert corner.sum() > 1000
-    assert K._square(arms[:, corner, 1], tan_tol).all()
+    assert K.square(arms[:, corner, 1], tan_tol).all()
     # The same chords through a screen 1° tighter lose corners: the bound is tight.
-    assert not K._square(arms[:, corner, 1], np.tan(np.arctan(tan_tol) - np.radians(1.0))).all()
+    assert not K.square(arms[:, corner, 1], np.tan(np.arctan(tan_tol) - np.radians(1.0))).all()

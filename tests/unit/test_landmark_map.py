@@ -8,7 +8,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lrfslam.msgs import types as t
-from lrfslam.msgs.landmark_map import LandmarkMapReplica, _sigmas, apply, by_id, changes
+from lrfslam.msgs.landmark_map import (
+    LandmarkMapReplica,
+    apply,
+    axis_sigmas,
+    by_id,
+    changes,
+)
 
 TOL = 0.005
 
@@ -44,7 +50,7 @@ def assert_within(held: t.Landmarks, exact: t.Landmarks, tol: float) -> None:
     for name in ("kind", "sightings", "confirmed"):
         np.testing.assert_array_equal(getattr(held, name), getattr(exact, name))
     assert np.all(np.hypot(*(held.xy_m - exact.xy_m).T) <= tol)
-    assert np.all(np.abs(_sigmas(held.cov_m2) - _sigmas(exact.cov_m2)) <= tol)
+    assert np.all(np.abs(axis_sigmas(held.cov_m2) - axis_sigmas(exact.cov_m2)) <= tol)
 
 
 @settings(max_examples=40, deadline=None)

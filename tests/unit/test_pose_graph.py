@@ -121,13 +121,44 @@ def test_relative_covariance_of_a_chain_adds_up():
     assert rel[1, 1] == pytest.approx(3 * 0.02 + 0.001 * (1 + 4))
 
 
+def edge_error_xy(xi, xj, z):
+    """An edge's position error, (2,): node j in node i's frame less the measurement, in the
+    measurement's frame; written with numpy ufuncs only, so complex steps differentiate it."""
+    ci, si, cz, sz = np.cos(xi[2]), np.sin(xi[2]), np.cos(z[2]), np.sin(z[2])
+    dx, dy = xj[0] - xi[0], xj[1] - xi[1]
+    a0, a1 = ci * dx + si * dy - z[0], -si * dx + ci * dy - z[1]
+    return np.array([cz * a0 + sz * a1, -sz * a0 + cz * a1])
+
+
+def edge_jacobian(xi, xj, z):
+    """(3, 6) Jacobian of an edge's error with respect to (x_i, x_j), by complex steps (exact to
+    rounding, and independent of the graph's own analytic Jacobians)."""
+    jac = np.zeros((3, 6))
+    for k in range(6):
+        x = np.concatenate((xi, xj)).astype(complex)
+        x[k] += 1e-30j
+        jac[:2, k] = edge_error_xy(x[:3], x[3:], z).imag / 1e-30
+    jac[2, 2], jac[2, 5] = -1.0, 1.0   # the heading error is θ_j − θ_i − θ_z
+    return jac
+
+
 def gauge_a_covariance(graph: PoseGraph, a: int, b: int) -> np.ndarray:
-    """The oracle: node ``a`` held fixed (dropped from the dense normal equations), ``b``'s covariance in its frame."""
-    _, i, j, z, info, robust = graph._arrays()
-    h, _, reduced = graph._normal_equations(graph.poses, i, j, z, info, robust, gauge=a)
-    rb = 3 * reduced[b]
-    cov_world = np.linalg.inv(h.toarray())[rb: rb + 3, rb: rb + 3]
-    c, s = np.cos(graph.poses[a, 2]), np.sin(graph.poses[a, 2])
+    """The oracle: dense normal equations built from the graph's public edges (each weighted by its
+    Cauchy weight), node ``a`` held fixed (left out), ``b``'s covariance in ``a``'s frame."""
+    n, poses, weights = len(graph), graph.poses, graph.loop_weights()
+    h = np.zeros((3 * n, 3 * n))
+    for edge in range(len(weights)):   # every edge added; removed ones are NaN
+        if np.isnan(weights[edge]):
+            continue
+        i, j = graph.edge_nodes(edge)
+        jac = edge_jacobian(poses[i], poses[j], graph.edge_measurement(edge))
+        cols = np.r_[3 * i: 3 * i + 3, 3 * j: 3 * j + 3]
+        h[np.ix_(cols, cols)] += jac.T @ (weights[edge] * graph.edge_information(edge)) @ jac
+    kept = np.r_[0: 3 * a, 3 * a + 3: 3 * n]
+    cov = np.linalg.inv(h[np.ix_(kept, kept)])
+    rb = 3 * b - (3 if b > a else 0)
+    cov_world = cov[rb: rb + 3, rb: rb + 3]
+    c, s = np.cos(poses[a, 2]), np.sin(poses[a, 2])
     rot_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
     return rot_t @ cov_world @ rot_t.T
 

@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 from reference_scan_match import line_normals as normals_oracle
 from reference_scan_match import linearise as oracle
 
-from lrfslam.algo import _scan_match_kernel as kernel
 from lrfslam.algo import scan_match as sm
+from lrfslam.algo import scan_match_kernel as kernel
 from lrfslam.algo.scan_match import ReferenceScan, ScanMatchParams
 
 P = ScanMatchParams()

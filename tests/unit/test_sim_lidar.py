@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from lrfslam.errors import ConfigError
 from lrfslam.sim.floor_plans import doorway_room, hallway_loop, straight_wall
-from lrfslam.sim.lidar import LidarModel, _first_hit, raycast, simulate_scan
+from lrfslam.sim.lidar import LidarModel, first_hit, raycast, simulate_scan
 
 ANGLES = LidarModel().angles_rad()
 
@@ -60,8 +60,8 @@ def test_walls_out_of_range_left_out_change_nothing(seed, max_range):
     seg = rng.uniform(-10, 10, (40, 4))
     seg[:5] = np.round(seg[:5])   # some walls sharing vertices with others
     pose = (*rng.uniform(-5, 5, 2), rng.uniform(-np.pi, np.pi))
-    ranges, index = _first_hit(seg, pose, ANGLES, max_range)
-    every, every_index = _first_hit(seg, pose, ANGLES)
+    ranges, index = first_hit(seg, pose, ANGLES, max_range)
+    every, every_index = first_hit(seg, pose, ANGLES)
     beyond = every > max_range
     np.testing.assert_array_equal(ranges, np.where(beyond, np.inf, every))
     np.testing.assert_array_equal(index, np.where(beyond, -1, every_index))

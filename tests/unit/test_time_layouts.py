@@ -195,9 +195,9 @@ def test_receive_order_is_undone_within_the_window(draws):
     """Messages delayed by less than the window come out in stamp order, each once; ties in receive order."""
     messages = sorted((_message(topic, stamp, stamp + delay) for topic, stamp, delay in draws),
                       key=lambda m: m.log_time_ns)
-    out = list(reader._by_stamp(messages))
+    out = list(reader.in_stamp_order(messages))
     assert sorted(out, key=id) == sorted(messages, key=id)
     assert [m.stamp_ns for m in out] == sorted(m.stamp_ns for m in messages)
     # Where log time is the stamp (older and offline files), nothing moves.
     stamped = sorted((_message(topic, stamp, stamp) for topic, stamp, _ in draws), key=lambda m: m.log_time_ns)
-    assert [id(m) for m in reader._by_stamp(stamped)] == [id(m) for m in stamped]
+    assert [id(m) for m in reader.in_stamp_order(stamped)] == [id(m) for m in stamped]

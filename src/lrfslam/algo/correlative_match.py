@@ -25,7 +25,7 @@ Design choices
 * **Breadth-first, by levels.** Python cannot afford a depth-first search one
   node at a time; a greedy descent from the best top-level candidates gives a
   good first leaf (lower bound) and then whole levels are scored (a compiled
-  loop, ``_correlative_kernel``) and pruned at once. ``max_frontier`` caps a level in a pathological (featureless)
+  loop, ``correlative_kernel``) and pruned at once. ``max_frontier`` caps a level in a pathological (featureless)
   map; the search is then no longer exact and says so (``exact``).
 * **Zero border.** The grid has a border of empty cells and indices are clipped
   into it, so a point pushed out of the map scores 0 at the leaves and the
@@ -48,8 +48,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
-from lrfslam.algo import _correlative_kernel as kernel
+from lrfslam.algo import correlative_kernel as kernel
 from lrfslam.algo.checks import require_finite
+from lrfslam.algo.geometry import from_frame
 from lrfslam.errors import ConfigError, InputError
 
 #: Standard deviation of the likelihood around each map point (m).
@@ -136,8 +137,7 @@ class LikelihoodGrid:
     def score(self, points_xy_m, pose) -> float:
         """Mean likelihood (0–1) of the points (N, 2, robot frame) placed at ``pose`` (3,) in the map frame."""
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        moved = pts @ np.array([[c, s], [-s, c]]) + np.asarray(pose[:2], dtype=float)
+        moved = from_frame(pts, pose)
         col, row = self._cells(moved)
         return float(np.mean(self.grid[row, col])) if pts.size else 0.0
 

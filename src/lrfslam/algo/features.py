@@ -38,7 +38,7 @@ turns them all off, ``default()`` on; docs/features.md measures each):
 Speed. The functions here state the method one base point at a time and are the
 reference. Forward searching on every base point in Python is slow, so
 :func:`extract_features` runs by default an accelerated version of
-:func:`right_angle_bases` (``lrfslam/algo/_forward_search_kernel.py``) that returns the
+:func:`right_angle_bases` (``lrfslam/algo/forward_search_kernel.py``) that returns the
 same base points and angles; ``tests/unit/test_features_oracle.py`` holds the two to
 that on simulated, real and generated scans. Everything else runs as written here.
 
@@ -66,7 +66,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from lrfslam.algo import _forward_search_kernel
+from lrfslam.algo import forward_search_kernel
 from lrfslam.algo.histogram import valid_returns
 from lrfslam.algo.mixed_pixels import beam_tables
 from lrfslam.algo.scalars import const
@@ -639,7 +639,7 @@ def extract_features(ranges_m: np.ndarray, angles_rad: np.ndarray, kept: np.ndar
     n_invalid = no_return.searchsorted(idx)
     breaks = ((n_invalid[1:] != n_invalid[:-1]) | (step > const(params.arm_break_gap_m))).nonzero()[0].tolist()
 
-    search = _forward_search_kernel.right_angle_bases if accelerated else right_angle_bases
+    search = forward_search_kernel.right_angle_bases if accelerated else right_angle_bases
     columns, angles, arm_ends = search(z, step, breaks, params)
     found = _corners(z, breaks, columns, angles, arm_ends, params) if columns else []
     edges = jump_edges(r, valid, idx, step, n_invalid, len(no_return), breaks, params)

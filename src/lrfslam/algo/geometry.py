@@ -59,12 +59,13 @@ def compose(pose, delta):
 
     Parameters
     ----------
-    pose, delta : array_like, shape (3,)
-        ``(x_m, y_m, theta_rad)``.
+    pose, delta : array_like, shape (3,) or (3, N)
+        ``(x_m, y_m, theta_rad)``; with N columns, composed column by column (rows of
+        poses (N, 3) go in and come out transposed).
 
     Returns
     -------
-    ndarray, shape (3,)
+    ndarray, shape (3,) or (3, N)
         ``pose ⊕ delta``, heading wrapped.
     """
     x, y, t = pose
@@ -76,9 +77,14 @@ def compose(pose, delta):
 def relative(pose_a, pose_b):
     """Motion from ``pose_a`` to ``pose_b`` in ``pose_a``'s frame (``pose_a ⊖ pose_b``).
 
+    Parameters
+    ----------
+    pose_a, pose_b : array_like, shape (3,) or (3, N)
+        As for :func:`compose`.
+
     Returns
     -------
-    ndarray, shape (3,)
+    ndarray, shape (3,) or (3, N)
         ``delta`` such that ``compose(pose_a, delta) == pose_b``.
     """
     xa, ya, ta = pose_a
@@ -86,6 +92,22 @@ def relative(pose_a, pose_b):
     c, s = np.cos(ta), np.sin(ta)
     dx, dy = xb - xa, yb - ya
     return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(tb - ta)])
+
+
+def rotate_covariance(cov, theta):
+    """Covariances of points (..., 2, 2) or poses (..., 3, 3) in a frame turned by ``theta`` (rad, scalar or (...)).
+
+    ``R C Rᵀ`` with ``R`` rotating (x, y) and keeping the heading: how a covariance given in a
+    pose's frame reads in the frame that pose is in.
+    """
+    cov = np.asarray(cov, dtype=float)
+    n = cov.shape[-1]
+    c, s = np.cos(theta), np.sin(theta)
+    rot = np.zeros(np.shape(theta) + (n, n))
+    rot[..., 0, 0], rot[..., 0, 1], rot[..., 1, 0], rot[..., 1, 1] = c, -s, s, c
+    if n == 3:
+        rot[..., 2, 2] = 1.0
+    return rot @ cov @ np.swapaxes(rot, -1, -2)
 
 
 def inverse(pose) -> np.ndarray:

@@ -96,10 +96,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from lrfslam.algo import _scan_match_kernel as kernel
+from lrfslam.algo import scan_match_kernel as kernel
 from lrfslam.algo.checks import require_finite
 from lrfslam.algo.free_space import FreeSpace, seen_through
-from lrfslam.algo.geometry import compose, from_frame, relative, thin_points, wrap_angle
+from lrfslam.algo.geometry import (
+    compose,
+    from_frame,
+    relative,
+    rotate_covariance,
+    thin_points,
+    wrap_angle,
+)
 from lrfslam.errors import InputError
 
 
@@ -553,11 +560,10 @@ class ScanTracker:
                                                                np.full((3, 3), np.nan)))
         guess = compose(self.pose, u0)
         # The odometry covariance rotated from the previous robot frame into the tracker's frame.
-        rot = _rotation3(self.pose[2])
         free = FreeSpace.of_scan(guess, returns, FREE_SPACE_BIN_RAD, FREE_SPACE_SILENT_M)
         moved = self._moved(pts, free)
         pts = pts[~moved]
-        prior = rot @ q0 @ rot.T
+        prior = rotate_covariance(q0, self.pose[2])
         result = match(self._local_map(), pts, guess, self.params, prior)
         last = self._last_increment if follows_last else None
         if last is not None and abs(wrap_angle(last[2] - u0[2])) > SECOND_GUESS_MIN_RAD:
@@ -569,7 +575,7 @@ class ScanTracker:
                 result = other
         increment = relative(self.pose, result.pose) if result.ok else u0.copy()
         if result.ok:
-            cov = rot.T @ self._fresh_cov(result) @ rot
+            cov = rotate_covariance(self._fresh_cov(result), -self.pose[2])   # back into the robot frame
         else:
             cov = q0.copy()
             self._budget = None
@@ -658,9 +664,3 @@ def _psd_part(mat: np.ndarray) -> np.ndarray:
     """The positive semi-definite part of a symmetric (3, 3) matrix (negative eigenvalues set to 0)."""
     vals, vecs = np.linalg.eigh(0.5 * (mat + mat.T))
     return (vecs * np.clip(vals, 0.0, None)) @ vecs.T
-
-
-def _rotation3(theta: float) -> np.ndarray:
-    """Jacobian of a pose in a frame rotated by ``theta``: rotates (x, y), keeps the heading."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

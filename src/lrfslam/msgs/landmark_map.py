@@ -19,7 +19,7 @@ import numpy as np
 from lrfslam.msgs import types as t
 
 
-def _sigmas(cov_m2: np.ndarray) -> np.ndarray:
+def axis_sigmas(cov_m2: np.ndarray) -> np.ndarray:
     """Standard deviations (L, 4) along x, y and the two diagonals of covariances (L, 2, 2), m."""
     xx, yy, xy = cov_m2[:, 0, 0], cov_m2[:, 1, 1], 0.5 * (cov_m2[:, 0, 1] + cov_m2[:, 1, 0])
     mid = 0.5 * (xx + yy)
@@ -61,7 +61,7 @@ def changes(sent: t.Landmarks, current: t.Landmarks, tolerance_m: float) -> tupl
         # Rows not held are sent anyway; what they are compared with does not matter.
         step = current.xy_m - sent.xy_m[pos]
         send |= np.hypot(step[:, 0], step[:, 1]) > tolerance_m
-        send |= (np.abs(_sigmas(current.cov_m2) - _sigmas(sent.cov_m2[pos])) > tolerance_m).any(axis=1)
+        send |= (np.abs(axis_sigmas(current.cov_m2) - axis_sigmas(sent.cov_m2[pos])) > tolerance_m).any(axis=1)
         send |= (current.kind != sent.kind[pos]) | (current.sightings != sent.sightings[pos]) \
             | (current.confirmed != sent.confirmed[pos])
     _, kept = _rows(current.ids, sent.ids)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lrfslam.algo.geometry import compose, inverse
+from lrfslam.algo.geometry import compose, from_frame, inverse, rotate_covariance
 from lrfslam.algo.occupancy_grid import GridParams, OccupancyGrid, build_grid
 from lrfslam.algo.stream_alignment import interpolate_pose
 from lrfslam.msgs import topics
@@ -173,9 +173,7 @@ class RosViews:
             self._map_from_slam = value.map_from_slam
             cov = self._covs.get(value.stamp_ns)
             if cov is not None:   # the EKF's covariance, turned into the mapper's frame
-                c, s = np.cos(value.map_from_slam[2]), np.sin(value.map_from_slam[2])
-                rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-                cov = rot @ cov @ rot.T
+                cov = rotate_covariance(cov, value.map_from_slam[2])
             return self._map_pose(value.stamp_ns, value.pose, cov)
         return []
 
@@ -225,10 +223,9 @@ class RosViews:
         held = self._landmarks.landmarks
         if not self.mapper_seen or len(held) == 0:
             return held
-        x, y, theta = self._map_from_slam
-        c, s = np.cos(theta), np.sin(theta)
-        rot = np.array([[c, -s], [s, c]])
-        return t.Landmarks(ids=held.ids, xy_m=held.xy_m @ rot.T + (x, y), cov_m2=rot @ held.cov_m2 @ rot.T,
+        frame = self._map_from_slam
+        return t.Landmarks(ids=held.ids, xy_m=from_frame(held.xy_m, frame),
+                           cov_m2=rotate_covariance(held.cov_m2, frame[2]),
                            kind=held.kind, sightings=held.sightings, confirmed=held.confirmed)
 
     def map_to_odom(self, stamp_ns: int, map_pose: np.ndarray) -> np.ndarray | None:

@@ -122,11 +122,11 @@ def raycast(segments_m: np.ndarray, pose, angles_rad: np.ndarray, max_range_m: f
     ndarray, shape (N,)
         Ranges in metres; ``inf`` where no wall is hit within ``max_range_m``.
     """
-    return _first_hit(segments_m, pose, angles_rad, max_range_m)[0]
+    return first_hit(segments_m, pose, angles_rad, max_range_m)[0]
 
 
-def _first_hit(segments_m, pose, angles_rad, max_range_m: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
-    """Ranges (N,) as :func:`raycast`, and the index (N,) of the segment hit, -1 where none."""
+def first_hit(segments_m, pose, angles_rad, max_range_m: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Ranges (N,) as :func:`raycast`, and the index (N,) of the segment hit, -1 where none (which wall: a person or a building's)."""
     seg = np.asarray(segments_m, dtype=float).reshape(-1, 4)
     if len(seg) == 0:
         n = len(np.atleast_1d(angles_rad))
@@ -211,7 +211,7 @@ def simulate_scan(
     n = len(angles)
     opaque = world.opaque_segments_m
     movers = np.zeros((0, 4)) if movers_m is None else np.asarray(movers_m, dtype=float).reshape(-1, 4)
-    true_ranges, index = _first_hit(np.vstack((opaque, movers)), pose, angles, model.max_range_m)
+    true_ranges, index = first_hit(np.vstack((opaque, movers)), pose, angles, model.max_range_m)
 
     edge_draw = rng.random(n - 1)
     weight = rng.uniform(0.2, 0.8, n - 1)

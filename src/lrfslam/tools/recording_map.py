@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lrfslam.algo.geometry import compose, inverse, relative
+from lrfslam.algo.geometry import compose, inverse, relative, rotate_covariance
 from lrfslam.algo.occupancy_grid import (
     FREE,
     FREE_THRESH,
@@ -156,7 +156,7 @@ def _anchor(stamps_ns: np.ndarray, poses: np.ndarray, others: dict) -> np.ndarra
     return None if first is None else trajectory_error.anchor(others[first], poses[index[first]])
 
 
-def _in_frame(stamps_ns: np.ndarray, poses: np.ndarray, others: dict) -> np.ndarray | None:
+def in_frame(stamps_ns: np.ndarray, poses: np.ndarray, others: dict) -> np.ndarray | None:
     """``others`` (stamp -> pose) in the frame of ``poses`` (:func:`_anchor`), in stamp order; (K, 3)."""
     anchor = _anchor(stamps_ns, poses, others)
     if anchor is None:
@@ -181,12 +181,12 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit
         slam = slam_at.get(int(stamps[k]), slam_at[last.stamp_ns])
         corrections.append(compose(poses[k], inverse(slam)))
     xy = np.array([compose(c, (*m, 0.0))[:2] for c, m in zip(corrections, lms.xy_m)]).reshape(-1, 2)
-    rots = [np.array([[np.cos(c[2]), -np.sin(c[2])], [np.sin(c[2]), np.cos(c[2])]]) for c in corrections]
-    cov = np.array([r @ c @ r.T for r, c in zip(rots, lms.cov_m2)]).reshape(-1, 2, 2)
+    cov = rotate_covariance(np.asarray(lms.cov_m2, dtype=float).reshape(-1, 2, 2),
+                            np.array([c[2] for c in corrections]))
     truth_poses = {s: g.pose for s, g in data["truth"].items()}
     sc = Scene(name=describe_source(path), trajectory_label=label, stamps_ns=stamps, estimate=poses,
                landmark_xy=xy, landmark_cov=cov, landmark_confirmed=np.asarray(lms.confirmed, bool),
-               truth=_in_frame(stamps, poses, truth_poses), odometry=_in_frame(stamps, poses, data["odom"]))
+               truth=in_frame(stamps, poses, truth_poses), odometry=in_frame(stamps, poses, data["odom"]))
     if sc.truth is not None:
         corners = {}
         for g in data["truth"].values():
@@ -197,7 +197,7 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit
         sc.grid, sc.scans_placed = _grid(stamps, poses, data["scans"], grid_params, fit)
         sc.scans_unplaced = len(data["scans"]) - sc.scans_placed
     sc.figures = _figures(sc, data)
-    sc.view = _view(sc)
+    sc.view = view_limits(sc)
     return sc
 
 
@@ -276,7 +276,7 @@ def _figures(sc: Scene, data: dict) -> dict:
     return fig
 
 
-def _view(sc: Scene) -> tuple[float, float, float, float]:
+def view_limits(sc: Scene) -> tuple[float, float, float, float]:
     """Axis limits: what is on the map (observed cells, estimate, truth, landmarks), 4 % margin, at least 0.5 m."""
     pts = [sc.estimate[:, :2], sc.landmark_xy]
     if sc.truth is not None:

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from lrfslam.algo.geometry import compose, inverse, polar_to_xy
+from lrfslam.algo.geometry import compose, from_frame, inverse, polar_to_xy
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import counters as names
 from lrfslam.msgs import topics
@@ -102,9 +102,7 @@ def _moved(frame_from_points: np.ndarray, xy: list[tuple[float, float]] | np.nda
     pts = np.asarray(xy, float).reshape(-1, 2)
     if pts.size == 0:
         return []
-    c, s = math.cos(frame_from_points[2]), math.sin(frame_from_points[2])
-    out = pts @ np.array([[c, s], [-s, c]]) + frame_from_points[:2]
-    return np.round(out, 3).tolist()
+    return np.round(from_frame(pts, frame_from_points), 3).tolist()
 
 
 class DashboardModel:

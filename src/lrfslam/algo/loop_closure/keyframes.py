@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lrfslam.algo.geometry import compose, relative
+
 #: The points of a keyframe that has none (trimmed), one array for all of them (read-only).
 NO_POINTS = np.zeros((0, 2))
 NO_POINTS.flags.writeable = False
@@ -100,7 +102,7 @@ def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray,
     """
     kf = np.asarray(scan_kf, dtype=np.int64)
     rel = np.asarray(scan_rel, dtype=float).reshape(-1, 3)
-    poses = _compose_rows(kf_poses[kf], rel)
+    poses = compose(kf_poses[kf].T, rel.T).T
     if kf.size == 0:
         return poses
     # A scan between two keyframes is placed from both, weighted by where it lies between
@@ -111,23 +113,9 @@ def place_scans(scan_kf: np.ndarray, scan_rel: np.ndarray, kf_poses: np.ndarray,
     blend = (nxt > kf) & np.asarray(kf_local_edge, dtype=bool)[nxt]
     if blend.any():
         idx = np.flatnonzero(blend)
-        local_scan = _compose_rows(kf_local_poses[kf[idx]], rel[idx])
-        from_next = _compose_rows(kf_poses[nxt[idx]], _relative_rows(kf_local_poses[nxt[idx]], local_scan))
+        local_scan = compose(kf_local_poses[kf[idx]].T, rel[idx].T)
+        from_next = compose(kf_poses[nxt[idx]].T, relative(kf_local_poses[nxt[idx]].T, local_scan)).T
         first = np.asarray(kf_first_scan, dtype=np.int64)
         w = (idx - first[kf[idx]]) / (first[nxt[idx]] - first[kf[idx]]).astype(float)
-        poses[idx] = _compose_rows(poses[idx], _relative_rows(poses[idx], from_next) * w[:, None])
+        poses[idx] = compose(poses[idx].T, relative(poses[idx].T, from_next.T) * w).T
     return poses
-
-
-def _compose_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise ``a ⊕ b`` of poses (T, 3)."""
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.column_stack((a[:, 0] + c * b[:, 0] - s * b[:, 1], a[:, 1] + s * b[:, 0] + c * b[:, 1],
-                            np.angle(np.exp(1j * (a[:, 2] + b[:, 2])))))
-
-
-def _relative_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise ``a ⊖ b`` (``b`` in ``a``'s frame) of poses (T, 3)."""
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    return np.column_stack((c * dx + s * dy, -s * dx + c * dy, np.angle(np.exp(1j * (b[:, 2] - a[:, 2])))))

@@ -138,7 +138,7 @@ def read_recording(source: RecordingSource, topics: Iterable[str] | None = None,
         report.segments.append(seg)
         streams.append(_read_file(path, topic_list, seg, report))
     merged = streams[0] if len(streams) == 1 else heapq.merge(*streams, key=lambda m: m.log_time_ns)
-    yield from _by_stamp(merged)
+    yield from in_stamp_order(merged)
 
 
 def count_messages(source: RecordingSource, report: ReadReport | None = None) -> Counter[str]:
@@ -168,7 +168,7 @@ def count_messages(source: RecordingSource, report: ReadReport | None = None) ->
     return counts
 
 
-def _by_stamp(messages: Iterable[RecordedMessage]) -> Iterator[RecordedMessage]:
+def in_stamp_order(messages: Iterable[RecordedMessage]) -> Iterator[RecordedMessage]:
     """``messages`` (in log-time order) in stamp order within :data:`REORDER_WINDOW_NS` of log time."""
     held: list[tuple[int, int, RecordedMessage]] = []   # (stamp, arrival, message): a heap
     for arrival, m in enumerate(messages):

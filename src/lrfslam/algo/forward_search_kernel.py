@@ -31,6 +31,11 @@ reversed, so one operation serves both sides. Two numpy habits recur: scalar ope
 are read-only 0-d arrays (``lrfslam/algo/scalars.py``), which numpy does not convert on
 every call, and reductions are ufunc ``reduce`` calls, which skip the Python wrappers of
 ``ndarray.any``/``sum``.
+
+The steps are public functions (:func:`doubled`, :func:`screen_tan` and :func:`square`,
+:func:`arm_picks`, :func:`arm_fit`) so that ``tests/unit/test_features_kernel.py`` holds
+each to a plain walk, with search windows narrow enough to send most picks down the
+rare paths.
 """
 
 from __future__ import annotations
@@ -47,12 +52,12 @@ if TYPE_CHECKING:
     from lrfslam.algo.features import FeatureParams
 
 # Columns tried at once by the Euclidean pick search from the arc-length bound
-# before searching the rest. Speed only: the screen's nearest pick lies within _NEAR
+# before searching the rest. Speed only: the screen's nearest pick lies within NEAR
 # of its bound for 95 % of base points (a miss passes the screen), every pick within
-# _FAR for 85-95 % (the rest are searched for); wider windows cost more per element
+# FAR for 85-95 % (the rest are searched for); wider windows cost more per element
 # than they save.
-_NEAR = 8
-_FAR = 16
+NEAR = 8
+FAR = 16
 # Arms (base points times two sides) whose pick thresholds are laid out in full: past
 # the screen a scan has 20 or so, without it (the paper mode) 100 or so; a full-size
 # comparison is the cheaper one.
@@ -67,7 +72,6 @@ _ZERO_F = np.zeros(1)
 # so far away that every distance to them passes, yet finite, so chords to them
 # multiply without overflow or NaN. A pick there lies past every stretch's end.
 _FAR_AWAY = 1e150
-_TAIL = np.full(_FAR + 1, complex(_FAR_AWAY, 0.0))
 _HALF = const(0.5)
 _MINUS_I = const(-1j)
 _RIGHT_DEG = const(90.0)
@@ -103,13 +107,13 @@ def right_angle_bases(z: np.ndarray, step_m: np.ndarray, breaks: list[int],
     m = len(z)
     if m < 2 * len(params.arm_dists_m) + 1:
         return [], [], []
-    zz, arc, end = _doubled(z, step_m, breaks)
-    arms = _arm_picks(zz, arc, end, params)
+    zz, arc, end = doubled(z, step_m, breaks)
+    arms = arm_picks(zz, arc, end, params)
     n = arms.shape[1]
     if not n:
         return [], [], []
     # One arm per column, the lower sides first.
-    theta, max_resid = _arm_fit(zz[arms.reshape(2 * n, -1).T])
+    theta, max_resid = arm_fit(zz[arms.reshape(2 * n, -1).T])
     # The angle between the lines is min(d, 180° - d), d in [0°, 180°] (θ in
     # [-90°, 90°]), so its distance from a right angle is |d - 90°|, exactly.
     d = np.degrees(np.abs(theta[:n] - theta[n:]))
@@ -132,7 +136,7 @@ def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, 
     Parameters
     ----------
     z : ndarray of complex, shape (K + width - 1,)
-        Points, metres, followed by at least ``width - 1`` of ``_TAIL``.
+        Points, metres, followed by at least ``width - 1`` far-away points (:func:`_tail`).
     col, start, stop : ndarray of int, shape (P,)
         Base column and inclusive search range of each pair; ``start <= stop < K``.
     d_m : float
@@ -159,11 +163,11 @@ def _reach(z: np.ndarray, col: np.ndarray, start: np.ndarray, stop: np.ndarray, 
     return out
 
 
-def _square(c: np.ndarray, tan_tol: float) -> np.ndarray:
+def square(c: np.ndarray, tan_tol: float) -> np.ndarray:
     """Chord pairs whose lines may be at a right angle, shape (B,) bool.
 
     ``c`` (2, B) holds the chords ``x + iy`` of both sides; ``tan_tol`` is
-    ``tan(tol)`` from :func:`_screen_tan`.
+    ``tan(tol)`` from :func:`screen_tan`.
     """
     # c_lo · conj(c_hi) = dot + i cross, and the angle between the chords' lines is
     # >= 90° - tol  <=>  |dot| <= |cross| tan(tol).
@@ -189,7 +193,7 @@ def _windows(zz: np.ndarray, width: int) -> np.ndarray:
     return np.ndarray((len(zz) - width + 1,), _window_dtype(width, zz.itemsize), zz, 0, (zz.itemsize,))
 
 
-def _doubled(z: np.ndarray, step_m: np.ndarray, breaks: list[int]):
+def doubled(z: np.ndarray, step_m: np.ndarray, breaks: list[int], far: int = FAR):
     """The kept points followed by their reverse, for searching both sides at once.
 
     The lower side of base j is the upper side of column 2M - 1 - j.
@@ -202,18 +206,21 @@ def _doubled(z: np.ndarray, step_m: np.ndarray, breaks: list[int]):
         Distances between successive points, metres.
     breaks : list of int
         Points after which a new stretch starts, increasing.
+    far : int
+        The widest search window :func:`arm_picks` will use on it.
 
     Returns
     -------
-    zz : ndarray of complex, shape (2M + _FAR + 1,)
-        The points, then in reverse, then ``_TAIL`` (search windows may run off the end).
+    zz : ndarray of complex, shape (2M + far + 1,)
+        The points, then in reverse, then ``far + 1`` points far away (search windows
+        may run off the end).
     arc : ndarray, shape (2M,)
         Cumulative arc length along ``zz``, metres.
     end : ndarray of int, shape (2M,)
         Column of the last point of each point's stretch; the seam ends one too.
     """
     last = 2 * len(z) - 1
-    zz = np.concatenate((z, z[::-1], _TAIL))
+    zz = np.concatenate((z, z[::-1], _tail(far)))
     arc = np.concatenate((_ZERO_F, step_m, _ZERO_F, step_m[::-1])).cumsum()
     # A scan has a stretch or two (2.4 on average in the simulation): their ends are
     # listed in Python and repeated over their columns. Stretch [s, e] is columns
@@ -224,7 +231,7 @@ def _doubled(z: np.ndarray, step_m: np.ndarray, breaks: list[int]):
     return zz, arc, np.array(ends + [last - s for s in reversed(starts)]).repeat(sizes + sizes[::-1])
 
 
-def _screen_tan(params: FeatureParams) -> float | None:
+def screen_tan(params: FeatureParams) -> float | None:
     """Tangent of the screen's tolerance (module docstring, step 2), or None for no screen.
 
     The screen compares the chords from a base point to its nearest picks, at least
@@ -241,7 +248,7 @@ def _screen_tan(params: FeatureParams) -> float | None:
 
 @lru_cache(maxsize=16)
 def _screen_tan_of(rho_m: float, d_m: float, tol_deg: float) -> float | None:
-    """:func:`_screen_tan` of ``arm_max_resid_m``, ``arm_dists_m[0]`` (m) and ``corner_tol_deg``, memoised."""
+    """:func:`screen_tan` of ``arm_max_resid_m``, ``arm_dists_m[0]`` (m) and ``corner_tol_deg``, memoised."""
     slope = min(1.0, 2.0 * rho_m / d_m)
     tol = tol_deg + 2.0 * math.degrees(math.asin(slope)) + _SCREEN_SLACK_DEG
     return math.tan(math.radians(tol)) if tol < 90.0 else None
@@ -279,14 +286,18 @@ def _pick_tables(dists_m: tuple[float, ...], slack_m: float, far: int) -> _PickT
     return tables
 
 
-def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: FeatureParams) -> np.ndarray:
+def arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: FeatureParams,
+              near: int = NEAR, far: int = FAR) -> np.ndarray:
     """Arms of the base points that have both, as columns of the doubled scan.
 
     Parameters
     ----------
     zz, arc, end
-        From :func:`_doubled` (M points).
+        From :func:`doubled` (M points, with the same or a wider ``far``).
     params : FeatureParams
+    near, far : int
+        Widths of the screen's and the picks' first search windows, columns: speed
+        only, every width gives the same arms.
 
     Returns
     -------
@@ -294,12 +305,12 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: Feature
         Per side (0 = lower beams, in the reversed half) and base point (by scan
         column), the column in ``zz`` of the base point followed by its picks, nearest
         first. Every base point with both arms is there, less those the screen
-        (:func:`_screen_tan`) proves cannot be corners.
+        (:func:`screen_tan`) proves cannot be corners.
     """
     m = len(arc) // 2
     dists = params.arm_dists_m
     euclid = params.arm_metric == "euclidean"
-    tables = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0, _FAR)
+    tables = _pick_tables(dists, _ARC_SLACK_M if euclid else 0.0, far)
     offsets = tables.offsets
     # Arc length is never shorter than the distance from the base: a stretch too
     # short in arc length on either side has no farthest pick (step 1).
@@ -312,27 +323,27 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: Feature
         return np.concatenate((col[:, None], arc.searchsorted(arc[col][:, None] + offsets)), axis=1).reshape(
             2, len(base), len(dists) + 1)
     zb = zz[col]
-    windows = _windows(zz, _FAR + 1)
-    tan_tol = _screen_tan(params)
+    windows = _windows(zz, far + 1)
+    tan_tol = screen_tan(params)
     if tan_tol is not None:
-        # Stage 1 (the screen): the nearest pick, in a window of _NEAR columns from its
+        # Stage 1 (the screen): the nearest pick, in a window of near columns from its
         # arc-length bound, where it nearly always is (zz's tail lets the window run
         # off the end). A side without a hit there gets a zero chord, which passes:
         # stage 2 decides it. A hit past the stretch's end is no pick, but then there
         # is no farthest pick either and stage 2 drops the base.
         lb0 = arc.searchsorted(arc[col] + tables.offset_first)
-        chords = _windows(zz, _NEAR + 1)[lb0[:, None]].view(np.complex128)
+        chords = _windows(zz, near + 1)[lb0[:, None]].view(np.complex128)
         chords -= zb[:, None]
         dist = np.abs(chords)
         # The window's last column is its sentinel: far enough, and a zero chord.
         dist[:, -1] = _INF
         chords[:, -1] = 0.0
         hit = (dist >= tables.first).argmax(axis=1)
-        chord = chords.ravel()[np.arange(0, chords.size, _NEAR + 1) + hit]
-        ok = _square(chord.reshape(2, len(base)), tan_tol)
+        chord = chords.ravel()[np.arange(0, chords.size, near + 1) + hit]
+        ok = square(chord.reshape(2, len(base)), tan_tol)
         ok = np.concatenate((ok, ok))
         col, zb = col[ok], zb[ok]
-    # Stage 2: every pick, each in a window of _FAR columns from its arc-length bound
+    # Stage 2: every pick, each in a window of far columns from its arc-length bound
     # (the farthest lags its bound most: arc length gathers the most noise there).
     lb = arc.searchsorted(arc[col][:, None] + offsets)  # (2B, A)
     every = tables.every[:len(col)] if len(col) <= _EVERY_ROWS else tables.every[0]
@@ -340,24 +351,24 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: Feature
     pick = lb + hit
     got = hit < tables.far
     stop = end[col]
-    far = pick[:, -1]
+    farthest = pick[:, -1]
     if np.count_nonzero(got) == got.size:
         # Nearly always every pick lies in its window: a base keeps its arms if both
         # farthest picks lie in their stretches.
-        inside = far <= stop
+        inside = farthest <= stop
         arms = np.concatenate((col[:, None], pick), axis=1).reshape(2, len(col) // 2, len(dists) + 1)
         if np.count_nonzero(inside) == inside.size:
             return arms
         inside = inside.reshape(2, -1)
         return arms[:, (inside[0] & inside[1]).nonzero()[0]]
-    got[:, -1] &= far <= stop
+    got[:, -1] &= farthest <= stop
     # The farthest pick must lie in the stretch; where its window found nothing and
     # ended inside the stretch, the rest of the stretch is searched.
     far_lb = lb[:, -1]
-    j = ((far_lb + _FAR <= stop) > got[:, -1]).nonzero()[0]
+    j = ((far_lb + far <= stop) > got[:, -1]).nonzero()[0]
     if len(j):
-        far[j] = _reach(zz, col[j], far_lb[j] + _FAR, stop[j], dists[-1], _FAR)
-        got[j, -1] = far[j] >= 0
+        farthest[j] = _reach(zz, col[j], far_lb[j] + far, stop[j], dists[-1], far)
+        got[j, -1] = farthest[j] >= 0
     has = got[:, -1].reshape(2, -1)
     has = (has[0] & has[1]).nonzero()[0]
     arms = np.concatenate((col[:, None], pick), axis=1).reshape(2, len(col) // 2, len(dists) + 1)[:, has]
@@ -366,12 +377,20 @@ def _arm_picks(zz: np.ndarray, arc: np.ndarray, end: np.ndarray, params: Feature
     # for up to it.
     got = got.reshape(2, -1, len(dists))[:, has, :-1]
     if np.count_nonzero(got) != got.size:
-        missed, far, lb = ~got, arms[..., -1], lb.reshape(2, -1, len(dists))[:, has]
+        missed, farthest, lb = ~got, arms[..., -1], lb.reshape(2, -1, len(dists))[:, has]
         for a in range(len(dists) - 1):
             j = missed[..., a].nonzero()
             if len(j[0]):
-                arms[..., a + 1][j] = _reach(zz, arms[..., 0][j], lb[..., a][j] + _FAR, far[j], dists[a], _FAR)
+                arms[..., a + 1][j] = _reach(zz, arms[..., 0][j], lb[..., a][j] + far, farthest[j], dists[a], far)
     return arms
+
+
+@lru_cache(maxsize=8)
+def _tail(far: int) -> np.ndarray:
+    """``far + 1`` points ``_FAR_AWAY`` off, read-only: the padding after the doubled scan."""
+    t = np.full(far + 1, complex(_FAR_AWAY, 0.0))
+    t.setflags(write=False)
+    return t
 
 
 @lru_cache(maxsize=8)
@@ -382,7 +401,7 @@ def _centring(p: int) -> np.ndarray:
     return c
 
 
-def _arm_fit(arm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def arm_fit(arm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """TLS lines through the points of each arm.
 
     Parameters
