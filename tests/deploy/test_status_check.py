@@ -7,7 +7,8 @@ from lrfslam.tools.status import check, main
 
 
 def status(service: str, level: int, message: str = "") -> t.ServiceStatus:
-    return t.ServiceStatus(service, "robot1", level, message, 0, 1.0, {}, 0, "{}", (), 1, "host")
+    return t.ServiceStatus(service=service, robot="robot1", level=level, message=message, wall_stamp_ns=0,
+                           uptime_s=1.0, counters={}, config_json="{}", pid=1, host="host")
 
 
 def test_alive_and_not_error_is_healthy_even_when_stale():

@@ -96,8 +96,10 @@ def pipeline(acl):
 
 def scan(seq: int) -> bytes:
     n = 181
-    return codec.LASER_SCAN.encode(t.LaserScan(seq * 100_000_000, seq, np.full(n, 2.0 + 0.01 * seq),
-                                               np.zeros(n, np.uint8), -np.pi / 2, np.pi / (n - 1)))
+    return codec.LASER_SCAN.encode(t.LaserScan(stamp_ns=seq * 100_000_000, seq=seq,
+                                               ranges_m=np.full(n, 2.0 + 0.01 * seq),
+                                               status=np.zeros(n, np.uint8), angle_min_rad=-np.pi / 2,
+                                               angle_increment_rad=np.pi / (n - 1)))
 
 
 class Received:
@@ -240,7 +242,8 @@ def test_a_late_monitor_catches_up_through_the_acl(pipeline):
     every service's status and the newest of the outputs kept for late joiners (``topics.latest``),
     answered by service-certificate queryables. Both are queries the list lets a monitor make."""
     paths, endpoint = pipeline
-    state = t.SlamState(900_000_000, 9, 9, np.array([1.0, 2.0, 0.5]), np.eye(3) * 0.01)
+    state = t.SlamState(stamp_ns=900_000_000, seq=9, scan_seq=9, pose=np.array([1.0, 2.0, 0.5]),
+                        pose_cov=np.eye(3) * 0.01)
     payload = codec.SLAM_STATE.encode(state)
     key = topics.latest(ROBOT, topics.SLAM_STATE.name)
     asked: list[str] = []

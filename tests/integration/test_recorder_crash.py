@@ -62,7 +62,7 @@ def odom_seqs(source) -> list[int]:
 
 
 def odom(i: int) -> bytes:
-    return codec.ODOMETRY.encode(t.Odometry(i * PERIOD_NS, i, (0.1 * i, 0.0, 0.0)))
+    return codec.ODOMETRY.encode(t.Odometry(stamp_ns=i * PERIOD_NS, seq=i, pose=(0.1 * i, 0.0, 0.0)))
 
 
 @pytest.mark.slow   # end to end, long: the slow step (.ci/run step 3)

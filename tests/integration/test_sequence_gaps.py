@@ -26,7 +26,7 @@ ROBOT = "gaps"
 
 
 def odom(i: int) -> bytes:
-    return codec.ODOMETRY.encode(t.Odometry(i * 1000, i, (0.0, 0.0, 0.0)))
+    return codec.ODOMETRY.encode(t.Odometry(stamp_ns=i * 1000, seq=i, pose=(0.0, 0.0, 0.0)))
 
 
 def wait_until(predicate, what: str, timeout_s: float = 10.0):

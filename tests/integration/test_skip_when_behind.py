@@ -30,8 +30,9 @@ PERIOD_NS = 13_333_333   # 75 scans/s
 def inputs(i: int, stamp_ns: int) -> list[tuple]:
     """Scan ``i``'s odometry, scan and features, all stamped ``stamp_ns``."""
     scan = t.LaserScan.from_ranges(stamp_ns, i, np.full(181, 2.0), -np.pi / 2, np.pi / 180)
-    feats = t.Features(stamp_ns, i, i, [], np.zeros((0, 2)), np.zeros((0, 2, 2)), [], [])
-    return [(topics.ODOM, codec.ODOMETRY.encode(t.Odometry(stamp_ns, i, (0.01 * i, 0.0, 0.0)))),
+    feats = t.Features(stamp_ns=stamp_ns, seq=i, scan_seq=i, kind=[], xy_m=np.zeros((0, 2)), cov_m2=np.zeros((0, 2, 2)),
+                       beam=[], angle_deg=[])
+    return [(topics.ODOM, codec.ODOMETRY.encode(t.Odometry(stamp_ns=stamp_ns, seq=i, pose=(0.01 * i, 0.0, 0.0)))),
             (topics.SCAN, codec.LASER_SCAN.encode(scan)), (topics.FEATURES, codec.FEATURES.encode(feats))]
 
 

@@ -38,7 +38,7 @@ def long_recording(tmp_path_factory) -> Path:
             # A corridor the robot drives along: features and scan matching both have work.
             ranges = np.minimum(1.5 / np.maximum(np.abs(np.sin(angles)), 1e-3), 6.0) + rng.normal(0, 0.01, 181)
             scan = t.LaserScan.from_ranges(stamp, i + 1, ranges, -np.pi / 2, np.pi / 180)
-            odom = t.Odometry(stamp, i + 1, (0.01 * i, 0.0, 0.0))
+            odom = t.Odometry(stamp_ns=stamp, seq=i + 1, pose=(0.01 * i, 0.0, 0.0))
             for tp, v in ((topics.SCAN, scan), (topics.ODOM, odom)):
                 w.write(tp.name, tp.schema, tp.codec.encode(v), stamp, stamp, i + 1)
     return path

@@ -56,7 +56,8 @@ def feed(model, wire):
 
 
 def status(service, wall_s, pid=7, **counters):
-    return t.ServiceStatus(service, "r1", t.HEALTH_OK, "ok", int(wall_s * 1e9), wall_s, counters, pid=pid, host="h")
+    return t.ServiceStatus(service=service, robot="r1", level=t.HEALTH_OK, message="ok",
+                           wall_stamp_ns=int(wall_s * 1e9), uptime_s=wall_s, counters=counters, pid=pid, host="h")
 
 
 def test_the_snapshot_draws_the_newest_state_at_its_pose(wire):

@@ -97,8 +97,9 @@ def sim_run(tmp_path_factory):
         for frame in itertools.islice(sim, N_SCANS):
             stamp, seq = T0_NS + round(frame.t_s * 1e9), frame.index + 1
             ids = frame.visible_corner_ids
-            write(writer, topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose))
-            write(writer, topics.TRUTH, t.GroundTruth(stamp, seq, frame.true_pose, ids, sim.map_corners.xy_m[ids]))
+            write(writer, topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose))
+            write(writer, topics.TRUTH, t.GroundTruth(stamp_ns=stamp, seq=seq, pose=frame.true_pose, corner_ids=ids,
+                                                      corners_xy_m=sim.map_corners.xy_m[ids]))
             write(writer, topics.SCAN, t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad,
                                                               lidar.angle_increment_rad, lidar.max_range_m))
     out = root / "run.mcap"

@@ -260,8 +260,10 @@ def test_a_path_stays_bounded_however_long_the_run(n, max_poses, keyframes):
 def test_keyframes_replace_the_mapper_path():
     views = fx.FoxgloveViews()
     for i in range(1, 6):
-        views.convert(topics.MAP_POSE.name, t.MapPose(i, i, i, [float(i), 0, 0], np.zeros(3)), i)
-    kf = t.MapKeyframes(10, 1, np.array([3, 1]), np.zeros((2, 3)), np.array([[1.0, 1.0, 0], [3.0, 1.0, 0]]))
+        views.convert(topics.MAP_POSE.name, t.MapPose(stamp_ns=i, seq=i, scan_seq=i, pose=[float(i), 0, 0],
+                                                      map_from_slam=np.zeros(3)), i)
+    kf = t.MapKeyframes(stamp_ns=10, seq=1, scan_stamp_ns=np.array([3, 1]), local_pose=np.zeros((2, 3)),
+                        map_pose=np.array([[1.0, 1.0, 0], [3.0, 1.0, 0]]))
     (view,) = views.convert(topics.MAP_KEYFRAMES.name, kf, 10)
     poses = [xyt(p)[:2].tolist() for p in decode(view).poses]
     assert poses == [[3.0, 1.0], [1.0, 1.0], [4.0, 0.0], [5.0, 0.0]]   # keyframes by stamp, then the poses after
@@ -269,7 +271,7 @@ def test_keyframes_replace_the_mapper_path():
 
 def test_without_odometry_the_ekf_pose_places_the_robot():
     views = fx.FoxgloveViews()
-    state = t.SlamState(7, 1, 1, [1.0, 2.0, 0.5], np.eye(3) * 0.01)
+    state = t.SlamState(stamp_ns=7, seq=1, scan_seq=1, pose=[1.0, 2.0, 0.5], pose_cov=np.eye(3) * 0.01)
     tfs = [v for v in views.convert(topics.SLAM_STATE.name, state, 7) if v.topic == fx.TF]
     trs = {(tr.parent_frame_id, tr.child_frame_id): tf_pose(tr) for tr in decode(tfs[0]).transforms}
     assert trs[("map", "odom")] == pytest.approx(np.zeros(3)) and trs[("odom", "base_link")] == pytest.approx(state.pose)
@@ -280,7 +282,8 @@ def test_health_is_logged_when_it_changes():
     name = topics.health("slam").name
 
     def status(level, message, at):
-        return views.convert(name, t.ServiceStatus("slam", "r1", level, message, at, 1.0, {}), at)
+        return views.convert(name, t.ServiceStatus(service="slam", robot="r1", level=level, message=message,
+                                                   wall_stamp_ns=at, uptime_s=1.0, counters={}), at)
     logs = [status(t.HEALTH_OK, "ok", 1), status(t.HEALTH_OK, "ok", 2), status(t.HEALTH_WARN, "slow", 3),
             status(t.HEALTH_WARN, "slow", 4), status(t.HEALTH_OK, "ok", 5)]
     assert [len(x) for x in logs] == [1, 0, 1, 0, 1]
@@ -306,11 +309,12 @@ def test_every_channel_is_under_the_prefix_with_a_foxglove_schema():
 
 def test_the_mappers_correction_moves_the_slam_frame_and_the_robot():
     views = fx.FoxgloveViews()
-    views.convert(topics.ODOM.name, t.Odometry(5, 1, [0.5, -0.2, 0.1]), 5)
-    views.convert(topics.ODOM.name, t.Odometry(15, 2, [1.5, -0.2, 0.3]), 15)
+    views.convert(topics.ODOM.name, t.Odometry(stamp_ns=5, seq=1, pose=[0.5, -0.2, 0.1]), 5)
+    views.convert(topics.ODOM.name, t.Odometry(stamp_ns=15, seq=2, pose=[1.5, -0.2, 0.3]), 15)
     correction = np.array([1.0, 2.0, 0.3])
-    views.convert(topics.MAP_POSE.name, t.MapPose(9, 1, 1, [0.0, 0.0, 0.0], correction), 9)
-    state = t.SlamState(10, 1, 1, [4.0, -1.0, 0.7], np.eye(3) * 0.01)
+    views.convert(topics.MAP_POSE.name, t.MapPose(stamp_ns=9, seq=1, scan_seq=1, pose=[0.0, 0.0, 0.0],
+                                                  map_from_slam=correction), 9)
+    state = t.SlamState(stamp_ns=10, seq=1, scan_seq=1, pose=[4.0, -1.0, 0.7], pose_cov=np.eye(3) * 0.01)
     (tf,) = [v for v in views.convert(topics.SLAM_STATE.name, state, 10) if v.topic == fx.TF]
     trs = {(tr.parent_frame_id, tr.child_frame_id): tf_pose(tr) for tr in decode(tf).transforms}
     assert trs[("map", "slam")] == pytest.approx(correction)

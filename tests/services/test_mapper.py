@@ -44,7 +44,8 @@ def drifting_loop(n: int, with_motion: bool = True):
         previous = frame.odom_pose
         if frame.index % 97 == 50:
             jumps = compose(jumps, JUMP)
-        state = t.SlamState(stamp, seq, seq, compose(jumps, frame.odom_pose), np.eye(3) * 1e-4,
+        state = t.SlamState(stamp_ns=stamp, seq=seq, scan_seq=seq, pose=compose(jumps, frame.odom_pose),
+                            pose_cov=np.eye(3) * 1e-4,
                             motion=motion if with_motion else None)
         out.append((scan, state, frame))
     return out

@@ -57,7 +57,8 @@ def ws_status(url: str, **kwargs) -> int | str:
 
 def scan_message(seq: int) -> Message:
     n = 181
-    scan = t.LaserScan(seq * 100_000_000, seq, np.full(n, 2.0), np.zeros(n, np.uint8), -np.pi / 2, np.pi / (n - 1))
+    scan = t.LaserScan(stamp_ns=seq * 100_000_000, seq=seq, ranges_m=np.full(n, 2.0), status=np.zeros(n, np.uint8),
+                       angle_min_rad=-np.pi / 2, angle_increment_rad=np.pi / (n - 1))
     return Message(None, codec.LASER_SCAN.encode(scan), scan.stamp_ns, topics.SCAN.schema, topics.SCAN.name, seq)
 
 

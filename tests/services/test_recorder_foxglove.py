@@ -31,7 +31,8 @@ def test_views_go_beside_the_payloads_at_their_times(tmp_path):
     step.on_message(raw(5, b"\xff\xfe garbage"))                                  # a corrupt payload
     step.on_message(raw(6, codec.LASER_SCAN.encode(t.LaserScan.from_ranges(7, 7, [1.0], 0, 1)),
                         "lrfslam.msgs.v9.LaserScan"))                              # an unknown version
-    status = t.ServiceStatus("slam", "r1", t.HEALTH_OK, "ok", 123, 1.0, {})
+    status = t.ServiceStatus(service="slam", robot="r1", level=t.HEALTH_OK, message="ok", wall_stamp_ns=123,
+                             uptime_s=1.0, counters={})
     step.on_message(Message(None, codec.SERVICE_STATUS.encode(status), 123, codec.SERVICE_STATUS.schema,
                             "health/slam", 1))
     step.close()

@@ -65,4 +65,6 @@ def test_a_recording_rebuilds_the_filters_map_at_every_state(tmp_path):
     assert np.median(counts[-quarter:]) >= 3 * max(np.median(counts[:quarter]), 1)
     assert np.median(sizes[-quarter:]) <= 1.5 * np.median(sizes[:quarter]), (sizes[:quarter], sizes[-quarter:])
     # A v1 state of the same map would hold every landmark.
-    assert np.median(sizes[-quarter:]) < 0.5 * len(codec.LANDMARK_MAP.encode(t.LandmarkMap(0, 0, 0, want)))
+    assert np.median(sizes[-quarter:]) < 0.5 * len(codec.LANDMARK_MAP.encode(t.LandmarkMap(stamp_ns=0, seq=0,
+                                                                                           state_seq=0,
+                                                                                           landmarks=want)))

@@ -30,12 +30,13 @@ class Splitter(StepBase):
     def on_message(self, msg: Message):
         if msg.value.ranges_m.size < 2:
             raise InputError("one beam")
-        self.made = [Output(topics.ODOM, t.Odometry(msg.stamp_ns, 10 * msg.seq + k, [0.1 * k, 0.0, 0.0]))
+        self.made = [Output(topics.ODOM, t.Odometry(stamp_ns=msg.stamp_ns, seq=10 * msg.seq + k,
+                                                    pose=[0.1 * k, 0.0, 0.0]))
                      for k in range(self.cfg.fan_out)]
         return self.made
 
     def finish(self):
-        return [Output(topics.ODOM, t.Odometry(99, 999, [0.0, 0.0, 0.0]))]
+        return [Output(topics.ODOM, t.Odometry(stamp_ns=99, seq=999, pose=[0.0, 0.0, 0.0]))]
 
 
 class Marker(StepBase):
@@ -47,10 +48,12 @@ class Marker(StepBase):
 
     def on_message(self, msg: Message):
         self.seen.append(msg)
-        return [Output(topics.TRUTH, t.GroundTruth(msg.stamp_ns, msg.seq, msg.value.pose, [], np.zeros((0, 2))))]
+        return [Output(topics.TRUTH, t.GroundTruth(stamp_ns=msg.stamp_ns, seq=msg.seq, pose=msg.value.pose,
+                                                   corner_ids=[], corners_xy_m=np.zeros((0, 2))))]
 
     def finish(self):
-        return [Output(topics.TRUTH, t.GroundTruth(100, 1000, [0.0, 0.0, 0.0], [], np.zeros((0, 2))))]
+        return [Output(topics.TRUTH, t.GroundTruth(stamp_ns=100, seq=1000, pose=[0.0, 0.0, 0.0], corner_ids=[],
+                                                   corners_xy_m=np.zeros((0, 2))))]
 
 
 class Raw(StepBase):

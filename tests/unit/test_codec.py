@@ -34,22 +34,26 @@ def test_laser_scan_round_trip(r, stamp, seq):
 def test_features_and_slam_state_round_trip(k, seed):
     rng = np.random.default_rng(seed)
     a = rng.normal(size=(k, 2, 2))
-    feats = t.Features(7, 3, 2, rng.choice([1, 2], k), rng.normal(size=(k, 2)), a @ a.transpose(0, 2, 1),
-                       rng.integers(0, 181, k), rng.uniform(80, 100, k))
+    feats = t.Features(stamp_ns=7, seq=3, scan_seq=2, kind=rng.choice([1, 2], k), xy_m=rng.normal(size=(k, 2)),
+                       cov_m2=a @ a.transpose(0, 2, 1),
+                       beam=rng.integers(0, 181, k), angle_deg=rng.uniform(80, 100, k))
     back = codec.FEATURES.decode(codec.FEATURES.encode(feats))
     for name in ("kind", "xy_m", "cov_m2", "beam", "angle_deg"):
         np.testing.assert_array_equal(getattr(back, name), getattr(feats, name))
-    lms = t.Landmarks(np.arange(k) * 3, rng.normal(size=(k, 2)), a @ a.transpose(0, 2, 1), rng.choice([1, 2], k),
-                      rng.integers(1, 9, k), rng.integers(0, 2, k).astype(bool))
-    state = t.SlamState(9, 1, 2, rng.normal(size=3), np.eye(3), lms, [1, 4], False, k + 5, k, 1, 2, 3,
-                        rng.normal(size=3) if k % 2 else None, k % 3 == 0)
+    lms = t.Landmarks(ids=np.arange(k) * 3, xy_m=rng.normal(size=(k, 2)), cov_m2=a @ a.transpose(0, 2, 1),
+                      kind=rng.choice([1, 2], k),
+                      sightings=rng.integers(1, 9, k), confirmed=rng.integers(0, 2, k).astype(bool))
+    state = t.SlamState(stamp_ns=9, seq=1, scan_seq=2, pose=rng.normal(size=3), pose_cov=np.eye(3), landmarks=lms,
+                        removed_landmark_ids=[1, 4], landmarks_complete=False, n_landmarks=k + 5, n_confirmed=k,
+                        associated=1, added=2, rejected=3,
+                        motion=rng.normal(size=3) if k % 2 else None, motion_matched=k % 3 == 0)
     back = codec.SLAM_STATE.decode(codec.SLAM_STATE.encode(state))
     for name in ("pose", "pose_cov", "removed_landmark_ids", "motion"):
         np.testing.assert_array_equal(getattr(back, name), getattr(state, name))
     assert_same_landmarks(back.landmarks, lms)
     assert (back.n_landmarks, back.n_confirmed, back.landmarks_complete) == (k + 5, k, False)
     assert (back.associated, back.added, back.rejected, back.motion_matched) == (1, 2, 3, k % 3 == 0)
-    whole = t.LandmarkMap(9, 4, 1, lms, 0.005)
+    whole = t.LandmarkMap(stamp_ns=9, seq=4, state_seq=1, landmarks=lms, tolerance_m=0.005)
     back_map = codec.LANDMARK_MAP.decode(codec.LANDMARK_MAP.encode(whole))
     assert (back_map.stamp_ns, back_map.seq, back_map.state_seq, back_map.tolerance_m) == (9, 4, 1, 0.005)
     assert_same_landmarks(back_map.landmarks, lms)
@@ -81,18 +85,21 @@ def test_a_v1_slam_state_decodes_as_a_whole_map():
 
 
 def test_a_landmark_both_changed_and_removed_is_a_decode_error():
-    lms = t.Landmarks([3], [[1.0, 2.0]], [np.eye(2)], [1], [2], [True])
-    state = t.SlamState(9, 1, 2, np.zeros(3), np.eye(3), lms, [3], False, 1, 1)
+    lms = t.Landmarks(ids=[3], xy_m=[[1.0, 2.0]], cov_m2=[np.eye(2)], kind=[1], sightings=[2], confirmed=[True])
+    state = t.SlamState(stamp_ns=9, seq=1, scan_seq=2, pose=np.zeros(3), pose_cov=np.eye(3), landmarks=lms,
+                        removed_landmark_ids=[3], landmarks_complete=False, n_landmarks=1, n_confirmed=1)
     with pytest.raises(DecodeError, match="both changed and removed"):
         codec.SLAM_STATE.decode(codec.SLAM_STATE.encode(state))
 
 
 def test_wall_direction_round_trips_and_absence_is_nan():
-    feats = t.Features(7, 3, 2, [1], [(1.5, -0.25)], [np.eye(2) * 1e-4], [80], [90.0], -0.3, 0.002)
+    feats = t.Features(stamp_ns=7, seq=3, scan_seq=2, kind=[1], xy_m=[(1.5, -0.25)], cov_m2=[np.eye(2) * 1e-4],
+                       beam=[80], angle_deg=[90.0], wall_direction_rad=-0.3, wall_direction_sigma_rad=0.002)
     back = codec.FEATURES.decode(codec.FEATURES.encode(feats))
     assert back.has_wall_direction
     assert (back.wall_direction_rad, back.wall_direction_sigma_rad) == (-0.3, 0.002)
-    none = t.Features(7, 3, 2, [], np.zeros((0, 2)), np.zeros((0, 2, 2)), [], [])
+    none = t.Features(stamp_ns=7, seq=3, scan_seq=2, kind=[], xy_m=np.zeros((0, 2)), cov_m2=np.zeros((0, 2, 2)),
+                      beam=[], angle_deg=[])
     back = codec.FEATURES.decode(codec.FEATURES.encode(none))
     assert not back.has_wall_direction and np.isnan(back.wall_direction_rad)
     assert not codec.FEATURES.to_proto(none).HasField("wall_direction")
@@ -113,7 +120,8 @@ def test_features_written_before_the_wall_direction_field_still_decode():
 
 @pytest.mark.parametrize("sigma", [0.0, -0.1, float("nan")])
 def test_wall_direction_without_a_usable_sigma_is_a_decode_error(sigma):
-    proto = codec.FEATURES.to_proto(t.Features(7, 3, 2, [], np.zeros((0, 2)), np.zeros((0, 2, 2)), [], []))
+    proto = codec.FEATURES.to_proto(t.Features(stamp_ns=7, seq=3, scan_seq=2, kind=[], xy_m=np.zeros((0, 2)),
+                                               cov_m2=np.zeros((0, 2, 2)), beam=[], angle_deg=[]))
     proto.wall_direction.direction_rad, proto.wall_direction.sigma_rad = 0.1, sigma
     with pytest.raises(DecodeError, match="wall_direction"):
         codec.FEATURES.decode(proto.SerializeToString())
@@ -121,7 +129,8 @@ def test_wall_direction_without_a_usable_sigma_is_a_decode_error(sigma):
 
 def test_filtered_scan_keeps_beams_and_points():
     scan = t.LaserScan.from_ranges(5, 1, [1.0, 2.0, np.inf, 3.0], -0.1, 0.05)
-    fs = t.FilteredScan(5, 1, scan, [0, 3], [[1.0, 0.0], [3.0, 0.1]], 4.0, "default")
+    fs = t.FilteredScan(stamp_ns=5, seq=1, scan=scan, kept_beams=[0, 3], points_xy_m=[[1.0, 0.0], [3.0, 0.1]],
+                        max_range_m=4.0, mode="default")
     back = codec.FILTERED_SCAN.decode(codec.FILTERED_SCAN.encode(fs))
     np.testing.assert_array_equal(back.kept_mask, [True, False, False, True])
     np.testing.assert_allclose(back.points_xy_m, fs.points_xy_m, atol=1e-6)  # float32 on the wire
@@ -159,8 +168,9 @@ def test_an_upgrade_path_decodes_an_old_schema(monkeypatch):
     # How a v2 keeps v1 recordings replaying: an UPGRADES entry maps the old name to a converter.
     old = codec.ODOMETRY
     monkeypatch.setitem(codec.UPGRADES, ("lrfslam.msgs.v0.Odometry", old.schema),
-                        (old.proto, lambda p: t.Odometry(p.header.stamp_ns, p.header.seq, (0.0, 0.0, 0.0))))
-    data = old.encode(t.Odometry(5, 2, (1.0, 2.0, 3.0)))
+                        (old.proto, lambda p: t.Odometry(stamp_ns=p.header.stamp_ns, seq=p.header.seq,
+                                                         pose=(0.0, 0.0, 0.0))))
+    data = old.encode(t.Odometry(stamp_ns=5, seq=2, pose=(1.0, 2.0, 3.0)))
     up = old.decode(data, "lrfslam.msgs.v0.Odometry")
     assert up.stamp_ns == 5 and np.all(up.pose == 0)
 
@@ -176,13 +186,15 @@ def test_robot_names_are_single_key_chunks():
 @given(k=st.integers(0, 50), seed=st.integers(0, 2**32 - 1))
 def test_map_messages_round_trip(k, seed):
     rng = np.random.default_rng(seed)
-    pose = t.MapPose(11, 4, 3, rng.normal(size=3), rng.normal(size=3), k, 2, 1, rng.normal(size=3) if k % 2 else None)
+    pose = t.MapPose(stamp_ns=11, seq=4, scan_seq=3, pose=rng.normal(size=3), map_from_slam=rng.normal(size=3),
+                     keyframes=k, closures=2, closures_rejected=1, local_pose=rng.normal(size=3) if k % 2 else None)
     back = codec.MAP_POSE.decode(codec.MAP_POSE.encode(pose))
     for name in ("pose", "map_from_slam", "local_pose"):
         np.testing.assert_array_equal(getattr(back, name), getattr(pose, name))
     assert (back.stamp_ns, back.seq, back.scan_seq, back.keyframes, back.closures, back.closures_rejected) == (
         11, 4, 3, k, 2, 1)
-    kf = t.MapKeyframes(12, 5, rng.integers(0, 2**62, k), rng.normal(size=(k, 3)), rng.normal(size=(k, 3)))
+    kf = t.MapKeyframes(stamp_ns=12, seq=5, scan_stamp_ns=rng.integers(0, 2**62, k), local_pose=rng.normal(size=(k, 3)),
+                        map_pose=rng.normal(size=(k, 3)))
     back = codec.MAP_KEYFRAMES.decode(codec.MAP_KEYFRAMES.encode(kf))
     for name in ("scan_stamp_ns", "local_pose", "map_pose"):
         np.testing.assert_array_equal(getattr(back, name), getattr(kf, name))

@@ -38,9 +38,10 @@ def write_recording(path, estimate=True, odometry=True):
             ns = stamp_ns(s)
             values = []
             if odometry:
-                values.append((topics.ODOM, t.Odometry(ns, k + 1, ODOMETRY[k])))
+                values.append((topics.ODOM, t.Odometry(stamp_ns=ns, seq=k + 1, pose=ODOMETRY[k])))
             if estimate:
-                values.append((topics.SLAM_STATE, t.SlamState(ns, k + 1, k + 1, ESTIMATE[k], np.eye(3))))
+                values.append((topics.SLAM_STATE, t.SlamState(stamp_ns=ns, seq=k + 1, scan_seq=k + 1, pose=ESTIMATE[k],
+                                                              pose_cov=np.eye(3))))
             for topic, value in values:
                 writer.write(topic.name, topic.schema, topic.codec.encode(value), ns)
     return path

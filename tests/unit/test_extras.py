@@ -18,7 +18,8 @@ def slam_recording(tmp_path):
     path = tmp_path / "states.mcap"
     with RecordingWriter(path) as writer:
         for k in range(3):
-            state = t.SlamState(k * 100_000_000, k + 1, k + 1, (0.1 * k, 0.0, 0.0), np.eye(3) * 1e-4)
+            state = t.SlamState(stamp_ns=k * 100_000_000, seq=k + 1, scan_seq=k + 1, pose=(0.1 * k, 0.0, 0.0),
+                                pose_cov=np.eye(3) * 1e-4)
             writer.write(topics.SLAM_STATE.name, topics.SLAM_STATE.schema,
                          topics.SLAM_STATE.codec.encode(state), state.stamp_ns)
     return path

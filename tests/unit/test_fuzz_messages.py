@@ -37,29 +37,45 @@ def _cov(rng, k):
 
 
 def _landmarks(rng):
-    return t.Landmarks([4, 7], rng.normal(size=(2, 2)), _cov(rng, 2), [1, 2], [3, 1], [True, False])
+    return t.Landmarks(ids=[4, 7], xy_m=rng.normal(size=(2, 2)), cov_m2=_cov(rng, 2), kind=[1, 2], sightings=[3, 1],
+                       confirmed=[True, False])
 
 
 #: One valid value per schema name. The registry (codec.CODECS) decides what must be here:
 #: test_every_schema_is_fuzzed fails for a schema added without a sample.
 SAMPLES = {
     codec.LASER_SCAN.schema: _scan,
-    codec.ODOMETRY.schema: lambda rng: t.Odometry(5, 1, rng.normal(size=3), 0.3, 0.1),
-    codec.FILTERED_SCAN.schema: lambda rng: t.FilteredScan(5, 1, _scan(rng), np.arange(0, 30, 3),
-                                                           rng.normal(size=(10, 2)), 4.0, "default"),
-    codec.FEATURES.schema: lambda rng: t.Features(5, 1, 1, [1, 2, 1], rng.normal(size=(3, 2)), _cov(rng, 3),
-                                                  [3, 9, 20], [90.0, np.nan, 85.0], 0.1, 0.01),
-    codec.SLAM_STATE.schema: lambda rng: t.SlamState(5, 1, 1, rng.normal(size=3), np.eye(3) * 0.01, _landmarks(rng),
-                                                     [2], False, 9, 4, 2, 1, 0, rng.normal(size=3), True),
-    codec.LANDMARK_MAP.schema: lambda rng: t.LandmarkMap(5, 1, 1, _landmarks(rng), 0.005),
-    codec.GROUND_TRUTH.schema: lambda rng: t.GroundTruth(5, 1, rng.normal(size=3), [1, 2],
-                                                         rng.normal(size=(2, 2)), "hallway"),
-    codec.SERVICE_STATUS.schema: lambda rng: t.ServiceStatus("slam", "r1", 0, "ok", 7, 1.5, {"in.scan": 3},
-                                                             5, "{}", ("a",), 42, "host"),
-    codec.MAP_POSE.schema: lambda rng: t.MapPose(5, 1, 1, rng.normal(size=3), rng.normal(size=3), 2, 1, 0,
-                                                 rng.normal(size=3)),
-    codec.MAP_KEYFRAMES.schema: lambda rng: t.MapKeyframes(5, 1, [1, 2, 3], rng.normal(size=(3, 3)),
-                                                           rng.normal(size=(3, 3)), [True, False, True]),
+    codec.ODOMETRY.schema: lambda rng: t.Odometry(stamp_ns=5, seq=1, pose=rng.normal(size=3), linear_mps=0.3,
+                                                  angular_radps=0.1),
+    codec.FILTERED_SCAN.schema: lambda rng: t.FilteredScan(stamp_ns=5, seq=1, scan=_scan(rng),
+                                                           kept_beams=np.arange(0, 30, 3),
+                                                           points_xy_m=rng.normal(size=(10, 2)), max_range_m=4.0,
+                                                           mode="default"),
+    codec.FEATURES.schema: lambda rng: t.Features(stamp_ns=5, seq=1, scan_seq=1, kind=[1, 2, 1],
+                                                  xy_m=rng.normal(size=(3, 2)), cov_m2=_cov(rng, 3),
+                                                  beam=[3, 9, 20], angle_deg=[90.0, np.nan, 85.0],
+                                                  wall_direction_rad=0.1, wall_direction_sigma_rad=0.01),
+    codec.SLAM_STATE.schema: lambda rng: t.SlamState(stamp_ns=5, seq=1, scan_seq=1, pose=rng.normal(size=3),
+                                                     pose_cov=np.eye(3) * 0.01, landmarks=_landmarks(rng),
+                                                     removed_landmark_ids=[2], landmarks_complete=False, n_landmarks=9,
+                                                     n_confirmed=4, associated=2, added=1, rejected=0,
+                                                     motion=rng.normal(size=3), motion_matched=True),
+    codec.LANDMARK_MAP.schema: lambda rng: t.LandmarkMap(stamp_ns=5, seq=1, state_seq=1, landmarks=_landmarks(rng),
+                                                         tolerance_m=0.005),
+    codec.GROUND_TRUTH.schema: lambda rng: t.GroundTruth(stamp_ns=5, seq=1, pose=rng.normal(size=3), corner_ids=[1, 2],
+                                                         corners_xy_m=rng.normal(size=(2, 2)), world="hallway"),
+    codec.SERVICE_STATUS.schema: lambda rng: t.ServiceStatus(service="slam", robot="r1", level=0, message="ok",
+                                                             wall_stamp_ns=7, uptime_s=1.5, counters={"in.scan": 3},
+                                                             last_data_stamp_ns=5, config_json="{}", schemas=("a",),
+                                                             pid=42, host="host"),
+    codec.MAP_POSE.schema: lambda rng: t.MapPose(stamp_ns=5, seq=1, scan_seq=1, pose=rng.normal(size=3),
+                                                 map_from_slam=rng.normal(size=3), keyframes=2, closures=1,
+                                                 closures_rejected=0,
+                                                 local_pose=rng.normal(size=3)),
+    codec.MAP_KEYFRAMES.schema: lambda rng: t.MapKeyframes(stamp_ns=5, seq=1, scan_stamp_ns=[1, 2, 3],
+                                                           local_pose=rng.normal(size=(3, 3)),
+                                                           map_pose=rng.normal(size=(3, 3)),
+                                                           local_edge=[True, False, True]),
 }
 
 #: Every topic a service can receive: the data topics and the health of any service.

@@ -35,7 +35,8 @@ def test_duration_is_the_run_and_each_rate_is_on_its_own_clock(tmp_path):
     with RecordingWriter(path, receive_times=True) as w:
         for i in range(RUN_S + 1):               # health once a wall second, from the start
             for service in ("denoise", "slam"):
-                st = t.ServiceStatus(service, "r", t.HEALTH_OK, "ok", T0 + i * S, float(i), {"health": i + 1})
+                st = t.ServiceStatus(service=service, robot="r", level=t.HEALTH_OK, message="ok",
+                                     wall_stamp_ns=T0 + i * S, uptime_s=float(i), counters={"health": i + 1})
                 w.write(topics.health(service).name, topics.health(service).schema,
                         codec.SERVICE_STATUS.encode(st), st.wall_stamp_ns, st.wall_stamp_ns + 1_000_000, i + 1)
         for k in range(scans):

@@ -22,8 +22,8 @@ TOL = 0.005
 def random_map(rng: np.random.Generator, ids) -> t.Landmarks:
     n = len(ids)
     a = rng.normal(size=(n, 2, 2)) * 0.05
-    return t.Landmarks(ids, rng.uniform(-20, 20, (n, 2)), a @ a.transpose(0, 2, 1) + 1e-4 * np.eye(2),
-                       rng.choice([1, 2], n), rng.integers(1, 5, n), rng.random(n) < 0.5)
+    return t.Landmarks(ids=ids, xy_m=rng.uniform(-20, 20, (n, 2)), cov_m2=a @ a.transpose(0, 2, 1) + 1e-4 * np.eye(2),
+                       kind=rng.choice([1, 2], n), sightings=rng.integers(1, 5, n), confirmed=rng.random(n) < 0.5)
 
 
 def evolve(rng: np.random.Generator, m: t.Landmarks, next_id: int) -> tuple[t.Landmarks, int]:
@@ -35,12 +35,12 @@ def evolve(rng: np.random.Generator, m: t.Landmarks, next_id: int) -> tuple[t.La
     cov = m.cov_m2 * np.where(rng.random(n) < 0.1, 0.7, 1.0)[:, None, None]
     sightings = m.sightings + (rng.random(n) < 0.1)
     confirmed = m.confirmed | (sightings > 3)
-    moved = t.Landmarks(m.ids, xy, cov, m.kind, sightings, confirmed)
+    moved = t.Landmarks(ids=m.ids, xy_m=xy, cov_m2=cov, kind=m.kind, sightings=sightings, confirmed=confirmed)
     kept = moved.take(rng.random(n) > 0.05)
     born = rng.integers(0, 3)
     new = random_map(rng, np.arange(next_id, next_id + born))
-    both = t.Landmarks(*(np.concatenate((getattr(kept, f), getattr(new, f)))
-                         for f in ("ids", "xy_m", "cov_m2", "kind", "sightings", "confirmed")))
+    both = t.Landmarks(**{f: np.concatenate((getattr(kept, f), getattr(new, f)))
+                          for f in ("ids", "xy_m", "cov_m2", "kind", "sightings", "confirmed")})
     return both.take(rng.permutation(len(both))), next_id + born
 
 
@@ -70,12 +70,14 @@ def test_the_rebuilt_map_follows_the_filter_within_the_tolerance(seed, steps, ev
             carried += int(np.isin(exact.ids, list(before)).sum())
             travelled += int(np.isin(changed.ids, list(before)).sum())
         sent = apply(sent, changed, removed)
-        replica.apply_state(t.SlamState(seq, seq, seq, np.zeros(3), np.eye(3), changed, removed))
+        replica.apply_state(t.SlamState(stamp_ns=seq, seq=seq, scan_seq=seq, pose=np.zeros(3), pose_cov=np.eye(3),
+                                        landmarks=changed, removed_landmark_ids=removed))
         assert replica.complete and replica.state_seq == seq
         assert_within(replica.landmarks, exact, tol)
         if seq % every == 0:   # a whole map: exact again, and the sender holds it too
             sent = by_id(exact)
-            replica.apply_map(t.LandmarkMap(seq, seq // every, seq, exact, tol))
+            replica.apply_map(t.LandmarkMap(stamp_ns=seq, seq=seq // every, state_seq=seq, landmarks=exact,
+                                            tolerance_m=tol))
             assert_within(replica.landmarks, exact, 0.0)
     if tol == 0.0:
         return
@@ -95,13 +97,14 @@ def test_an_unchanged_map_sends_nothing_and_a_removed_landmark_is_named():
     # A spread change along a diagonal alone (same x and y variances) is a change too.
     cov = m.cov_m2.copy()
     cov[0, 0, 1] = cov[0, 1, 0] = cov[0, 0, 1] + 0.5 * np.sqrt(cov[0, 0, 0] * cov[0, 1, 1])
-    tilted = t.Landmarks(m.ids, m.xy_m, cov, m.kind, m.sightings, m.confirmed)
+    tilted = t.Landmarks(ids=m.ids, xy_m=m.xy_m, cov_m2=cov, kind=m.kind, sightings=m.sightings, confirmed=m.confirmed)
     changed, _ = changes(by_id(m), tilted, 1e-4)
     assert changed.ids.tolist() == [5]
 
 
 def state(seq: int, changed: t.Landmarks | None = None, removed=()) -> t.SlamState:
-    return t.SlamState(seq, seq, seq, np.zeros(3), np.eye(3), changed or t.Landmarks(), removed)
+    return t.SlamState(stamp_ns=seq, seq=seq, scan_seq=seq, pose=np.zeros(3), pose_cov=np.eye(3),
+                       landmarks=changed or t.Landmarks(), removed_landmark_ids=removed)
 
 
 def test_the_replica_knows_when_it_missed_a_state():
@@ -110,17 +113,17 @@ def test_the_replica_knows_when_it_missed_a_state():
     joined = LandmarkMapReplica()
     joined.apply_state(state(7, m))
     assert not joined.complete             # joined mid-stream: the map before state 7 is unknown
-    joined.apply_map(t.LandmarkMap(7, 1, 7, m, TOL))
+    joined.apply_map(t.LandmarkMap(stamp_ns=7, seq=1, state_seq=7, landmarks=m, tolerance_m=TOL))
     assert joined.complete
     joined.apply_state(state(7, m))        # the map's own state, after it: already in it
     assert joined.complete and joined.missed == 0
     joined.apply_state(state(9))           # state 8 lost
     assert not joined.complete and joined.missed == 1
-    joined.apply_map(t.LandmarkMap(9, 2, 9, m.take([0]), TOL))
+    joined.apply_map(t.LandmarkMap(stamp_ns=9, seq=2, state_seq=9, landmarks=m.take([0]), tolerance_m=TOL))
     assert joined.complete and joined.landmarks.ids.tolist() == [1]
     joined.apply_state(state(5))           # numbers going back: a restarted stage, until its map
     assert not joined.complete and joined.missed == 2
-    joined.apply_map(t.LandmarkMap(5, 1, 5, m, TOL))
+    joined.apply_map(t.LandmarkMap(stamp_ns=5, seq=1, state_seq=5, landmarks=m, tolerance_m=TOL))
     joined.apply_state(state(6, t.Landmarks(), [2]))
     assert joined.complete and joined.landmarks.ids.tolist() == [1, 3]
 
@@ -131,6 +134,7 @@ def test_a_first_state_and_a_v1_state_are_whole_maps():
     first.apply_state(state(1, m))
     assert first.complete and first.landmarks.ids.tolist() == [4, 8]
     old = LandmarkMapReplica()
-    v1 = t.SlamState(30, 30, 30, np.zeros(3), np.eye(3), m.take([1]), (), True, 1, 0)
+    v1 = t.SlamState(stamp_ns=30, seq=30, scan_seq=30, pose=np.zeros(3), pose_cov=np.eye(3), landmarks=m.take([1]),
+                     removed_landmark_ids=(), landmarks_complete=True, n_landmarks=1, n_confirmed=0)
     assert old.apply_state(v1).ids.tolist() == [8]
     assert old.complete and old.landmarks.ids.tolist() == [8]

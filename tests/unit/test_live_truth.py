@@ -18,7 +18,8 @@ from lrfslam.msgs import types as t
 
 
 def state(stamp: int, seq: int, pose) -> bytes:
-    return codec.SLAM_STATE.encode(t.SlamState(stamp, seq, seq, np.asarray(pose, float), np.eye(3) * 1e-4,
+    return codec.SLAM_STATE.encode(t.SlamState(stamp_ns=stamp, seq=seq, scan_seq=seq, pose=np.asarray(pose, float),
+                                               pose_cov=np.eye(3) * 1e-4,
                                                motion=np.zeros(3)))
 
 

@@ -38,8 +38,9 @@ def sim_recording(tmp_path_factory) -> Path:
     with RecordingWriter(path) as writer:
         for frame, _ in zip(sim, range(N_SCANS)):
             stamp, seq = T0_NS + round(frame.t_s * 1e9), frame.index + 1
-            write(writer, topics.ODOM, t.Odometry(stamp, seq, frame.odom_pose))
-            write(writer, topics.TRUTH, t.GroundTruth(stamp, seq, frame.true_pose, [], np.zeros((0, 2))))
+            write(writer, topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose))
+            write(writer, topics.TRUTH, t.GroundTruth(stamp_ns=stamp, seq=seq, pose=frame.true_pose, corner_ids=[],
+                                                      corners_xy_m=np.zeros((0, 2))))
             write(writer, topics.SCAN, t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad,
                                                               lidar.angle_increment_rad, lidar.max_range_m))
     return path

@@ -56,7 +56,9 @@ def test_the_watched_topic_is_the_deepest_live_stages_or_the_one_asked_for():
 
 
 def status(service: str, pid: int, **counters: int) -> t.ServiceStatus:
-    return t.ServiceStatus(service, "r", t.HEALTH_OK, "ok", 0, 1.0, dict(counters), 0, "{}", (), pid, "h")
+    return t.ServiceStatus(service=service, robot="r", level=t.HEALTH_OK, message="ok", wall_stamp_ns=0, uptime_s=1.0,
+                           counters=dict(counters), last_data_stamp_ns=0, config_json="{}", schemas=(), pid=pid,
+                           host="h")
 
 
 def test_losses_are_the_counters_growth_of_the_same_process():

@@ -41,7 +41,7 @@ def test_round_trip_with_embedded_schema(tmp_path):
     with RecordingWriter(path, metadata={"lrfslam": {"robot": "r1"}}) as w:
         for i in range(5):
             w.write("scan", topics.SCAN.schema, codec.LASER_SCAN.encode(_scan(i)), 1_000 + i, sequence=i)
-        w.write("odom", topics.ODOM.schema, codec.ODOMETRY.encode(t.Odometry(999, 1, (1, 2, 3))), 999)
+        w.write("odom", topics.ODOM.schema, codec.ODOMETRY.encode(t.Odometry(stamp_ns=999, seq=1, pose=(1, 2, 3))), 999)
     got = list(read_recording(path))
     assert [m.topic for m in got] == ["odom", "scan", "scan", "scan", "scan", "scan"]  # log-time order
     assert codec.LASER_SCAN.decode(got[-1].data).ranges_m[0] == 5.0

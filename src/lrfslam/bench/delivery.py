@@ -23,7 +23,11 @@ import time
 import zenoh
 
 from lrfslam.bench.live import free_port
+from lrfslam.msgs import counters
 from lrfslam.tools.status import client_config, query_status, status_table
+
+#: Health statuses a service publishes: not data delivered.
+HEALTH_OUT = f"{counters.OUT}health"
 
 ROBOT = "bench"
 
@@ -43,8 +47,9 @@ def rates(first: dict, second: dict) -> dict[str, tuple[float, float]]:
         dt = b.uptime_s - a.uptime_s
 
         def total(st, prefix: str) -> int:
-            return sum(v for k, v in st.counters.items() if k.startswith(prefix) and not k.startswith("out.health"))
-        out[name] = ((total(b, "in.") - total(a, "in.")) / dt, (total(b, "out.") - total(a, "out.")) / dt)
+            return sum(v for k, v in st.counters.items() if k.startswith(prefix) and not k.startswith(HEALTH_OUT))
+        out[name] = ((total(b, counters.IN) - total(a, counters.IN)) / dt,
+                     (total(b, counters.OUT) - total(a, counters.OUT)) / dt)
     return out
 
 

@@ -18,6 +18,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from lrfslam.msgs import counters
 from lrfslam.runtime import chain
 from lrfslam.tools.pipeline import (
     DEFAULT_STAGES,
@@ -56,7 +57,7 @@ def main() -> None:
     t0 = time.process_time()
     counts = run_pipeline(stages, "bench", [args.recording], None)
     total = time.process_time() - t0
-    scans = max(c for name, c in counts[stages[0].spec.name].items() if name.startswith("in."))
+    scans = max(c for name, c in counts[stages[0].spec.name].items() if name.startswith(counters.IN))
     print(f"{scans} scans, {args.stages}")
     print("| stage | ms CPU / scan | share |")
     print("|---|---|---|")

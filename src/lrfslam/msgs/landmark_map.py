@@ -84,13 +84,13 @@ def apply(held: t.Landmarks, changed: t.Landmarks, removed_ids: np.ndarray) -> t
             column = getattr(held, name).copy()
             column[pos] = getattr(changed, name)
             columns[name] = column
-        return t.Landmarks(held.ids, **columns)
+        return t.Landmarks(ids=held.ids, **columns)
     drop = np.zeros(len(held), bool)
     drop[pos[known]] = True
     at, there = _rows(held.ids, removed_ids)
     drop[at[there]] = True
     kept = held.take(~drop)
-    return by_id(t.Landmarks(np.concatenate((kept.ids, changed.ids)),
+    return by_id(t.Landmarks(ids=np.concatenate((kept.ids, changed.ids)),
                              **{name: np.concatenate((getattr(kept, name), getattr(changed, name))) for name in _FIELDS}))
 
 

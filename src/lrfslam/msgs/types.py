@@ -1,7 +1,9 @@
 """In-memory messages: frozen dataclasses holding numpy arrays.
 
 Services and tests see these; only :mod:`lrfslam.msgs.codec` sees protobuf.
-Field names carry units; shapes are given per field.
+Field names carry units; shapes are given per field. Every message is built by keyword
+(``kw_only``): with 5 to 15 fields, a message built by position would take a new field's
+value in the wrong place without a word.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ def _array(values, dtype, shape=None) -> np.ndarray:
     return a
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class LaserScan:
     """One laser sweep.
 
@@ -68,10 +70,11 @@ class LaserScan:
         """Build a scan whose status is derived from the ranges (inf: no return, NaN: invalid)."""
         r = np.asarray(ranges_m, dtype=np.float64)
         status = np.where(np.isnan(r), BEAM_INVALID, np.where(np.isinf(r), BEAM_NO_RETURN, BEAM_VALID))
-        return cls(stamp_ns, seq, r, status, angle_min_rad, angle_increment_rad, range_max_m, **kw)
+        return cls(stamp_ns=stamp_ns, seq=seq, ranges_m=r, status=status, angle_min_rad=angle_min_rad,
+                   angle_increment_rad=angle_increment_rad, range_max_m=range_max_m, **kw)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Odometry:
     """Integrated wheel odometry; ``pose`` (3,) = (x_m, y_m, theta_rad) in the odom frame."""
 
@@ -86,7 +89,7 @@ class Odometry:
         object.__setattr__(self, "pose", _array(self.pose, np.float64, (3,)))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class FilteredScan:
     """The denoiser's output.
 
@@ -114,7 +117,7 @@ class FilteredScan:
         return mask
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Features:
     """Corner features of one scan, in the robot (laser) frame.
 
@@ -152,7 +155,7 @@ class Features:
         return int(self.kind.size)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class MapPose:
     """The loop-closing back end after one scan: ``pose`` (3,) corrected by the closures so far,
     ``map_from_slam`` (3,), the transform with ``pose = map_from_slam ⊕ slam pose``, and
@@ -175,7 +178,7 @@ class MapPose:
             object.__setattr__(self, "local_pose", _array(self.local_pose, np.float64, (3,)))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class MapKeyframes:
     """The pose graph's K keyframes after an optimisation: ``scan_stamp_ns`` (K,) of the scan
     that made each, its ``local_pose`` (K, 3) on the mapper's local trajectory, its optimised
@@ -215,7 +218,7 @@ class MapKeyframes:
         object.__setattr__(self, "retired_offset", _array(self.retired_offset, np.float64, (r, 3)))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Landmarks:
     """A set of the EKF's landmarks, one row each, sorted by id or in the filter's order.
 
@@ -248,7 +251,7 @@ class Landmarks:
                          sightings=self.sightings[rows], confirmed=self.confirmed[rows])
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class SlamState:
     """The EKF after one scan's features: the pose, and the landmarks that changed.
 
@@ -286,7 +289,7 @@ class SlamState:
         object.__setattr__(self, "removed_landmark_ids", _array(self.removed_landmark_ids, np.int64))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class LandmarkMap:
     """The whole landmark map as it stands after the slam state numbered ``state_seq``.
 
@@ -302,7 +305,7 @@ class LandmarkMap:
     tolerance_m: float = 0.0
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class GroundTruth:
     """Simulator truth at one instant: ``pose`` (3,) map frame, visible corners (K,) ids and (K, 2) map xy."""
 
@@ -319,7 +322,7 @@ class GroundTruth:
         object.__setattr__(self, "corners_xy_m", _array(self.corners_xy_m, np.float64, (-1, 2)))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ServiceStatus:
     """Health and statistics of one service process (wall-clock based)."""
 
