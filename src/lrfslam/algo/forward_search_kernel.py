@@ -82,27 +82,8 @@ def right_angle_bases(z: np.ndarray, step_m: np.ndarray, breaks: list[int],
                       params: FeatureParams) -> tuple[list[int], list[float], list[tuple[int, int]]]:
     """Base points whose arms pass the right-angle test (and the straightness check, if on).
 
-    Same inputs and outputs as :func:`lrfslam.algo.features.right_angle_bases`.
-
-    Parameters
-    ----------
-    z : ndarray of complex, shape (M,)
-        Kept points ``x + iy`` in scan order, metres.
-    step_m : ndarray, shape (M - 1,)
-        Distances between successive points, metres.
-    breaks : list of int
-        Points after which a new stretch starts, increasing: an arm never crosses
-        from one stretch to the next.
-    params : FeatureParams
-
-    Returns
-    -------
-    columns : list of int
-        Columns in ``z`` of the base points, increasing.
-    angles_deg : list of float
-        Angle between each base point's two arm lines, degrees in [0, 90].
-    arm_ends : list of (int, int)
-        Columns of each base point's farthest picks, below and above it.
+    The arguments and the results (columns, angles in degrees, arm ends) are those of
+    :func:`lrfslam.algo.features.right_angle_bases`, which documents them.
     """
     m = len(z)
     if m < 2 * len(params.arm_dists_m) + 1:
