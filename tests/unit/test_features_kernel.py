@@ -69,7 +69,8 @@ def test_arm_picks_match_a_point_by_point_walk(metric, near, far):
         ends = np.concatenate((breaks - 1, [m - 1]))
         first, last = starts[run], ends[run]
         z = p[:, 0] + 1j * p[:, 1]
-        got = arms_by_scan_column(K.arm_picks(*K.doubled(z, np.abs(np.diff(z)), (breaks - 1).tolist(), far), params, near, far), m)
+        doubled = K.doubled(z, np.abs(np.diff(z)), (breaks - 1).tolist(), far)
+        got = arms_by_scan_column(K.arm_picks(*doubled, params, near, far), m)
         expect = naive_picks(p, first, last, params.arm_dists_m, metric == "euclidean")
         full = np.flatnonzero(np.all(expect >= 0, axis=(1, 2)))
         assert sorted(got) == full.tolist()

@@ -353,6 +353,10 @@ def right_angle_bases(z: np.ndarray, step_m: np.ndarray, breaks: list[int],
     """
     points = z.tolist()
     columns, angles, arm_ends = [], [], []
+    if len(points) < 2 * len(params.arm_dists_m) + 1:
+        # Too few points for two arms of distinct picks: no corner is searched for (one far
+        # point would otherwise be every pick of an arm).
+        return columns, angles, arm_ends
     for first, last in _stretches(len(points), breaks):
         for j in range(first, last + 1):
             lower, upper = _arm(points, j, -1, first, params), _arm(points, j, 1, last, params)

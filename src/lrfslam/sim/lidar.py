@@ -126,7 +126,10 @@ def raycast(segments_m: np.ndarray, pose, angles_rad: np.ndarray, max_range_m: f
 
 
 def first_hit(segments_m, pose, angles_rad, max_range_m: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
-    """Ranges (N,) as :func:`raycast`, and the index (N,) of the segment hit, -1 where none (which wall: a person or a building's)."""
+    """Ranges (N,) as :func:`raycast`, and the index (N,) of the segment hit, -1 where none.
+
+    The index tells :func:`simulate_scan` whether a beam met a person or a wall.
+    """
     seg = np.asarray(segments_m, dtype=float).reshape(-1, 4)
     if len(seg) == 0:
         n = len(np.atleast_1d(angles_rad))
