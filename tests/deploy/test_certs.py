@@ -9,6 +9,7 @@ tests/deploy/test_zenoh_acl.py, through deploy/zenoh/make-certs.sh.
 from __future__ import annotations
 
 import ipaddress
+import json
 import os
 import socket
 import ssl
@@ -21,7 +22,7 @@ from cryptography import x509
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from lrfslam.cli import main as lrfslam
-from lrfslam.tools.certs import ROLES
+from lrfslam.tools.certs import ROLES, robot_acl
 
 FILES = {"ca.pem", "ca-key.pem", *(f"{r.name}{suffix}" for r in ROLES for suffix in (".pem", "-key.pem"))}
 
@@ -82,11 +83,12 @@ def test_it_writes_the_files_of_make_certs_and_says_how_to_give_a_desk_them(tmp_
     assert {p.name for p in (tmp_path / "tls").iterdir()} == FILES
     assert sorted(Path(ln.split()[1]).name for ln in lines[:-1]) == sorted(FILES)
     assert all(ln.startswith("wrote ") for ln in lines[:-1])
-    assert lines[-1].startswith("a desk: copy ca.pem, monitor.pem and monitor-key.pem")
+    assert lines[-1].startswith(f"certificates made now in {(tmp_path / 'tls').resolve()}: a desk needs ca.pem, "
+                                "monitor.pem and monitor-key.pem")
 
 
 @pytest.mark.parametrize("name", ["robot.test", "10.1.2.3", "::1", "localhost", "127.0.0.1", "zenohd"])
-@pytest.mark.parametrize("client", ["service", "monitor"])
+@pytest.mark.parametrize("client", ["service", "monitor", "ros2-desk", "ros2-robot"])
 def test_a_client_of_the_ca_reaches_the_router_by_every_name_it_carries(issued, name, client):
     assert handshake(issued, name, client) == f"lrfslam-{client}"
 
@@ -184,5 +186,40 @@ def test_half_a_ca_is_refused(tmp_path, capsys):
         if not p.name.startswith(("ca", "router")):
             p.rename(out / p.name)
     assert lrfslam(["certs", str(out), "--renew", "router", "--host", "robot.test"]) == 2
-    assert "holds no CA but holds service and monitor" in capsys.readouterr().err
+    assert "holds no CA but holds service, monitor, ros2-desk, ros2-robot:" in capsys.readouterr().err
     assert not (out / "router.pem").exists()
+
+
+def test_if_absent_makes_what_is_missing_and_never_replaces(tmp_path, capsys):
+    """Compose's first start: everything, with the router's names from a comma-separated list;
+    later starts keep every file; a lost role comes back signed by the same CA."""
+    out = tmp_path / "tls"
+    assert lrfslam(["certs", str(out), "--if-absent", "--host", "robot.test, 10.1.2.3", "--shown-as", "../tls"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].startswith("certificates made now in ../tls: a desk needs")
+    assert {p.name for p in out.iterdir()} == FILES
+    assert handshake(out, "10.1.2.3", "monitor") == "lrfslam-monitor"
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert lrfslam(["certs", str(out), "--if-absent", "--host", "other.test"]) == 0
+    assert capsys.readouterr().out.startswith("certificates kept in ")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    (out / "monitor.pem").unlink()
+    assert lrfslam(["certs", str(out), "--if-absent"]) == 0
+    after = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert {n for n in FILES if after[n] != before[n]} == {"monitor.pem", "monitor-key.pem"}
+    assert handshake(out, "robot.test", "monitor") == "lrfslam-monitor"
+
+
+def test_a_robots_certificate_and_the_lines_its_router_needs(tmp_path, capsys):
+    out = tmp_path / "tls"
+    assert lrfslam(["certs", str(out), "--host", "robot.test", "--robot", "mit-csail"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert cert(out, "service-mit-csail").subject.rfc4514_string() == "CN=lrfslam-service-mit-csail"
+    assert handshake(out, "robot.test", "service-mit-csail") == "lrfslam-service-mit-csail"
+    (acl_line,) = [ln for ln in lines if "access_control" in ln]
+    assert json.loads(acl_line.split(": ", 1)[1]) == robot_acl("mit-csail")
+    assert robot_acl("mit-csail")["rules"][0]["key_exprs"] == ["lrf/mit-csail/**"]
+    assert lrfslam(["certs", str(tmp_path / "x"), "--host", "robot.test", "--robot", "a/b"]) == 2
+    assert not (tmp_path / "x").exists()
+    with pytest.raises(SystemExit):
+        lrfslam(["certs", str(out), "--renew", "service-robot9"])
+    assert "not a role here" in capsys.readouterr().err

@@ -3,16 +3,18 @@
 The sensor's command line and device mapping are read from the compose files (the override's
 ``command`` replaces the base file's, its ``devices`` maps the host's serial port to the
 container path that ``--device`` names). The emulator (``lrfslam emulate-lms200``) plays the
-LMS200 on a pty; the router and a recorder run in a network namespace of their own, so the
-command's ``tcp/zenohd:7447`` is theirs and no port of this host is taken. Two ways:
+LMS200 on a pty; the router (with compose's mutual TLS and access-control list, certificates by
+``lrfslam certs``) and a recorder run in a network namespace of their own, so the command's
+``tls/zenohd:7447`` is theirs and no port of this host is taken. Two ways:
 
 ``podman``
     the image (deploy/podman-build.sh) with the pty at the container path (bind-mounted: a pty
     passed as ``--device`` answers EIO in the container, a real serial port does not), the
-    compose file's config mount, ``zenohd`` resolving to the router: the argv unchanged.
+    compose file's config, Zenoh config and certificate mounts, ``zenohd`` resolving to the
+    router: the argv unchanged.
 ``host``
-    the same argv as a host process in the namespace, the container paths (device, config)
-    replaced by the host's.
+    the same argv as a host process in the namespace, the container paths (device, config,
+    Zenoh config) replaced by the host's.
 
 Every recorded scan must be one the emulator sent (its ``--dump-ranges`` log). Needs root for
 the namespace; skips without it or without podman, and fails instead under CI.
@@ -35,6 +37,7 @@ import yaml
 
 from lrfslam.msgs import codec, topics
 from lrfslam.runtime.recording import read_recording
+from lrfslam.tools.certs import main as certs_main
 
 pytestmark = pytest.mark.slow
 
@@ -43,6 +46,7 @@ DEPLOY = ROOT / "deploy"
 IMAGE = "lrfslam:test"
 SCANS = 20               # the emulator's scans to wait for before stopping
 HANG_GUARD_S = 120.0
+CONTAINER_ZENOH, CONTAINER_TLS = "/etc/lrfslam/zenoh", "/etc/lrfslam/tls"   # compose.yaml's mounts
 
 
 def unavailable(reason: str) -> None:
@@ -70,6 +74,18 @@ def config_mount(svc: dict) -> tuple[Path, str]:
         if container.endswith("config.toml"):
             return (DEPLOY / host).resolve(), container
     raise AssertionError("no config.toml mount")
+
+
+def tls_configs(tmp: Path) -> tuple[Path, dict[str, Path]]:
+    """Certificates (as compose's certs service makes them) in ``tmp``/tls, and the router's and a
+    service's Zenoh configs of deploy/zenoh with their certificate paths moved there."""
+    tls = tmp / "tls"
+    assert certs_main([str(tls), "--if-absent"]) == 0
+    confs = {}
+    for name in ("router-tls-acl", "service-tls"):
+        confs[name] = tmp / f"{name}.json5"
+        confs[name].write_text((DEPLOY / "zenoh" / f"{name}.json5").read_text().replace(f"{CONTAINER_TLS}/", f"{tls}/"))
+    return tls, confs
 
 
 def read_dump(path: Path) -> dict[bytes, str]:
@@ -131,8 +147,11 @@ def test_compose_lms200_sensor_publishes_the_emulators_scans(where, netns, tmp_p
             return proc
 
         lrfslam = [sys.executable, "-m", "lrfslam.cli"]
-        in_ns(*lrfslam, "router", "--listen", f"tcp/127.0.0.1:{port}", "--log-level", "WARNING")
-        recorder = in_ns(*lrfslam, "recorder", "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}",
+        tls, confs = tls_configs(tmp_path)
+        in_ns(*lrfslam, "router", "--zenoh-config", str(confs["router-tls-acl"]), "--listen", f"tls/127.0.0.1:{port}",
+              "--log-level", "WARNING")
+        recorder = in_ns(*lrfslam, "recorder", "--mode", "client", "--connect", f"tls/127.0.0.1:{port}",
+                         "--zenoh-config", str(confs["service-tls"]),
                          "--config", str(host_config), "--set", f"directory={tmp_path / 'recordings'}")
         if where == "podman":
             # podman itself runs outside (under `ip netns exec` it fails); its container joins the namespace.
@@ -141,11 +160,15 @@ def test_compose_lms200_sensor_publishes_the_emulators_scans(where, netns, tmp_p
             sensor = subprocess.Popen(["podman", "run", "--rm", "--init", "--name", container, "--network", f"ns:/run/netns/{netns}",
                            "--add-host", f"{endpoint.split('/')[1].split(':')[0]}:127.0.0.1",
                            "-v", f"{pty}:{device}", "-v", f"{host_config}:{container_config}:ro",
+                           "-v", f"{DEPLOY / 'zenoh'}:{CONTAINER_ZENOH}:ro", "-v", f"{tls}:{CONTAINER_TLS}:ro",
                            IMAGE, *argv])
             procs.append(sensor)
         else:
             host_argv = [{device: pty, container_config: str(host_config)}.get(a, a) for a in argv]
-            host_argv[host_argv.index("--connect") + 1] = f"tcp/127.0.0.1:{port}"
+            host_argv[host_argv.index("--connect") + 1] = f"tls/127.0.0.1:{port}"
+            zenoh_config = host_argv.index("--zenoh-config") + 1
+            assert host_argv[zenoh_config] == f"{CONTAINER_ZENOH}/service-tls.json5"
+            host_argv[zenoh_config] = str(confs["service-tls"])
             host_argv[host_argv.index("--health-file") + 1] = str(tmp_path / "health.json")
             sensor = in_ns(*lrfslam, *host_argv)
 

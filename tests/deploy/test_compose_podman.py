@@ -4,9 +4,11 @@ Builds the image (deploy/podman-build.sh), starts the router, the six services a
 monitor as containers, asks the published router port from the host which services are alive
 (as a remote monitor would), runs every container's healthcheck, reads the monitor's published
 Foxglove WebSocket and dashboard from the host (bound to loopback, showing the live pipeline),
-stops the sensor first and then the rest, and reads the recording back; once as shipped and
-once with compose.tls.yaml over it (every link mutual TLS, the router's access-control list,
-asked with the monitor certificate, which the monitor container holds too). Needs podman,
+stops the sensor first and then the rest, and reads the recording back; once as shipped (the
+certs service makes the certificates on the first start, every link is mutual TLS under the
+router's access-control list, the host asks with the monitor certificate, which the monitor
+container holds too, and intruders are refused: no certificate, another CA, a monitor
+certificate that publishes), and once with compose.insecure.yaml over it. Needs podman,
 podman-compose and a base image (deploy/setup-podman.sh prepares a Debian machine); skips
 when podman is missing.
 """
@@ -25,13 +27,17 @@ import urllib.request
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
 import websockets
 import zenoh
 
 from lrfslam import services
-from lrfslam.msgs import codec
+from lrfslam.msgs import codec, topics
+from lrfslam.msgs.types import LaserScan
+from lrfslam.runtime.bus import attachment
 from lrfslam.runtime.recording import ReadReport, read_recording
+from lrfslam.tools.certs import main as certs_main
 from lrfslam.tools.status import check, client_config, query_status
 from lrfslam.tools.status import main as status
 from lrfslam.viz import foxglove as fx
@@ -40,11 +46,13 @@ pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "deploy" / "compose.yaml"
-COMPOSE_TLS = ROOT / "deploy" / "compose.tls.yaml"
+COMPOSE_INSECURE = ROOT / "deploy" / "compose.insecure.yaml"
 RUN_S = 40.0            # wall time with all five up; at speedup 1 that is ~400 scans at 10 Hz
 STARTUP_TIMEOUT_S = 90.0
 CONTAINERS = ("zenohd", "monitor", *services.NAMES)
 HEALTHCHECK_RETRIES = 3  # deploy/compose.yaml, x-healthcheck
+ROBOT = "robot1"         # deploy/config.toml's [bus] robot
+INTRUDER_STAMP_NS = 1    # no sensor stamps a scan 1 ns after 1970
 
 
 def free_port() -> int:
@@ -85,8 +93,9 @@ def run(argv: list[str], timeout: float, env: dict | None = None, check: bool = 
 class Deployment:
     """One compose project with its own name, router port and recordings folder."""
 
-    def __init__(self, compose: list[str], tmp: Path, make_certs=None) -> None:
-        """With ``make_certs`` (the fixture), over compose.tls.yaml with the certificates it makes."""
+    def __init__(self, compose: list[str], tmp: Path, insecure: bool) -> None:
+        """As shipped (TLS; its certs service makes the certificates in ``tmp``/tls), or with
+        compose.insecure.yaml over it."""
         self.project = f"lrfslam-test-{os.getpid()}"
         self.port = free_port()
         self.foxglove_port, self.dashboard_port = free_port(), free_port()
@@ -98,18 +107,16 @@ class Deployment:
                         LRFSLAM_DASHBOARD_PORT=str(self.dashboard_port))
         self.env.pop("LRFSLAM_MONITOR_ADDRESS", None)
         self.compose = [*compose, "-p", self.project, "-f", str(COMPOSE)]
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        self.zenoh_config: str | None = None
-        if make_certs is not None:
-            certs = tmp / "tls"
-            make_certs(certs)
-            self.env["LRFSLAM_TLS"] = str(certs)
-            self.compose += ["-f", str(COMPOSE_TLS)]
-            self.endpoint = f"tls/127.0.0.1:{self.port}"
-            monitor = tmp / "monitor-tls.json5"
-            monitor.write_text((ROOT / "deploy" / "zenoh" / "monitor-tls.json5").read_text()
-                               .replace('"tls/', f'"{certs}/'))
-            self.zenoh_config = str(monitor)
+        self.certs = tmp / "tls"   # made by the certs service, not by the test
+        self.env.update(LRFSLAM_TLS=str(self.certs), LRFSLAM_TLS_HOSTS="robot.test")
+        self.monitor_config = tmp / "monitor-tls.json5"
+        self.monitor_config.write_text((ROOT / "deploy" / "zenoh" / "monitor-tls.json5").read_text()
+                                       .replace('"tls/', f'"{self.certs}/'))
+        if insecure:
+            self.compose += ["-f", str(COMPOSE_INSECURE)]
+            self.endpoint, self.zenoh_config = f"tcp/127.0.0.1:{self.port}", None
+        else:
+            self.endpoint, self.zenoh_config = f"tls/127.0.0.1:{self.port}", str(self.monitor_config)
 
     def __call__(self, *args: str, timeout: float = 120, check: bool = True) -> subprocess.CompletedProcess:
         return run([*self.compose, *args], timeout, self.env, check)
@@ -129,7 +136,7 @@ class Deployment:
 
     def logs(self) -> str:
         out = []
-        for service in CONTAINERS:
+        for service in ("certs", *CONTAINERS):
             proc = run(["podman", "logs", "--timestamps", "--tail", "40", self.container(service)], 30,
                        check=False)
             out.append(f"--- {service}\n{proc.stdout}{proc.stderr}")
@@ -192,16 +199,56 @@ def check_monitor(dep: Deployment) -> dict:
     return later
 
 
-@pytest.mark.parametrize("tls", [False, True], ids=["plain", "tls-acl"])
-def test_compose_up_status_down_recording(engine, tmp_path, tls, make_certs):
+def intrude(dep: Deployment, tmp: Path) -> None:
+    """What the router must refuse or drop on the published port: a client with no certificate or
+    plain TCP, one with a certificate of another CA (all refused), and one with the monitor's
+    certificate that publishes scans on the robot's keys and on a key of its own (let in, its
+    messages dropped). Oracle: the recording after the run (the test's end)."""
+    no_cert = tmp / "no-cert.json5"
+    no_cert.write_text(json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": f"{dep.certs}/ca.pem"}}}}))
+    rogue = tmp / "rogue"
+    assert certs_main([str(rogue), "--host", "127.0.0.1"]) == 0
+    rogue_config = tmp / "rogue.json5"
+    rogue_config.write_text(dep.monitor_config.read_text().replace(f"{dep.certs}/monitor", f"{rogue}/monitor"))
+    assert status(["-e", f"tcp/127.0.0.1:{dep.port}", "--check"]) == 2
+    assert status(["--zenoh-config", str(no_cert), "-e", dep.endpoint, "--check"]) == 2
+    assert status(["--zenoh-config", str(rogue_config), "-e", dep.endpoint, "--check"]) == 2
+    with zenoh.open(client_config([dep.endpoint], dep.zenoh_config)) as session:
+        scan = codec.LASER_SCAN.encode(LaserScan.from_ranges(stamp_ns=INTRUDER_STAMP_NS, seq=1, ranges_m=np.full(181, 1.0),
+                                                           angle_min_rad=-np.pi / 2, angle_increment_rad=np.pi / 180))
+        for _ in range(20):
+            session.put(topics.key(ROBOT, topics.SCAN.name), scan, attachment=attachment(1, INTRUDER_STAMP_NS, b"\1" * 16))
+            session.put(topics.key(ROBOT, "intruder"), b"x")
+            time.sleep(0.05)
+
+
+def check_nothing_intruded(messages: list) -> None:
+    """The recording holds what the pipeline published and nothing else: no intruder topic, no scan
+    stamped as the intruder's, and exactly the scans the sensor counted in its last health."""
+    assert "intruder" not in {m.topic for m in messages}
+    scans = [m for m in messages if m.topic == "scan"]
+    assert INTRUDER_STAMP_NS not in {m.stamp_ns for m in scans}
+    last_sensor = codec.SERVICE_STATUS.decode(next(m.data for m in reversed(messages) if m.topic == "health/sensor"))
+    assert last_sensor.counters["out.scan"] == len(scans)
+
+
+@pytest.mark.parametrize("insecure", [False, True], ids=["as-shipped-tls-acl", "insecure-override"])
+def test_compose_up_status_down_recording(engine, tmp_path, insecure):
     t0 = time.monotonic()
     # The build is part of the test: the Dockerfile must install the repo on the base image.
     run([str(ROOT / "deploy" / "podman-build.sh")], 1200, dict(os.environ, LRFSLAM_IMAGE="lrfslam:test"))
     build_s = time.monotonic() - t0
 
-    dep = Deployment(engine, tmp_path, make_certs if tls else None)
+    dep = Deployment(engine, tmp_path, insecure)
     try:
         dep("up", "-d", "--no-build", timeout=180)
+        # The certs service made every certificate before the router started, and said where.
+        assert {p.name for p in dep.certs.iterdir()} >= {"ca.pem", "router.pem", "service.pem", "monitor.pem"}
+        assert dep.inspect("certs", "{{.State.ExitCode}}") == "0"
+        said = run(["podman", "logs", dep.container("certs")], 30).stdout.splitlines()
+        # (podman-compose 1.6 may start it a second time, which keeps every file: "kept" last.)
+        assert [ln for ln in said if ln.startswith("certificates made now in ") and "monitor.pem" in ln], said
+        assert said[-1].startswith("certificates "), said
 
         # From the host through the published port, like `lrfslam status -e tcp/<robot>:7447`.
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
@@ -232,8 +279,8 @@ def test_compose_up_status_down_recording(engine, tmp_path, tls, make_certs):
             assert len(failures) < HEALTHCHECK_RETRIES, \
                 f"{service} healthcheck: {failures}\n{dep.health_log(service)}\n{dep.logs()}"
 
-        if tls:   # the published port takes no plain TCP any more
-            assert status(["-e", f"tcp/127.0.0.1:{dep.port}", "--check"]) == 2
+        if not insecure:
+            intrude(dep, tmp_path)
         time.sleep(RUN_S)
         alive, statuses = ask(dep)
         assert not check(alive, statuses, list(services.NAMES)), dep.logs()
@@ -272,6 +319,7 @@ def test_compose_up_status_down_recording(engine, tmp_path, tls, make_certs):
     for topic in ("scan", "odom", "scan/filtered", "features", "slam/state", "map/pose"):
         assert per_topic[topic] > 100, per_topic
     assert {f"health/{s}" for s in services.NAMES} <= set(per_topic), per_topic
+    check_nothing_intruded(messages)
     last = codec.SLAM_STATE.decode(next(m.data for m in reversed(messages) if m.topic == "slam/state"))
     assert last.n_landmarks > 0 and per_topic["slam/map"] >= 2, "SLAM built no map"
     print(f"\nbuild {build_s:.0f} s, up to all alive {up_s:.0f} s, total {total_s:.0f} s; "

@@ -30,6 +30,7 @@ DEPLOY = ROOT / "deploy"
 COMPOSE = DEPLOY / "compose.yaml"
 CONFIG = DEPLOY / "config.toml"
 ROUTER = "zenohd"
+CERTS = "certs"
 MONITOR = "monitor"
 ROS2 = "ros2"
 
@@ -67,8 +68,8 @@ def mounts(svc: dict) -> dict[str, Path]:
     return out
 
 
-def test_services_are_the_router_the_six_stages_the_monitor_and_the_ros2_bridge(svcs):
-    assert set(svcs) == {ROUTER, MONITOR, ROS2, *services.NAMES}
+def test_services_are_the_certs_the_router_the_six_stages_the_monitor_and_the_ros2_bridge(svcs):
+    assert set(svcs) == {CERTS, ROUTER, MONITOR, ROS2, *services.NAMES}
 
 
 def test_the_ros2_bridge_runs_only_when_asked_waits_for_the_router_alone_and_parses(svcs):
@@ -80,7 +81,7 @@ def test_the_ros2_bridge_runs_only_when_asked_waits_for_the_router_alone_and_par
     assert not [name for name, svc in svcs.items() if ROS2 in svc.get("depends_on", {})]
     args = ros2.parser().parse_args(bridge["command"][1:])
     assert args.robot == config_mod.read_file(CONFIG)["bus"]["robot"]
-    assert args.connect == ["tcp/zenohd:7447"] and args.domain_id == 0 and not args.subscribe
+    assert args.connect == ["tls/zenohd:7447"] and args.domain_id == 0 and not args.subscribe
 
 
 def test_depends_on_targets_exist_and_form_no_cycle(svcs):
@@ -101,7 +102,7 @@ def test_depends_on_targets_exist_and_form_no_cycle(svcs):
         order += ready
         for n in ready:
             del graph[n]
-    assert order[0] == ROUTER
+    assert order[:2] == [CERTS, ROUTER]
 
 
 def test_every_stage_waits_for_a_healthy_router_and_the_sensor_starts_last(svcs):
@@ -139,7 +140,7 @@ def test_service_commands_parse_and_their_config_loads(svcs):
         file = config_mod.read_file(host_config)
         bus = bus_config(args, file, {})
         assert bus.mode == "client"
-        assert bus.connect == ("tcp/zenohd:7447",)
+        assert bus.connect == ("tls/zenohd:7447",)
         cfg = config_mod.service_config(spec, sets=flag_sets(spec, args), file=file, env={})
         assert isinstance(cfg, spec.config_type)
 
@@ -152,7 +153,7 @@ def test_monitor_command_parses_and_serves_the_published_ports(svcs):
     args = monitor.parser().parse_args(svcs[MONITOR]["command"][1:])
     assert svcs[MONITOR]["command"][0] == "monitor"
     assert args.robot == config_mod.read_file(CONFIG)["bus"]["robot"]
-    assert args.connect == ["tcp/zenohd:7447"]
+    assert args.connect == ["tls/zenohd:7447"]
     assert args.host == "0.0.0.0" and args.dashboard and args.insecure and args.token_file is None
     container_ports = {interpolate(p).rsplit(":", 1)[-1] for p in svcs[MONITOR]["ports"]}
     assert container_ports == {str(args.port), str(args.http_port)}
@@ -162,7 +163,7 @@ def test_router_listens_on_its_published_port(svcs):
     router = svcs[ROUTER]
     command = router["command"]
     listen = [command[i + 1] for i, a in enumerate(command) if a in ("--listen", "-l")]
-    assert "tcp/0.0.0.0:7447" in listen, "the router must listen on all interfaces of its container"
+    assert listen == ["tls/0.0.0.0:7447"], "the router must listen on all interfaces of its container, over TLS"
     published = [interpolate(p).rsplit(":", 1)[-1] for p in router["ports"]]
     assert "7447" in published
 
@@ -201,7 +202,8 @@ def test_one_image_with_init_and_restart_on_failure(svcs):
     assert len(images) == 1, images
     for name, svc in svcs.items():
         assert svc.get("init") is True, f"{name}: Python as PID 1 would ignore SIGTERM's default action"
-        assert svc.get("restart") == "on-failure", name
+        # The certs service runs once per start and ends; the others restart after a crash.
+        assert svc.get("restart") == ("no" if name == CERTS else "on-failure"), name
         assert svc["build"]["dockerfile"] == "deploy/Dockerfile"
         assert (COMPOSE.parent / svc["build"]["context"] / svc["build"]["dockerfile"]).is_file()
 
@@ -215,13 +217,17 @@ def test_healthchecks_read_their_own_service_and_the_router_its_port(svcs, tmp_p
     port = closed.getsockname()[1]
     closed.close()
     for name, svc in svcs.items():
+        if name == CERTS:   # it ends before anything waits for it: no health to check
+            assert "healthcheck" not in svc
+            continue
         test = svc["healthcheck"]["test"]
         assert test[:3] == ["CMD", "lrfslam", "status"], name
         argv = test[3:]
         if name == ROUTER:
-            assert argv == ["--check", "-e", "tcp/127.0.0.1:7447"]
+            assert argv == ["--check", "--zenoh-config", "/etc/lrfslam/zenoh/service-tls.json5",
+                            "-e", "tls/127.0.0.1:7447"]
             # Against a closed port: argparse accepts the flags and the router is unreachable (2).
-            assert status.main(["--check", "-e", f"tcp/127.0.0.1:{port}"]) == 2
+            assert status.main(["--check", "-e", f"tls/127.0.0.1:{port}"]) == 2
             continue
         assert argv[0] == "--check-file", name
         command = svc["command"]

@@ -5,7 +5,7 @@ Four namespaces stand for four computers, wired by veth pairs to a bridge on the
 =========  ===========  ========================================================
 host       address      runs
 =========  ===========  ========================================================
-``rt``     SUBNET.1     ``lrfslam router --listen tcp/0.0.0.0:PORT`` (and the bridge)
+``rt``     SUBNET.1     ``lrfslam router --listen tcp/0.0.0.0:PORT --insecure`` (and the bridge)
 ``b``      SUBNET.2     robot r1's sensor and denoise; later r1's moved slam
 ``c``      SUBNET.3     robot r1's features, slam and recorder
 ``d``      SUBNET.4     robot r2, all five services (another robot on the same router)
@@ -211,7 +211,7 @@ def test_pipeline_across_hosts_with_a_moved_slam_and_a_second_robot(hosts):
     h = hosts
     shared = h.tmp / "shared"        # storage both of r1's slam hosts mount (NFS, say)
     shared.mkdir()
-    h.run("rt", "router", "router", "--listen", f"tcp/0.0.0.0:{PORT}")
+    h.run("rt", "router", "router", "--listen", f"tcp/0.0.0.0:{PORT}", "--insecure")
 
     def sensor_sets(robot: str) -> list[str]:
         world, seed = WORLDS[robot]
@@ -338,7 +338,7 @@ def test_a_monitor_on_another_host_serves_the_live_pipeline(hosts):
     host (this process), shows the pipeline live: every service alive, scans and SLAM states
     rising, the pose and landmarks on the map."""
     h = hosts
-    h.run("rt", "router", "router", "--listen", f"tcp/0.0.0.0:{PORT}")
+    h.run("rt", "router", "router", "--listen", f"tcp/0.0.0.0:{PORT}", "--insecure")
     for name in ("recorder", "slam", "features", "denoise"):
         h.service("c", "r1", name)
     http_port = 8080

@@ -30,6 +30,8 @@ from lrfslam.runtime.bus import (
     attachment,
     parse_attachment,
 )
+from lrfslam.tools.certs import main as certs_main
+from lrfslam.tools.certs import robot_acl
 from lrfslam.tools.monitor import Monitor
 from lrfslam.tools.status import client_config
 from lrfslam.tools.status import main as status
@@ -64,6 +66,8 @@ def acl(tmp_path, make_certs):
     confs["no-cert"] = json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": f"{certs}/ca.pem"}}}})
     # A certificate from the right CA whose common name no policy names: default deny.
     confs["stranger"] = confs["monitor"].replace(f"{certs}/monitor", f"{certs}/router")
+    for role in ("ros2-desk", "ros2-robot"):
+        confs[role] = confs["monitor"].replace(f"{certs}/monitor", f"{certs}/{role}")
     paths = {}
     for name, text in confs.items():
         paths[name] = tmp_path / f"{name}.json5"
@@ -270,3 +274,85 @@ def test_a_late_monitor_catches_up_through_the_acl(pipeline):
     assert asked == [topics.latest(ROBOT, "**")]
     assert feed.names.count("slam/state") == 1
     assert monitor.counts["catch_up"] == 2 and not monitor.counts["catch_up.undecodable"], monitor.counts
+
+
+def delivered(sender: Path, receiver: Path, endpoint: str, key: str) -> bool:
+    """Whether a put on ``key`` by a session holding ``sender``'s certificate reaches a subscriber
+    holding ``receiver``'s, through the router (a second put after a pause, so a subscription
+    still propagating cannot explain a miss)."""
+    got = threading.Event()
+    with open_session(receiver, endpoint) as rx, open_session(sender, endpoint) as tx:
+        sub = rx.declare_subscriber(key, lambda _sample: got.set())
+        time.sleep(0.5)
+        for _ in range(2):
+            tx.put(key, b"x")
+            if got.wait(1.0):
+                break
+        sub.undeclare()
+    return got.is_set()
+
+
+#: rmw_zenoh's data key of /robot1/scan (sensor_msgs/msg/LaserScan) in domain 0, and a graph token.
+ROS_SCAN = "0/robot1/scan/sensor_msgs::msg::dds_::LaserScan_/RIHS01_0123"
+ROS_TOKEN = "@ros2_lv/0/aaaa/0/11/MP/%/%/robot1/%robot1%scan/sensor_msgs::msg::dds_::LaserScan_/RIHS01_0123/::,7:,:,:,,"
+
+
+def test_ros2_roles_a_desk_reads_and_a_robot_feeds_the_ros2_keys_only(pipeline):
+    paths, endpoint = pipeline
+    service, desk, robot = paths["service"], paths["ros2-desk"], paths["ros2-robot"]
+    lrf_scan = topics.key(ROBOT, topics.SCAN.name)
+    # The bridge (service certificate) publishes ROS 2 topics a desk and a robot receive.
+    assert delivered(service, desk, endpoint, ROS_SCAN)
+    assert delivered(service, robot, endpoint, ROS_SCAN)
+    # A ROS 2 robot's /scan reaches the bridge; a desk publishes nothing, on ROS 2 keys or ours.
+    assert delivered(robot, service, endpoint, ROS_SCAN)
+    assert not delivered(desk, service, endpoint, ROS_SCAN)
+    assert not delivered(desk, service, endpoint, lrf_scan)
+    # Neither ROS 2 role touches lrfslam's own keys, either way.
+    assert delivered(service, service, endpoint, lrf_scan)   # (the control: the key does carry data)
+    assert not delivered(robot, service, endpoint, lrf_scan)
+    assert not delivered(service, desk, endpoint, lrf_scan)
+    assert not delivered(service, robot, endpoint, lrf_scan)
+    # The graph: a desk lists the bridge's token and is listed in turn, as ros2 topic list needs.
+    with open_session(service, endpoint) as svc, open_session(desk, endpoint) as dsk:
+        token = svc.liveliness().declare_token(ROS_TOKEN)
+        desk_token = dsk.liveliness().declare_token(ROS_TOKEN.replace("/aaaa/", "/bbbb/"))
+        time.sleep(0.5)
+        seen_by_desk = {str(r.ok.key_expr) for r in dsk.liveliness().get("@ros2_lv/0/**", timeout=2.0) if r.ok}
+        seen_by_service = {str(r.ok.key_expr) for r in svc.liveliness().get("@ros2_lv/0/**", timeout=2.0) if r.ok}
+        assert ROS_TOKEN in seen_by_desk
+        assert ROS_TOKEN.replace("/aaaa/", "/bbbb/") in seen_by_service
+        # and sees no lrfslam service's token
+        assert not [r for r in dsk.liveliness().get(topics.alive(ROBOT, topics.ANY), timeout=2.0) if r.ok]
+        token.undeclare()
+        desk_token.undeclare()
+
+
+def test_a_robots_own_certificate_publishes_on_its_keys_only(acl, tmp_path):
+    """``lrfslam certs --robot robot1`` and the lines it prints, added to the shipped list: that
+    certificate publishes under lrf/robot1/** and nowhere else; the shared service one everywhere."""
+    paths, endpoint = acl
+    certs_dir = tmp_path / "tls"
+    assert certs_main([str(certs_dir), "--if-absent", "--robot", ROBOT]) == 0
+    router_text = paths["router"].read_text()
+    for section, entries in robot_acl(ROBOT).items():
+        head = f"\n    {section}: ["   # the access_control list itself, not a policy's
+        assert router_text.count(head) == 1, section
+        router_text = router_text.replace(head, head + "".join(json.dumps(e) + "," for e in entries))
+    paths["router"].write_text(router_text)
+    own = tmp_path / "service-robot1.json5"
+    own.write_text(paths["service"].read_text().replace(f"{certs_dir}/service", f"{certs_dir}/service-{ROBOT}"))
+    router = subprocess.Popen([sys.executable, "-m", "lrfslam.cli", "router", "--zenoh-config", str(paths["router"]),
+                               "--log-level", "WARNING", "--listen", endpoint])
+    try:
+        wait_until(lambda: status(["--zenoh-config", str(paths["service"]), "-e", endpoint, "--check"]) == 0,
+                   "the router with the robot's lines never answered", 30)
+        other = topics.key("robot2", topics.SCAN.name)
+        assert delivered(own, paths["service"], endpoint, topics.key(ROBOT, topics.SCAN.name))
+        assert delivered(paths["service"], own, endpoint, topics.key(ROBOT, topics.SCAN.name))
+        assert not delivered(own, paths["service"], endpoint, other)
+        assert delivered(paths["service"], paths["service"], endpoint, other)   # the control
+        assert not delivered(own, paths["service"], endpoint, ROS_SCAN)
+    finally:
+        router.terminate()
+        router.wait(10)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from lrfslam.tools.router import main as router_main
 from lrfslam.tools.status import main as status
 
 pytestmark = pytest.mark.integration
@@ -100,3 +101,12 @@ def test_up_listens_for_other_hosts_over_tls_and_plain_only_when_insecure(tls, t
     assert up.returncode == 0, err[-3000:]
     warnings = [line for line in err.splitlines() if "--insecure" in line]
     assert len(warnings) == 1 and f"--listen tcp/0.0.0.0:{plain}: plain, beyond loopback" in warnings[0], err
+
+
+def test_the_router_refuses_a_plain_endpoint_beyond_loopback_unless_insecure(caplog):
+    port = free_port()
+    assert router_main(["--listen", f"tcp/0.0.0.0:{port}"]) == 2
+    (line,) = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
+    assert line.startswith(f"--listen tcp/0.0.0.0:{port} is plain (no TLS) beyond loopback") and "--insecure" in line
+    with socket.socket() as s:   # nothing was bound
+        s.bind(("0.0.0.0", port))

@@ -105,8 +105,9 @@ def test_up_refuses_a_plain_endpoint_beyond_loopback_before_starting_anything(tm
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2
     assert err.splitlines() == [(f"lrfslam up: error: --listen tcp/0.0.0.0:{extra} is plain (no TLS) beyond loopback: "
-                                "whoever reaches it can read and publish on the bus; use tls/ with --zenoh-config "
-                                "(deploy/zenoh/router-tls.json5), or pass --insecure on a closed network")], err
+                                "whoever reaches it can read and publish on the bus; listen on tls/ with a "
+                                "--zenoh-config of the router's certificate (deploy/README.md, 'Access control'), "
+                                "or pass --insecure on a closed network")], err
     # Nothing was started: no line from a router or a stage, no recording folder, no process left on a port.
     assert list(tmp_path.iterdir()) == []
     for p in (port, extra):

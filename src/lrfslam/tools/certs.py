@@ -7,14 +7,21 @@ Writes into OUT_DIR (deploy/README.md, "Access control"):
     router.pem, router-key.pem    CN lrfslam-router, for the names and addresses desks dial
                                   (zenohd, localhost, 127.0.0.1 and every --host): a client that
                                   verifies names (verify_name_on_connect) refuses any other.
-    service.pem, service-key.pem  CN lrfslam-service: the pipeline services' rights
+    service.pem, service-key.pem  CN lrfslam-service: the pipeline services' rights, on every robot
     monitor.pem, monitor-key.pem  CN lrfslam-monitor: a monitor's (read only)
+    ros2-desk.pem, ...            CN lrfslam-ros2-desk: a ROS 2 desk's (reads the ROS 2 topics)
+    ros2-robot.pem, ...           CN lrfslam-ros2-robot: a ROS 2 robot's (publishes its /scan, /odom)
+    service-ROBOT.pem, ...        with ``--robot ROBOT``: CN lrfslam-service-ROBOT, the services'
+                                  rights on that robot's keys only, for a router several robots share
 
-The common names are what deploy/zenoh/router-tls-acl.json5 grants rights to: keep them in step.
-A certificate or key already in OUT_DIR is never overwritten silently: without ``--renew`` one
-there stops the command with one line and exit 1 before anything is written. ``--renew ROLE``
-issues that role anew (signed by the same CA, so nothing else needs to change), and any role
-missing, leaving the others as they are. Keys are written 0600, certificates 0644.
+The common names are what deploy/zenoh/router-tls-acl.json5 grants rights to (:data:`ROLES`; a
+test reads both); a robot's certificate needs the lines :func:`robot_acl` prints added to it.
+A certificate or key already in OUT_DIR is never overwritten silently: without ``--renew`` or
+``--if-absent`` one there stops the command with one line and exit 1 before anything is
+written. ``--renew ROLE`` issues that role anew (signed by the same CA, so nothing else needs to
+change), and any role missing, leaving the others as they are; ``--if-absent`` (compose's first
+start) issues only what is missing, so a second start changes nothing. Keys are written 0600,
+certificates 0644.
 
 Written with the ``cryptography`` package rather than by calling ``openssl``: the extensions
 rustls (Zenoh's TLS) insists on are set in one place and tested in-process, nothing depends on an
@@ -27,6 +34,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import ipaddress
+import json
 import os
 import re
 import sys
@@ -39,6 +47,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from lrfslam.errors import ConfigError
+from lrfslam.msgs import topics
 
 
 @dataclass(frozen=True)
@@ -51,7 +60,29 @@ class Role:
 
 
 ROLES = (Role("router", "lrfslam-router", server=True), Role("service", "lrfslam-service"),
-         Role("monitor", "lrfslam-monitor"))
+         Role("monitor", "lrfslam-monitor"), Role("ros2-desk", "lrfslam-ros2-desk"),
+         Role("ros2-robot", "lrfslam-ros2-robot"))
+
+
+def robot_role(robot: str) -> Role:
+    """The services' certificate limited to ``robot``'s keys (``--robot``)."""
+    topics.check_robot(robot)
+    return Role(f"service-{robot}", f"lrfslam-service-{robot}")
+
+
+def robot_acl(robot: str) -> dict:
+    """The rule, subject and policy that give :func:`robot_role`'s certificate the services' rights
+    on ``lrf/<robot>/**`` alone: added to a router's ``access_control`` (its ``rules``, ``subjects``
+    and ``policies`` lists), they keep one robot's key from publishing as another."""
+    role = robot_role(robot)
+    return {
+        "rules": [{"id": role.name, "permission": "allow", "flows": ["ingress", "egress"],
+                   "messages": ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
+                                "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"],
+                   "key_exprs": [topics.everything(robot)]}],
+        "subjects": [{"id": role.name, "cert_common_names": [role.common_name]}],
+        "policies": [{"id": role.name, "rules": [role.name], "subjects": [role.name]}],
+    }
 #: What the router's certificate always names: the compose network's name for it and loopback,
 #: which the services and the router's own healthcheck dial.
 ALWAYS_NAMES = ("zenohd", "localhost", "127.0.0.1")
@@ -184,12 +215,19 @@ def _key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lrfslam certs", description=__doc__.splitlines()[0])
     p.add_argument("out", metavar="OUT_DIR", help="folder of the CA and the certificates (made if missing)")
-    p.add_argument("--host", action="append", default=[], metavar="NAME_OR_IP",
-                   help="a name or address desks dial to reach the router (repeatable); needed when the "
-                        "router's certificate is issued")
-    p.add_argument("--renew", action="append", default=[], choices=[r.name for r in ROLES], metavar="ROLE",
-                   help="issue ROLE (router, service, monitor) anew, replacing its certificate and key "
-                        "(repeatable); without it an existing one stops the command")
+    p.add_argument("--host", action="append", default=[], metavar="NAMES_OR_IPS",
+                   help="names or addresses desks dial to reach the router, comma-separated (repeatable); "
+                        "needed when the router's certificate is issued, except with --if-absent")
+    p.add_argument("--robot", action="append", default=[], metavar="ROBOT",
+                   help="also a services' certificate limited to ROBOT's keys (repeatable); prints the lines "
+                        "the router's access-control list needs for it")
+    p.add_argument("--renew", action="append", default=[], metavar="ROLE",
+                   help=f"issue ROLE ({', '.join(r.name for r in ROLES)}, service-ROBOT) anew, replacing its "
+                        "certificate and key (repeatable); without it an existing one stops the command")
+    p.add_argument("--if-absent", action="store_true",
+                   help="issue only what OUT_DIR lacks and keep the rest (a container's first start)")
+    p.add_argument("--shown-as", metavar="TEXT",
+                   help="how the closing message names OUT_DIR (e.g. the host folder a container mounts there)")
     return p
 
 
@@ -197,20 +235,25 @@ def main(argv: list[str] | None = None) -> int:
     p = parser()
     args = p.parse_args(argv)
     out = Path(args.out)
-    present = {role.name: [path for path in files(out, role.name) if path.exists()] for role in ROLES}
-    if not args.renew and (existing := [path for paths in present.values() for path in paths]):
+    hosts = [h.strip() for arg in args.host for h in arg.split(",") if h.strip()]
+    roles_all = [*ROLES, *(robot_role(r) for r in dict.fromkeys(args.robot))]
+    if unknown := [r for r in args.renew if r not in {role.name for role in roles_all}]:
+        p.error(f"--renew {unknown[0]}: not a role here ({', '.join(role.name for role in roles_all)})")
+    present = {role.name: [path for path in files(out, role.name) if path.exists()] for role in roles_all}
+    if not args.renew and not args.if_absent and (existing := [path for paths in present.values() for path in paths]):
         role = existing[0].name.removesuffix(".pem").removesuffix("-key")
         print(f"lrfslam certs: {existing[0]} exists; not overwriting it (--renew {role} issues it anew, "
-              "signed by the same CA)", file=sys.stderr)
+              "signed by the same CA; --if-absent issues only what is missing)", file=sys.stderr)
         return 1
-    # With --renew: those roles, and any role not there at all; the others are left as they are.
-    roles = [role for role in ROLES if role.name in args.renew or not present[role.name]]
-    if not args.host and any(role.server for role in roles):
+    # With --renew: those roles, and any role not wholly there (half of one is of no use); the
+    # others are left as they are.
+    roles = [role for role in roles_all if role.name in args.renew or len(present[role.name]) < 2]
+    if not hosts and not args.if_absent and any(role.server for role in roles):
         p.error("--host is needed to issue the router's certificate (the name or address desks dial)")
-    subject_names(args.host)   # a bad one stops the command before anything is written
+    subject_names(hosts)   # a bad one stops the command before anything is written
     ca = load_ca(out)
-    if ca is None and (kept := [role.name for role in ROLES if role not in roles]):
-        raise ConfigError(f"{out} holds no CA but holds {' and '.join(kept)}: a new CA would not have signed "
+    if ca is None and (kept := [role.name for role in roles_all if role not in roles]):
+        raise ConfigError(f"{out} holds no CA but holds {', '.join(kept)}: a new CA would not have signed "
                           "them (put ca.pem and ca-key.pem back, --renew every role, or use another OUT_DIR)")
     now = dt.datetime.now(dt.UTC)
     out.mkdir(parents=True, exist_ok=True)
@@ -224,15 +267,20 @@ def main(argv: list[str] | None = None) -> int:
         write(ca_cert, _pem(ca[0]), CERT_MODE)
         print(f"wrote {ca_cert.resolve()} (the CA: every host trusts it)")
     for role in roles:
-        cert, key = issue(role, ca[0], ca[1], args.host, now)
+        cert, key = issue(role, ca[0], ca[1], hosts, now)
         cert_path, key_path = files(out, role.name)
         write(key_path, _key_pem(key), KEY_MODE)
         print(f"wrote {key_path.resolve()} (mode 0{KEY_MODE:o})")
         write(cert_path, _pem(cert), CERT_MODE)
-        names = f", for {', '.join(dict.fromkeys([*ALWAYS_NAMES, *args.host]))}" if role.server else ""
+        names = f", for {', '.join(dict.fromkeys([*ALWAYS_NAMES, *hosts]))}" if role.server else ""
         print(f"wrote {cert_path.resolve()} (CN {role.common_name}{names}; signed by {signed_by}, valid until "
               f"{cert.not_valid_after_utc:%Y-%m-%d})")
-    print(f"a desk: copy ca.pem, monitor.pem and monitor-key.pem from {out.resolve()} with "
-          "deploy/zenoh/monitor-tls.json5 into a tls/ folder where it runs lrfslam (deploy/README.md, "
-          "'Access control')")
+    for robot in dict.fromkeys(args.robot):
+        print(f"for {robot_role(robot).common_name}, add to the router's access_control lists (then restart it): "
+              f"{json.dumps(robot_acl(robot))}")
+    where = args.shown_as or str(out.resolve())
+    made = "made now" if roles else "kept"
+    print(f"certificates {made} in {where}: a desk needs ca.pem, monitor.pem and monitor-key.pem from there with "
+          "deploy/zenoh/monitor-tls.json5, in a tls/ folder where it runs lrfslam (a ROS 2 desk: ros2-desk.pem and "
+          "its key; deploy/README.md, 'Access control')")
     return 0

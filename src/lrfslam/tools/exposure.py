@@ -1,8 +1,8 @@
 """Who can reach what a command serves: loopback only, or beyond.
 
-``lrfslam up --listen`` refuses a plain Zenoh endpoint (no encryption, no authentication: anyone
-who reaches it reads and publishes on the bus) beyond loopback unless told ``--insecure``
-(src/lrfslam/tools/up.py), and ``lrfslam monitor`` refuses to serve its web pages beyond loopback
+``lrfslam up --listen`` and ``lrfslam router --listen`` refuse a plain Zenoh endpoint (no
+encryption, no authentication: anyone who reaches it reads and publishes on the bus) beyond
+loopback unless told ``--insecure`` (:func:`check_listen`), and ``lrfslam monitor`` refuses to serve its web pages beyond loopback
 without a token (src/lrfslam/tools/monitor.py): both ask here, so that they agree on what loopback
 is. A host name other than ``localhost`` counts as beyond loopback: what it resolves to is not
 known for sure when the command starts, and may change while it runs.
@@ -11,6 +11,7 @@ known for sure when the command starts, and may change while it runs.
 from __future__ import annotations
 
 import ipaddress
+import logging
 import re
 from collections.abc import Mapping
 from pathlib import Path
@@ -68,6 +69,25 @@ def plain_beyond_loopback(endpoint: str) -> bool:
     """Whether ``endpoint`` is a plain (tcp/, udp/, ws/) endpoint that others than this machine may reach."""
     protocol, host = endpoint_host(endpoint)
     return protocol in PLAIN_PROTOCOLS and not is_loopback(host)
+
+
+def check_listen(endpoints: list[str], insecure: bool, log: logging.Logger | None) -> None:
+    """Refuse plain ``endpoints`` beyond loopback unless ``insecure``; with it, warn on ``log`` once
+    for each (None: the process that listens warns, ``lrfslam up``'s router).
+
+    Raises
+    ------
+    ConfigError
+        A plain endpoint beyond loopback without ``insecure``.
+    """
+    for ep in filter(plain_beyond_loopback, endpoints):
+        if not insecure:
+            raise ConfigError(f"--listen {ep} is plain (no TLS) beyond loopback: whoever reaches it can read and "
+                              "publish on the bus; listen on tls/ with a --zenoh-config of the router's certificate "
+                              "(deploy/README.md, 'Access control'), or pass --insecure on a closed network")
+        if log is not None:
+            log.warning("--listen %s: plain, beyond loopback, no authentication (--insecure): whoever reaches it can "
+                        "read and publish on the bus", ep)
 
 
 def read_token(path: str | None, env: Mapping[str, str]) -> str | None:

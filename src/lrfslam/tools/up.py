@@ -62,7 +62,7 @@ from lrfslam.runtime.bus import BusConfig, closing, parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
 from lrfslam.tools import maps
-from lrfslam.tools.exposure import plain_beyond_loopback
+from lrfslam.tools.exposure import check_listen
 from lrfslam.tools.info import segment_lines
 from lrfslam.tools.status import client_config
 from lrfslam.viz.dashboard import counter_figures
@@ -356,13 +356,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"lrfslam up: error: {exc}", file=sys.stderr)
             return 1
     setup_logging("up", "INFO")
-    for ep in filter(plain_beyond_loopback, args.listen):
-        if not args.insecure:
-            raise ConfigError(f"--listen {ep} is plain (no TLS) beyond loopback: whoever reaches it can read and "
-                              "publish on the bus; use tls/ with --zenoh-config (deploy/zenoh/router-tls.json5), "
-                              "or pass --insecure on a closed network")
-        log.warning("--listen %s: plain, beyond loopback, no authentication (--insecure): whoever reaches it can "
-                    "read and publish on the bus", ep)
+    check_listen(args.listen, args.insecure, None)   # before anything starts; its router warns
 
     order = tuple(n for n in START_ORDER if n not in args.skip)
     try:
@@ -393,7 +387,8 @@ def main(argv: list[str] | None = None) -> int:
     router = None if args.connect else Child(
         "router", [sys.executable, "-m", "lrfslam.cli", "router", "--log-level", args.log_level]
         + (["--zenoh-config", args.zenoh_config] if args.zenoh_config else [])
-        + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)])
+        + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)]
+        + (["--insecure"] if args.insecure else []))
     router_id = start_router(router) if router else None
     children = {n: Child(n, child_argv(n, args, endpoint, extra[n]), env=stage_env) for n in order}
     monitor = Child("monitor", [sys.executable, "-m", "lrfslam.cli", "monitor", "--connect", endpoint, "--robot",
