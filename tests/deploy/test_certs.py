@@ -207,6 +207,15 @@ def test_if_absent_makes_what_is_missing_and_never_replaces(tmp_path, capsys):
     after = {p.name: p.read_bytes() for p in out.iterdir()}
     assert {n for n in FILES if after[n] != before[n]} == {"monitor.pem", "monitor-key.pem"}
     assert handshake(out, "robot.test", "monitor") == "lrfslam-monitor"
+    # The CA's key moved off the robot, as deploy/README.md advises: the next start still passes,
+    # having nothing to sign; one that must sign says why it cannot.
+    (out / "ca-key.pem").unlink()
+    capsys.readouterr()
+    assert lrfslam(["certs", str(out), "--if-absent"]) == 0
+    assert capsys.readouterr().out.startswith("certificates kept in ")
+    (out / "ros2-desk.pem").unlink()
+    assert lrfslam(["certs", str(out), "--if-absent"]) == 2
+    assert "ca-key.pem is not" in capsys.readouterr().err
 
 
 def test_a_robots_certificate_and_the_lines_its_router_needs(tmp_path, capsys):

@@ -251,6 +251,9 @@ def main(argv: list[str] | None = None) -> int:
     if not hosts and not args.if_absent and any(role.server for role in roles):
         p.error("--host is needed to issue the router's certificate (the name or address desks dial)")
     subject_names(hosts)   # a bad one stops the command before anything is written
+    if not roles:   # nothing to sign: the CA's key may well be off this machine, as it should be
+        print(closing_line(args.shown_as or str(out.resolve()), "kept"))
+        return 0
     ca = load_ca(out)
     if ca is None and (kept := [role.name for role in roles_all if role not in roles]):
         raise ConfigError(f"{out} holds no CA but holds {', '.join(kept)}: a new CA would not have signed "
@@ -278,9 +281,12 @@ def main(argv: list[str] | None = None) -> int:
     for robot in dict.fromkeys(args.robot):
         print(f"for {robot_role(robot).common_name}, add to the router's access_control lists (then restart it): "
               f"{json.dumps(robot_acl(robot))}")
-    where = args.shown_as or str(out.resolve())
-    made = "made now" if roles else "kept"
-    print(f"certificates {made} in {where}: a desk needs ca.pem, monitor.pem and monitor-key.pem from there with "
-          "deploy/zenoh/monitor-tls.json5, in a tls/ folder where it runs lrfslam (a ROS 2 desk: ros2-desk.pem and "
-          "its key; deploy/README.md, 'Access control')")
+    print(closing_line(args.shown_as or str(out.resolve()), "made now"))
     return 0
+
+
+def closing_line(where: str, done: str) -> str:
+    """The one line that says where the certificates are and what a desk needs of them."""
+    return (f"certificates {done} in {where}: a desk needs ca.pem, monitor.pem and monitor-key.pem from there with "
+            "deploy/zenoh/monitor-tls.json5, in a tls/ folder where it runs lrfslam (a ROS 2 desk: ros2-desk.pem and "
+            "its key; deploy/README.md, 'Access control')")
