@@ -31,7 +31,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "viz": BASE | {"msgs", "algo"},
     "ros2": BASE | {"msgs", "algo"},
     "services": BASE | {"runtime", "viz", "msgs", "algo", "sim", "drivers", "io", "extras"},
-    "evaluation": BASE | {"services", "runtime", "msgs", "algo", "sim", "io", "extras"},
+    "evaluation": BASE | {"services", "runtime", "ros2", "msgs", "algo", "sim", "io", "extras"},
     "tools": BASE | {"evaluation", "services", "runtime", "viz", "ros2", "msgs", "algo", "sim", "drivers", "io", "extras"},
     "bench": BASE | {"tools", "evaluation", "services", "runtime", "viz", "ros2", "msgs", "algo", "sim", "drivers", "io",
                      "extras"},
