@@ -22,12 +22,12 @@ from lrfslam.msgs import topics
 from lrfslam.ros2 import convert, wire
 from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import (
+    TIMES,
     RecordedMessage,
     RecordingWriter,
     read_metadata,
     read_recording,
 )
-from lrfslam.runtime.recording.layout import TIMES
 
 #: The ROS namespace the messages are converted under (and stripped of again).
 NAMESPACE = "robot1"

@@ -64,6 +64,19 @@ ROLES = (Role("router", "lrfslam-router", server=True), Role("service", "lrfslam
          Role("ros2-robot", "lrfslam-ros2-robot"))
 
 
+#: What the router's certificate always names: the compose network's name for it and loopback,
+#: which the services and the router's own healthcheck dial.
+ALWAYS_NAMES = ("zenohd", "localhost", "127.0.0.1")
+CA_DAYS = 3650
+#: Apple's limit for a TLS server certificate, kept for every role (as deploy/zenoh/make-certs.sh's openssl did).
+CERT_DAYS = 825
+#: Valid from a little before now, so that a desk whose clock is a few minutes behind accepts them.
+BACKDATE = dt.timedelta(minutes=5)
+CA_COMMON_NAME = "lrfslam CA"
+KEY_MODE, CERT_MODE = 0o600, 0o644
+_HOST_NAME = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9_]([A-Za-z0-9_-]{0,62})(\.[A-Za-z0-9_]([A-Za-z0-9_-]{0,62}))*\.?$")
+
+
 def robot_role(robot: str) -> Role:
     """The services' certificate limited to ``robot``'s keys (``--robot``)."""
     topics.check_robot(robot)
@@ -83,17 +96,6 @@ def robot_acl(robot: str) -> dict:
         "subjects": [{"id": role.name, "cert_common_names": [role.common_name]}],
         "policies": [{"id": role.name, "rules": [role.name], "subjects": [role.name]}],
     }
-#: What the router's certificate always names: the compose network's name for it and loopback,
-#: which the services and the router's own healthcheck dial.
-ALWAYS_NAMES = ("zenohd", "localhost", "127.0.0.1")
-CA_DAYS = 3650
-#: Apple's limit for a TLS server certificate, kept for every role (as deploy/zenoh/make-certs.sh's openssl did).
-CERT_DAYS = 825
-#: Valid from a little before now, so that a desk whose clock is a few minutes behind accepts them.
-BACKDATE = dt.timedelta(minutes=5)
-CA_COMMON_NAME = "lrfslam CA"
-KEY_MODE, CERT_MODE = 0o600, 0o644
-_HOST_NAME = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9_]([A-Za-z0-9_-]{0,62})(\.[A-Za-z0-9_]([A-Za-z0-9_-]{0,62}))*\.?$")
 
 
 def files(out: Path, stem: str) -> tuple[Path, Path]:

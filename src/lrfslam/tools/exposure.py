@@ -2,9 +2,9 @@
 
 ``lrfslam up --listen`` and ``lrfslam router --listen`` refuse a plain Zenoh endpoint (no
 encryption, no authentication: anyone who reaches it reads and publishes on the bus) beyond
-loopback unless told ``--insecure`` (:func:`check_listen`), and ``lrfslam monitor`` refuses to serve its web pages beyond loopback
-without a token (src/lrfslam/tools/monitor.py): both ask here, so that they agree on what loopback
-is. A host name other than ``localhost`` counts as beyond loopback: what it resolves to is not
+loopback unless told ``--insecure`` (:func:`check_listen`), and ``lrfslam monitor`` refuses to
+serve its web pages beyond loopback without a token (src/lrfslam/tools/monitor.py): all ask here,
+so that they agree on what loopback is. A host name other than ``localhost`` counts as beyond loopback: what it resolves to is not
 known for sure when the command starts, and may change while it runs.
 """
 
