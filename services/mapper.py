@@ -5,6 +5,8 @@ in:  scan           LaserScan (the raw scan: the keyframes' points)
 out: map/pose       MapPose (per slam state: the pose corrected by every closure so far)
      map/keyframes  MapKeyframes (after each optimisation and at the end: the graph's optimised
                     keyframes, and those retired from it since the last, once)
+     map/grid       MapGrid (at most once a second of data, and at the end: the tiles of the
+                    live occupancy grid that changed; whole for a late joiner's query)
 
 The EKF with corner landmarks stays the online estimator; this stage (``lrfslam.algo.loop_closure``)
 closes the loops it cannot, from a large prior error. The EKF's pose of each scan tells the closure
@@ -19,6 +21,12 @@ The step is :class:`Resumable`: where the runtime keeps checkpoints (``bus.check
 states' motions; where that chain breaks (a state number skipped: states lost, this stage or the slam
 stage restarted) the filter's own pose change bridges the gap, taken as the motion across it: the
 closures that follow correct what the filter got wrong meanwhile.
+
+The live occupancy grid (``lrfslam.algo.keyframe_grid``) is the graph's keyframes' raw scans at
+their optimised poses, traced as ``lrfslam export`` traces a recording's; keyframes an optimisation
+moved are laid again, a few per scan. It travels as the tiles whose cells changed, so a message
+stays small however large the building; the checkpoint keeps the keyframes' scans, so a restarted
+mapper has its grid again.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ import numpy as np
 
 from lrfslam.algo import kernels
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
+from lrfslam.algo.keyframe_grid import KeyframeGrid
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
 from lrfslam.msgs import topics
@@ -42,6 +51,9 @@ log = logging.getLogger("lrfslam.mapper")
 #: Slam states held for their scan at most, then placed without one (a lost scan must not hold
 #: the map back: 2 s at the LMS200's 10 Hz).
 MAX_WAITING_STATES = 20
+#: The live grid's changed tiles go out at most this often, ns of data time (slam_toolbox's
+#: ``map_update_interval`` is 5 s; a viewer wants a driving robot's map sooner).
+GRID_PERIOD_NS = 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -83,12 +95,18 @@ class MapperStep(StepBase):
         self._local: np.ndarray | None = None   # the last state's pose on the local trajectory
         self._last_slam_pose = np.zeros(3)
         self._last_state_seq = -1   # the last state's number; -1: none yet
+        self.grid = KeyframeGrid()
+        self.grid_seq = 0
+        self._grid_due_ns: int | None = None
+        self._grid_sent: dict[tuple[int, int], bytes] = {}   # tile -> its cells as last published
+        self._grid_resolution_changes = 0
 
     def on_message(self, msg: Message):
         v = msg.value
         if msg.topic is topics.SCAN:
             valid = (v.status == t.BEAM_VALID) & np.isfinite(v.ranges_m)
             self.align.add_scan(v.seq, v.stamp_ns, polar_to_xy(v.ranges_m[valid], v.angles_rad[valid]))
+            self.grid.add_scan(v.stamp_ns, v.grid_ranges(), v.angle_min_rad, v.angle_increment_rad)
         elif msg.topic is topics.SLAM_STATE:
             self.align.add_features(v.stamp_ns, v.scan_seq, v)
         return [out for a in self.align.ready() for out in self._place(a.features, a.scan_xy_m)]
@@ -98,14 +116,60 @@ class MapperStep(StepBase):
         if self.mapper.keyframe_count:
             self.mapper.solve()   # every closure still pending
             outs.append(self._keyframes(self._last_stamp))
+            self.grid.work(-1)
+            outs += self._grid_changes(self._last_stamp, final=True)
         return outs
+
+    def latest(self, topic):
+        """The whole grid for a late joiner (the other outputs: the newest published)."""
+        if topic is not topics.MAP_GRID or not len(self.grid.grid):
+            return None
+        tiles = self.grid.grid.tiles()
+        return self._grid_message(self._last_stamp, tiles, [self.grid.grid.trinary(tl) for tl in tiles], whole=True,
+                                  seq=self.grid_seq)
+
+    def _grid_changes(self, stamp_ns: int, final: bool = False) -> list[Output]:
+        """The grid's changed tiles, once ``GRID_PERIOD_NS`` of data has passed since the last (or ``final``)."""
+        if not final and self._grid_due_ns is not None and stamp_ns < self._grid_due_ns:
+            return []
+        grid = self.grid.grid
+        changed = grid.take_changed()
+        whole = grid.resolution_changes != self._grid_resolution_changes
+        if whole:   # every tile anew, at the new resolution
+            self._grid_resolution_changes = grid.resolution_changes
+            self._grid_sent.clear()
+            changed = grid.tiles()
+        tiles, cells = [], []
+        for tile in changed:
+            tri = grid.trinary(tile)
+            data = tri.tobytes()
+            if self._grid_sent.get(tile) != data:
+                self._grid_sent[tile] = data
+                tiles.append(tile)
+                cells.append(tri)
+        if not tiles and not whole:
+            return []
+        self._grid_due_ns = stamp_ns + GRID_PERIOD_NS
+        self.grid_seq += 1
+        self.counts["grid_updates"] += 1
+        return [Output(topics.MAP_GRID, self._grid_message(stamp_ns, tiles, cells, whole, self.grid_seq))]
+
+    def _grid_message(self, stamp_ns: int, tiles, cells, whole: bool, seq: int) -> t.MapGrid:
+        side = self.grid.grid.tile_cells
+        return t.MapGrid(stamp_ns=stamp_ns, seq=seq, resolution_m=self.grid.grid.resolution_m, tile_cells=side,
+                         tiles=np.array(tiles, np.int64).reshape(-1, 2),
+                         cells=np.array(cells, np.int8).reshape(-1, side, side), whole=whole,
+                         keyframes=self.grid.keyframes, pending=self.grid.pending)
 
     def _place(self, state: t.SlamState, points: np.ndarray | None) -> list[Output]:
         if points is None:
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
         local, reference = self._local_pose(state)
+        made = self.mapper.keyframe_count
         pose = self.mapper.add_scan(state.stamp_ns, local, points, reference, online_pose=state.pose)
+        if self.mapper.keyframe_count != made:   # this scan made a keyframe: its pose is the keyframe's
+            self.grid.add_keyframe(state.stamp_ns, pose)
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats
         verified, nis_sum = self.mapper.closure_nis
@@ -121,7 +185,8 @@ class MapperStep(StepBase):
         if stats.optimisations != self.optimisations:
             self.optimisations = stats.optimisations
             outs.append(self._keyframes(state.stamp_ns))
-        return outs
+        self.grid.work()
+        return outs + self._grid_changes(state.stamp_ns)
 
     def _local_pose(self, state: t.SlamState) -> tuple[np.ndarray, np.ndarray | None]:
         """The state's pose on the local trajectory (the chain of the motions that moved the filter), (3,), and the step the
@@ -148,12 +213,14 @@ class MapperStep(StepBase):
     def _keyframes(self, stamp_ns: int) -> Output:
         stamps, local_poses = self.mapper.keyframe_stamped_local_poses()
         retired = self.mapper.take_retired()   # told once: a reader of the whole run keeps them
+        map_poses = self.mapper.keyframe_poses()
+        self.grid.set_poses(stamps, map_poses)
         self.keyframes_seq += 1
         self.counts["keyframe_updates"] += 1
         self.counts["keyframes_retired"] += len(retired)
         return Output(topics.MAP_KEYFRAMES, t.MapKeyframes(
             stamp_ns=stamp_ns, seq=self.keyframes_seq, scan_stamp_ns=stamps, local_pose=local_poses,
-            map_pose=self.mapper.keyframe_poses(), local_edge=self.mapper.keyframe_local_edges(),
+            map_pose=map_poses, local_edge=self.mapper.keyframe_local_edges(),
             retired_scan_stamp_ns=retired.stamp_ns, retired_local_pose=retired.local_pose,
             retired_local_edge=retired.local_edge, retired_anchor_stamp_ns=retired.anchor_stamp_ns,
             retired_offset=retired.offset))
@@ -166,7 +233,8 @@ class MapperStep(StepBase):
         arrays.update(service_seq=self.seq, service_keyframes_seq=self.keyframes_seq,
                       service_last_stamp_ns=self._last_stamp, service_last_state_seq=self._last_state_seq,
                       service_local_pose=np.full(3, np.nan) if self._local is None else self._local,
-                      service_last_slam_pose=self._last_slam_pose)
+                      service_last_slam_pose=self._last_slam_pose, service_grid_seq=self.grid_seq)
+        arrays.update(self.grid.snapshot())
         return arrays
 
     def restore(self, arrays) -> str:
@@ -180,6 +248,11 @@ class MapperStep(StepBase):
         self._local = None if np.any(np.isnan(local)) else local
         self._last_slam_pose = last_slam_pose
         self.optimisations = mapper.stats.optimisations
+        self.grid = KeyframeGrid()
+        self.grid.restore(arrays)
+        self.grid_seq = int(arrays.get("service_grid_seq", 0))
+        self._grid_due_ns, self._grid_sent = None, {}
+        self._grid_resolution_changes = self.grid.grid.resolution_changes - 1   # the first grid goes out whole
         return f"{mapper.keyframe_count} keyframes, {mapper.stats.accepted - mapper.stats.removed} closures"
 
     def health(self) -> tuple[int, str]:
@@ -190,11 +263,11 @@ class MapperStep(StepBase):
 SPEC = ServiceSpec(
     name="mapper",
     summary="Loop closing behind the EKF: keyframes in a pose graph, closures by correlative search; "
-            "publishes the corrected pose per scan and the optimised keyframes.",
+            "publishes the corrected pose per scan, the optimised keyframes and the live occupancy grid.",
     config_type=MapperConfig,
     inputs=(topics.SCAN, topics.SLAM_STATE),
-    outputs=(topics.MAP_POSE, topics.MAP_KEYFRAMES),
-    latest=(topics.MAP_POSE, topics.MAP_KEYFRAMES),
+    outputs=(topics.MAP_POSE, topics.MAP_KEYFRAMES, topics.MAP_GRID),
+    latest=(topics.MAP_POSE, topics.MAP_KEYFRAMES, topics.MAP_GRID),
     skippable=(topics.SCAN, topics.SLAM_STATE),
     # An optimisation holds the mapper up to a second now and then (docs/delivery.md); it catches up
     # within milliseconds after, so it skips only when behind for longer than that.

@@ -34,9 +34,10 @@ from lrfslam.tools.pipeline import DEFAULT_STAGES, build_stages, run_pipeline
 GOLDEN = Path(__file__).resolve().parents[2] / "tests" / "data" / "golden"
 #: At least these fractions of the keyframes' scan points (within the grid's wall range), placed
 #: by the saved keyframe poses, fall on a cell the saved grid calls occupied, and on or next to
-#: one (its 3 x 3 cells); measured 0.906 and 0.989 (the rest: walls seen at a grazing angle,
-#: whose cells other beams cross and clear).
-ON_WALLS, NEXT_TO_WALLS = 0.85, 0.97
+#: one (its 3 x 3 cells); measured 0.795 and 0.980 with the grid of the graph's keyframes (the
+#: rest: walls seen at a grazing angle, whose cells other keyframes' beams cross and clear; a
+#: grid of every scan, with more hits on each wall cell, gave 0.868 and 0.988).
+ON_WALLS, NEXT_TO_WALLS = 0.75, 0.97
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,6 @@
 """The mapper step: slam states placed with their scans on the local trajectory, map/pose per
-state, map/keyframes that reproduce the mapper's own final trajectory from a recording."""
+state, map/keyframes that reproduce the mapper's own final trajectory from a recording, and the
+live grid (map/grid) that ends as the grid of the graph's keyframes."""
 
 from __future__ import annotations
 
@@ -9,10 +10,12 @@ from lrfslam.services import build_step, stage
 
 from lrfslam.algo.geometry import compose, relative
 from lrfslam.algo.loop_closure import LoopClosingMapper
+from lrfslam.algo.occupancy_grid import OCCUPIED, GridParams, build_grid
 from lrfslam.errors import ConfigError
 from lrfslam.evaluation.map_trajectory import KeyframeHistory, final_poses
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.grid_replica import GridReplica
 from lrfslam.runtime import checkpoints
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.step import Message, Output
@@ -114,6 +117,55 @@ def test_the_last_keyframes_reproduce_the_mappers_final_trajectory(mapped):
     drift = np.hypot(*(np.array([s.pose for _, s, _ in frames])[:, :2] - truth[:, :2]).T)
     final = np.hypot(*(own[:, :2] - truth[:, :2]).T)
     assert drift.max() > 1.0 and final.max() < 0.5 * drift.max()
+
+
+#: Of the live grid's occupied cells at the end, at least this fraction lie within one cell of an
+#: occupied cell of the grid export draws from the same keyframes (and the other way round); the
+#: rest are keyframes an optimisation moved by under a quarter of a cell, which stay where they lie.
+GRID_AGREEMENT = 0.99
+
+
+def occupied_near(cells: np.ndarray, origin: np.ndarray, res: float, other: np.ndarray, other_origin: np.ndarray):
+    """Fraction of ``cells``' occupied cells (H, W int8, lower-left corner ``origin``) within one cell of
+    an occupied cell of ``other`` (same resolution ``res``)."""
+    rows, cols = np.nonzero(cells == OCCUPIED)
+    at = np.floor((origin + res * (np.column_stack((cols, rows)) + 0.5) - other_origin) / res).astype(int)
+    near = np.zeros(rows.size, bool)
+    h, w = other.shape
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            r, c = at[:, 1] + dr, at[:, 0] + dc
+            inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+            near[inside] |= other[r[inside], c[inside]] == OCCUPIED
+    return float(near.mean())
+
+
+def test_the_live_grid_ends_as_the_grid_of_the_graphs_keyframes(mapped):
+    frames, step, outs = mapped
+    grids = [topics.MAP_GRID.codec.decode(topics.MAP_GRID.codec.encode(o.value))
+             for o in outs if o.topic is topics.MAP_GRID]
+    stamps = np.array([g.stamp_ns for g in grids])
+    assert len(grids) > 10 and np.all(np.diff(stamps[:-1]) >= 1_000_000_000)   # once a second of data at most
+    replica = GridReplica()
+    for g in grids:
+        replica.apply(g)
+    assert replica.pending == 0 and replica.keyframes == step.mapper.graph_keyframes
+    # What export draws: the scans of the last map/keyframes at their poses.
+    graph = [o.value for o in outs if o.topic is topics.MAP_KEYFRAMES][-1]
+    scan_at = {s.stamp_ns: s for s, _, _ in frames}
+    kf_scans = [scan_at[int(s)] for s in graph.scan_stamp_ns]
+    want = build_grid(graph.map_pose, np.array([s.grid_ranges() for s in kf_scans]), kf_scans[0].angles_rad,
+                      GridParams(), fit=True)
+    live = replica.image()
+    assert live.resolution_m == want.resolution_m
+    exported = want.trinary()
+    assert occupied_near(live.cells, live.origin_xy_m, live.resolution_m, exported, want.origin_xy_m) >= GRID_AGREEMENT
+    assert occupied_near(exported, want.origin_xy_m, live.resolution_m, live.cells, live.origin_xy_m) >= GRID_AGREEMENT
+    # A late joiner asks for the whole grid: the same tiles.
+    whole = step.latest(topics.MAP_GRID)
+    assert whole.whole and sorted(map(tuple, whole.tiles.tolist())) == sorted(replica.tiles)
+    for tile, cells in zip(whole.tiles.tolist(), whole.cells):
+        np.testing.assert_array_equal(cells, replica.tiles[tuple(tile)])
 
 
 def test_a_state_waits_for_its_scan_and_one_without_a_scan_is_placed_when_a_newer_scan_comes():

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import zlib
 from collections import Counter
 
 import numpy as np
@@ -76,6 +77,9 @@ SAMPLES = {
                                                            local_pose=rng.normal(size=(3, 3)),
                                                            map_pose=rng.normal(size=(3, 3)),
                                                            local_edge=[True, False, True]),
+    codec.MAP_GRID.schema: lambda rng: t.MapGrid(stamp_ns=5, seq=1, resolution_m=0.05, tile_cells=4,
+                                                 tiles=[[0, 0], [-1, 2]],
+                                                 cells=rng.choice([-1, 0, 100], size=(2, 4, 4)), keyframes=3),
 }
 
 #: Every topic a service can receive: the data topics and the health of any service.
@@ -199,6 +203,10 @@ _INT_RANGES = {FD.CPPTYPE_INT32: (-2**31, 2**31 - 1), FD.CPPTYPE_INT64: (-2**63,
 _HOSTILE_FLOATS = (np.nan, np.inf, -np.inf, -1.0, 0.0, 1e-300, 1e300, -1e300, 3.4e38)
 
 
+#: A megabyte of zeros in a kilobyte: a decoder must not inflate more than the message says it holds.
+_BOMB = zlib.compress(bytes(1_000_000))
+
+
 def _value(data, field):
     ct = field.cpp_type
     if ct in _INT_RANGES:
@@ -210,6 +218,8 @@ def _value(data, field):
                                    st.floats(width=32 if ct == FD.CPPTYPE_FLOAT else 64)))
     if ct == FD.CPPTYPE_BOOL:
         return data.draw(st.booleans())
+    if field.type == FD.TYPE_BYTES:   # zlib-compressed cells among others: garbage, or a small bomb
+        return data.draw(st.one_of(st.binary(max_size=40), st.just(_BOMB)))
     return data.draw(st.text(max_size=20))
 
 

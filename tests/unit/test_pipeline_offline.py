@@ -60,10 +60,11 @@ def test_outputs_per_stage_and_passthrough(sim_recording, tmp_path):
     by_topic = Counter(r.topic for r in read_recording(out))
     per_scan = ("scan", "odom", "truth", "scan/filtered", "features", "slam/state", "map/pose")
     # map/keyframes: after each graph optimisation and once at the end; slam/map: the whole landmark
-    # map at the first state, every 5 s of data time (6 s here) and at the last.
+    # map at the first state, every 5 s of data time (6 s here) and at the last; map/grid: at most
+    # once a second of data time (6 s here) and at the end.
     assert by_topic == {**{name: N_SCANS for name in per_scan}, "map/keyframes": by_topic["map/keyframes"],
-                        "slam/map": 3}
-    assert by_topic["map/keyframes"] >= 1
+                        "slam/map": 3, "map/grid": by_topic["map/grid"]}
+    assert by_topic["map/keyframes"] >= 1 and 1 <= by_topic["map/grid"] <= 7
     assert counts["input"] == {"read": 3 * N_SCANS, "copied": 3 * N_SCANS}
     assert counts["denoise"]["in.scan"] == counts["denoise"]["out.scan/filtered"] == N_SCANS
     assert counts["features"]["out.features"] == counts["slam"]["in.features"] == N_SCANS

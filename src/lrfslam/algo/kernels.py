@@ -8,10 +8,11 @@ behind the compiler, and an image build runs it once so no container compiles.
 
 from __future__ import annotations
 
-from lrfslam.algo import correlative_kernel, scan_match_kernel
+from lrfslam.algo import correlative_kernel, grid_kernel, scan_match_kernel
 
 
 def prepare() -> None:
-    """Compile (or load from numba's cache) the scan matcher's and the correlative search's kernels."""
+    """Compile (or load from numba's cache) the scan matcher's, the correlative search's and the live grid's kernels."""
     scan_match_kernel.warm_up()
     correlative_kernel.warm_up()
+    grid_kernel.warm_up()

@@ -14,9 +14,10 @@ Every scan is placed at its pose; each beam then updates the cells it crosses:
 A cell gets at most one update per scan: a hit if any beam of the scan ends in it, else a
 miss if any beam crosses it — so the many beams that cross the cells near the scanner
 count once, and a wall cell that a grazing beam crosses on its way to a farther point of
-the same wall stays a wall. Updates add ``hit_log_odds`` or ``miss_log_odds`` to the cell
-and are clamped to ``[min_log_odds, max_log_odds]`` after each batch of ``batch_scans``
-scans (within a batch a cell's updates are summed first).
+the same wall stays a wall. A cell's log-odds is ``hit_log_odds`` times its hits plus
+``miss_log_odds`` times its misses, clamped to ``[min_log_odds, max_log_odds]``: a function of
+the scans and their poses alone, not of their order, so the live grid, which takes a scan out
+and lays it again when an optimisation moves it (``lrfslam.algo.tiled_grid``), is the same grid.
 
 The grid is sized to the data before any cell is written: the bounding box of the poses
 and of every point a beam can update, plus one cell. Its memory is therefore
@@ -164,7 +165,7 @@ def _check(poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray) -> tuple[n
     return poses, ranges, angles
 
 
-def _beam_lengths(ranges: np.ndarray, p: GridParams) -> tuple[np.ndarray, np.ndarray]:
+def beam_lengths(ranges: np.ndarray, p: GridParams) -> tuple[np.ndarray, np.ndarray]:
     """Free length (m) and whether the end point is a hit, per beam; both shaped like ``ranges``."""
     with np.errstate(invalid="ignore"):
         returned = np.isfinite(ranges) & (ranges > 0)
@@ -175,7 +176,7 @@ def _beam_lengths(ranges: np.ndarray, p: GridParams) -> tuple[np.ndarray, np.nda
     return free, hit
 
 
-def _world(poses: np.ndarray, dist: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def beam_points(poses: np.ndarray, dist: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World x, y of the points ``dist`` metres along beams at ``angles`` of scans at ``poses`` (broadcast)."""
     bearing = poses[:, 2:3] + angles
     return poses[:, 0:1] + dist * np.cos(bearing), poses[:, 1:2] + dist * np.sin(bearing)
@@ -190,8 +191,8 @@ def _bounds_m(poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
     for start in range(0, poses.shape[0], params.batch_scans * 64):
         sl = slice(start, start + params.batch_scans * 64)
         rb = ranges[sl].astype(float)
-        free, hit = _beam_lengths(rb, params)
-        x, y = _world(poses[sl], np.maximum(free, np.where(hit, rb, 0.0)), angles[sl])
+        free, hit = beam_lengths(rb, params)
+        x, y = beam_points(poses[sl], np.maximum(free, np.where(hit, rb, 0.0)), angles[sl])
         lo = np.minimum(lo, (x.min(), y.min()))
         hi = np.maximum(hi, (x.max(), y.max()))
     return lo, hi
@@ -286,33 +287,63 @@ def build_grid(poses, ranges, angles, params: GridParams = GridParams(), fit: bo
     poses, ranges, angles = _check(poses, ranges, angles)
     origin, (h, w), res = grid_frame(poses, ranges, angles, params, fit)
     grid = np.zeros(h * w, dtype=np.float32)
-    n_cells = h * w
     for start in range(0, poses.shape[0], params.batch_scans):
         sl = slice(start, start + params.batch_scans)
-        pb, rb, ab = poses[sl], ranges[sl].astype(float), angles[sl]
-        free, hit = _beam_lengths(rb, params)
-        scan_of_beam = np.broadcast_to(np.arange(pb.shape[0])[:, None], rb.shape)
-
-        hx, hy = _world(pb, np.where(hit, rb, 0.0), ab)
-        hit_keys = _unique(scan_of_beam[hit] * n_cells + _flat(hx[hit], hy[hit], origin, res, h, w))
-
-        use = free > 0
-        bearing = (pb[:, 2:3] + ab)[use]
-        u0 = np.broadcast_to((pb[:, 0:1] - origin[0]) / res, rb.shape)[use]
-        v0 = np.broadcast_to((pb[:, 1:2] - origin[1]) / res, rb.shape)[use]
-        beam, rows, cols = _crossed_cells(u0, v0, np.cos(bearing), np.sin(bearing), free[use] / res)
-        cells = np.clip(rows, 0, h - 1) * w + np.clip(cols, 0, w - 1)
-        free_keys = _unique(scan_of_beam[use][beam] * n_cells + cells)
-        if hit_keys.size:
-            at = np.minimum(np.searchsorted(hit_keys, free_keys), hit_keys.size - 1)
-            free_keys = free_keys[hit_keys[at] != free_keys]
-
-        free_cells, hit_cells = free_keys % n_cells, hit_keys % n_cells
+        free_cells, hit_cells = batch_cells(poses[sl], ranges[sl], angles[sl], params, origin, res, (h, w))
         np.add.at(grid, free_cells, np.float32(params.miss_log_odds))
         np.add.at(grid, hit_cells, np.float32(params.hit_log_odds))
-        touched = np.concatenate((free_cells, hit_cells))
-        grid[touched] = np.clip(grid[touched], params.min_log_odds, params.max_log_odds)
+    np.clip(grid, params.min_log_odds, params.max_log_odds, out=grid)
     return OccupancyGrid(grid.reshape(h, w), res, np.asarray(origin, dtype=float))
+
+
+def batch_cells(poses: np.ndarray, ranges: np.ndarray, angles: np.ndarray, params: GridParams,
+                origin_xy_m: np.ndarray, resolution_m: float,
+                shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The cells a batch of B scans updates, each scan counting a cell once (the module's rules).
+
+    Parameters
+    ----------
+    poses : ndarray, shape (B, 3)
+        Scanner poses ``(x_m, y_m, theta_rad)`` (checked, finite).
+    ranges : ndarray, shape (B, N)
+        Ranges, metres (``+inf`` no return, NaN invalid).
+    angles : ndarray, shape (B, N)
+        Beam bearings in the scanner frame, radians.
+    params : GridParams
+    origin_xy_m : ndarray, shape (2,)
+        Lower-left corner of the grid frame, metres; it must hold every cell the scans update.
+    resolution_m : float
+        Side of a cell, metres.
+    shape : (int, int)
+        (H, W) cells of the grid frame.
+
+    Returns
+    -------
+    free_cells, hit_cells : ndarray of int64
+        Flat indices ``row * W + col``, one entry per scan that frees (hits) the cell; a cell
+        some beam of a scan ends in is that scan's hit and not its miss.
+    """
+    h, w = shape
+    res = resolution_m
+    n_cells = h * w
+    rb = ranges.astype(float)
+    free, hit = beam_lengths(rb, params)
+    scan_of_beam = np.broadcast_to(np.arange(poses.shape[0])[:, None], rb.shape)
+
+    hx, hy = beam_points(poses, np.where(hit, rb, 0.0), angles)
+    hit_keys = _unique(scan_of_beam[hit] * n_cells + flat_index(hx[hit], hy[hit], origin_xy_m, res, h, w))
+
+    use = free > 0
+    bearing = (poses[:, 2:3] + angles)[use]
+    u0 = np.broadcast_to((poses[:, 0:1] - origin_xy_m[0]) / res, rb.shape)[use]
+    v0 = np.broadcast_to((poses[:, 1:2] - origin_xy_m[1]) / res, rb.shape)[use]
+    beam, rows, cols = _crossed_cells(u0, v0, np.cos(bearing), np.sin(bearing), free[use] / res)
+    cells = np.clip(rows, 0, h - 1) * w + np.clip(cols, 0, w - 1)
+    free_keys = _unique(scan_of_beam[use][beam] * n_cells + cells)
+    if hit_keys.size:
+        at = np.minimum(np.searchsorted(hit_keys, free_keys), hit_keys.size - 1)
+        free_keys = free_keys[hit_keys[at] != free_keys]
+    return free_keys % n_cells, hit_keys % n_cells
 
 
 def _crossed_cells(u0: np.ndarray, v0: np.ndarray, c: np.ndarray, s: np.ndarray,
@@ -359,7 +390,7 @@ def _unique(a: np.ndarray) -> np.ndarray:
     return a[np.concatenate(([True], a[1:] != a[:-1]))] if a.size else a
 
 
-def _flat(x: np.ndarray, y: np.ndarray, origin: np.ndarray, res: float, h: int, w: int) -> np.ndarray:
+def flat_index(x: np.ndarray, y: np.ndarray, origin: np.ndarray, res: float, h: int, w: int) -> np.ndarray:
     """Flat cell index ``row * w + col`` of world points (the grid frame holds them; clipped for rounding)."""
     col = np.clip(np.floor((x - origin[0]) / res).astype(np.int64), 0, w - 1)
     row = np.clip(np.floor((y - origin[1]) / res).astype(np.int64), 0, h - 1)

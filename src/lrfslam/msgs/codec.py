@@ -14,6 +14,7 @@ function registered in :data:`UPGRADES`, so old recordings keep replaying.
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
@@ -45,6 +46,11 @@ MAX_TURN_RAD = 2 * np.pi
 #: a covariance entry may be its square. Far beyond any sensor or map, and far enough below
 #: the float limit that the filters' squares and sums stay finite.
 MAX_ABS = 1e6
+
+#: The largest tile side (cells) and the most cells a ``MapGrid`` may decode to: a hostile message
+#: cannot make a decoder inflate gigabytes (a whole grid at export's default limit is 25 million).
+MAX_TILE_CELLS = 1024
+MAX_GRID_CELLS = 64_000_000
 
 #: Zenoh encoding prefix; the schema name follows the ``;`` (``application/protobuf;<schema>``).
 ENCODING_PREFIX = "application/protobuf"
@@ -397,6 +403,38 @@ def _keyframes_from(p) -> t.MapKeyframes:
                           retired_offset=_bounded("retired_offset", p.retired_offset))
 
 
+def _grid_to(m: t.MapGrid):
+    p = map_pb2.MapGrid()
+    _header(p.header, m.stamp_ns, m.seq, "map")
+    p.resolution_m, p.tile_cells, p.whole = float(m.resolution_m), int(m.tile_cells), bool(m.whole)
+    p.tile_row.extend(m.tiles[:, 0].tolist())
+    p.tile_col.extend(m.tiles[:, 1].tolist())
+    p.cells = zlib.compress(m.cells.tobytes(), 1)
+    p.keyframes, p.pending = int(m.keyframes), int(m.pending)
+    return p
+
+
+def _grid_from(p) -> t.MapGrid:
+    n, side = len(p.tile_row), p.tile_cells
+    if len(p.tile_col) != n or not 1 <= side <= MAX_TILE_CELLS or n * side * side > MAX_GRID_CELLS:
+        raise ValueError(f"{n} tiles of {side} x {side} cells: rows and columns differ in number, or too large")
+    if not (np.isfinite(p.resolution_m) and 0 < p.resolution_m <= MAX_ABS):
+        raise ValueError("resolution_m must be > 0 and finite")
+    inflate = zlib.decompressobj()
+    try:
+        raw = inflate.decompress(p.cells, n * side * side + 1)
+    except zlib.error as exc:
+        raise ValueError(f"cells: {exc}") from exc
+    if len(raw) != n * side * side or inflate.unconsumed_tail:
+        raise ValueError(f"cells: {len(raw)} bytes for {n} tiles of {side} x {side}")
+    cells = np.frombuffer(raw, np.int8)
+    if cells.size and not np.all((cells == -1) | ((cells >= 0) & (cells <= 100))):
+        raise ValueError("cells must be -1 or 0..100")
+    return t.MapGrid(stamp_ns=p.header.stamp_ns, seq=p.header.seq, resolution_m=p.resolution_m, tile_cells=side,
+                     tiles=np.column_stack((list(p.tile_row), list(p.tile_col))).reshape(n, 2),
+                     cells=cells.reshape(n, side, side), whole=p.whole, keyframes=p.keyframes, pending=p.pending)
+
+
 def _truth_to(m: t.GroundTruth):
     p = ground_truth_pb2.GroundTruth()
     _header(p.header, m.stamp_ns, m.seq, "map")
@@ -444,11 +482,12 @@ GROUND_TRUTH: Codec[t.GroundTruth] = Codec(ground_truth_pb2.GroundTruth, _truth_
 SERVICE_STATUS: Codec[t.ServiceStatus] = Codec(service_status_pb2.ServiceStatus, _status_to, _status_from)
 MAP_POSE: Codec[t.MapPose] = Codec(map_pb2.MapPose, _map_pose_to, _map_pose_from)
 MAP_KEYFRAMES: Codec[t.MapKeyframes] = Codec(map_pb2.MapKeyframes, _keyframes_to, _keyframes_from)
+MAP_GRID: Codec[t.MapGrid] = Codec(map_pb2.MapGrid, _grid_to, _grid_from)
 
 #: Every codec of the current version, by schema name.
 CODECS: dict[str, Codec] = {c.schema: c for c in
                             (LASER_SCAN, ODOMETRY, FILTERED_SCAN, FEATURES, SLAM_STATE, LANDMARK_MAP, GROUND_TRUTH,
-                             SERVICE_STATUS, MAP_POSE, MAP_KEYFRAMES)}
+                             SERVICE_STATUS, MAP_POSE, MAP_KEYFRAMES, MAP_GRID)}
 
 #: (old schema, current schema) -> (old generated class, converter to the current type).
 UPGRADES: dict[tuple[str, str], tuple[type, Callable[[Any], Any]]] = {

@@ -78,10 +78,13 @@ SLAM_MAP: Topic = Topic("slam/map", c.LANDMARK_MAP)
 TRUTH: Topic = Topic("truth", c.GROUND_TRUTH)
 MAP_POSE: Topic = Topic("map/pose", c.MAP_POSE)
 MAP_KEYFRAMES: Topic = Topic("map/keyframes", c.MAP_KEYFRAMES, SNAPSHOT)
+#: The live occupancy grid's changed tiles, once a second of data at most; a lost one leaves
+#: tiles stale until they change again, so it waits for room like the keyframes.
+MAP_GRID: Topic = Topic("map/grid", c.MAP_GRID, SNAPSHOT)
 
 #: Data topics in pipeline order.
 DATA_TOPICS: tuple[Topic, ...] = (SCAN, ODOM, TRUTH, SCAN_FILTERED, FEATURES, SLAM_STATE, SLAM_MAP, MAP_POSE,
-                                   MAP_KEYFRAMES)
+                                   MAP_KEYFRAMES, MAP_GRID)
 
 
 def health(service: str) -> Topic:

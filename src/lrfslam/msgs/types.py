@@ -64,6 +64,12 @@ class LaserScan:
         """Bearing of each beam, shape (N,), radians."""
         return self.angle_min_rad + self.angle_increment_rad * np.arange(self.ranges_m.size)
 
+    def grid_ranges(self) -> np.ndarray:
+        """The ranges as an occupancy grid takes them (``lrfslam.algo.occupancy_grid``): (N,) float32,
+        a valid beam's range, +inf for no return, NaN for the rest (dazzle, overflow, invalid)."""
+        return np.where(self.status == BEAM_VALID, self.ranges_m,
+                        np.where(self.status == BEAM_NO_RETURN, np.inf, np.nan)).astype(np.float32)
+
     @classmethod
     def from_ranges(cls, stamp_ns: int, seq: int, ranges_m, angle_min_rad: float,
                     angle_increment_rad: float, range_max_m: float = 8.0, **kw) -> LaserScan:
@@ -176,6 +182,30 @@ class MapPose:
         object.__setattr__(self, "map_from_slam", _array(self.map_from_slam, np.float64, (3,)))
         if self.local_pose is not None:
             object.__setattr__(self, "local_pose", _array(self.local_pose, np.float64, (3,)))
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class MapGrid:
+    """Tiles of the live occupancy grid (``map/grid``): ``tiles`` (n, 2) int64 (row, col) of each,
+    ``cells`` (n, T, T) int8 its cells (100 occupied, 0 free, -1 unknown; row 0 the lowest y), at
+    ``resolution_m`` metres a cell. Tile (row, col) starts at cell (row·T, col·T) from the map
+    origin. ``whole``: every tile of the grid is here (else only those that changed since the
+    previous message). ``keyframes`` laid; ``pending``: moved by an optimisation, not yet laid again."""
+
+    stamp_ns: int
+    seq: int
+    resolution_m: float
+    tile_cells: int
+    tiles: np.ndarray
+    cells: np.ndarray
+    whole: bool = False
+    keyframes: int = 0
+    pending: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tiles", _array(self.tiles, np.int64, (-1, 2)))
+        n, side = self.tiles.shape[0], int(self.tile_cells)
+        object.__setattr__(self, "cells", _array(self.cells, np.int8, (n, side, side)))
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

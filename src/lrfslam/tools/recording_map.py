@@ -4,8 +4,9 @@ What ``lrfslam export`` draws and writes and ``lrfslam map save`` keeps.
 
 Everything is placed in the map frame of the *best* trajectory: the mapper's final trajectory
 (``lrfslam.evaluation.map_trajectory``) when the recording has ``map/keyframes``, else the EKF's
-``slam/state`` poses. The grid is built from the raw ``scan`` messages placed at those poses
-(``lrfslam.algo.occupancy_grid``). Truth and odometry are brought into that frame by their
+``slam/state`` poses. The grid (``lrfslam.algo.occupancy_grid``) is the raw scans of the mapper's
+graph (its last ``map/keyframes``) at their optimised poses, the map the mapper kept live
+(``map/grid``) and slam_toolbox's kind; without the mapper, every ``scan`` at the EKF's poses. Truth and odometry are brought into that frame by their
 first pose; landmarks (the EKF's, in its own frame) move with the correction the mapper made
 to the pose of the scan that saw them last. The figures (:attr:`Scene.figures`) score the
 trajectory against the truth with the one error measure (``lrfslam.evaluation.truth``).
@@ -33,7 +34,6 @@ from lrfslam.errors import DecodeError, RecordingError
 from lrfslam.evaluation import truth as trajectory_error
 from lrfslam.evaluation.map_trajectory import FinalTrajectoryBuilder
 from lrfslam.msgs import topics
-from lrfslam.msgs import types as t
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime.outputs import atomic_output
 from lrfslam.runtime.recording import RecordingSource, describe_source, read_recording
@@ -42,8 +42,9 @@ from lrfslam.runtime.recording import RecordingSource, describe_source, read_rec
 PGM_OCCUPIED, PGM_FREE, PGM_UNKNOWN = 0, 254, 205
 def collect(path: RecordingSource, scans: bool = True) -> dict:
     """Trajectory, odometry, truth, scans, the last SLAM state, the mapper's final trajectory
-    (``"final"``) and every keyframe of its graph (``"keyframes"``, a ``MapKeyframes``; both None
-    without ``map/keyframes``) of a recording (file, folder or files), in one pass.
+    (``"final"``), every keyframe its graph ever had (``"keyframes"``, a ``MapKeyframes``) and
+    its graph at the end (``"graph"``, the last ``map/keyframes``; all three None without
+    ``map/keyframes``) of a recording (file, folder or files), in one pass.
 
     ``"landmarks"`` is the landmark map rebuilt from ``slam/map`` and the states' changes (at
     the last state). Undecodable messages are skipped and counted (``"undecodable"``). ``"seen_ns"`` maps each
@@ -56,7 +57,7 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
         ``path`` is no recording, or has no decodable ``slam/state``.
     """
     states, odom, truth, scan_of = [], {}, {}, {}
-    last = None
+    last = graph = None
     undecodable = 0
     landmarks = LandmarkMapReplica()
     seen_ns: dict[int, int] = {}
@@ -70,6 +71,8 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
             undecodable += 1
             continue
         final.add(m.topic, value)
+        if m.topic == topics.MAP_KEYFRAMES.name:
+            graph = value
         if m.topic in (topics.MAP_POSE.name, topics.MAP_KEYFRAMES.name):
             continue
         if m.topic == topics.SLAM_MAP.name:
@@ -86,13 +89,13 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
         elif m.topic == topics.TRUTH.name:
             truth[value.stamp_ns] = value
         else:
-            scan_of[value.stamp_ns] = _ranges(value)
+            scan_of[value.stamp_ns] = (value.grid_ranges(), value.angle_min_rad, value.angle_increment_rad)
     if last is None:
         raise RecordingError(f"{describe_source(path)} has no decodable {topics.SLAM_STATE.name} messages")
     return {"states": states, "odom": odom, "truth": truth, "last": last, "landmarks": landmarks.landmarks,
             "undecodable": undecodable,
             "scans": scan_of, "scans_read": scans, "seen_ns": seen_ns, "final": final.result(),
-            "keyframes": final.keyframes()}
+            "keyframes": final.keyframes(), "graph": graph}
 
 
 def _grown(ids: np.ndarray, sightings: np.ndarray, old_ids: np.ndarray, old_sightings: np.ndarray) -> np.ndarray:
@@ -103,13 +106,6 @@ def _grown(ids: np.ndarray, sightings: np.ndarray, old_ids: np.ndarray, old_sigh
     pos = np.clip(np.searchsorted(old_ids[order], ids), 0, old_ids.size - 1)
     known = old_ids[order][pos] == ids
     return ~known | (old_sightings[order][pos] != sightings)
-
-
-def _ranges(scan: t.LaserScan) -> tuple[np.ndarray, float, float]:
-    """A scan as (ranges float32 with NaN for every beam neither valid nor no-return, angle_min, increment)."""
-    r = np.where(scan.status == t.BEAM_VALID, scan.ranges_m,
-                 np.where(scan.status == t.BEAM_NO_RETURN, np.inf, np.nan)).astype(np.float32)
-    return r, scan.angle_min_rad, scan.angle_increment_rad
 
 
 @dataclass
@@ -194,8 +190,10 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit
         anchor = _anchor(stamps, poses, truth_poses)
         sc.true_corners = np.array([relative(anchor, (*c, 0.0))[:2] for c in corners.values()]).reshape(-1, 2)
     if grid_params is not None and data["scans"]:
-        sc.grid, sc.scans_placed = _grid(stamps, poses, data["scans"], grid_params, fit)
-        sc.scans_unplaced = len(data["scans"]) - sc.scans_placed
+        graph = data["graph"]
+        on = (graph.scan_stamp_ns, graph.map_pose) if graph is not None else (stamps, poses)
+        sc.grid, sc.scans_placed = _grid(*on, data["scans"], grid_params, fit)
+        sc.scans_unplaced = on[0].size - sc.scans_placed
     sc.figures = _figures(sc, data)
     sc.view = view_limits(sc)
     return sc
@@ -218,8 +216,11 @@ def map_of(path: RecordingSource, resolution_m: float | None = None, max_range_m
 def notes(data: dict, sc: Scene) -> list[str]:
     """Warnings for a user of :func:`map_of`'s map: undecodable messages skipped, scans left out of the grid."""
     out = [f"skipped {data['undecodable']} undecodable messages"] if data["undecodable"] else []
-    if sc.grid is not None and sc.scans_unplaced:
-        out.append(f"{sc.scans_unplaced} of {len(data['scans'])} scans have no pose at their stamp and are not in "
+    if sc.grid is not None and sc.scans_unplaced and data["graph"] is not None:
+        out.append(f"{sc.scans_unplaced} of the graph's {data['graph'].scan_stamp_ns.size} keyframes have no scan "
+                   "in the recording: not in the grid")
+    elif sc.grid is not None and sc.scans_unplaced:
+        out.append(f"{sc.scans_unplaced} of {len(sc.stamps_ns)} poses have no scan at their stamp and are not in "
                    "the grid")
     return out
 

@@ -50,3 +50,25 @@ class MapKeyframes(_message.Message):
     retired_anchor_stamp_ns: _containers.RepeatedScalarFieldContainer[int]
     retired_offset: _containers.RepeatedScalarFieldContainer[float]
     def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_stamp_ns: _Optional[_Iterable[int]] = ..., local_pose: _Optional[_Iterable[float]] = ..., map_pose: _Optional[_Iterable[float]] = ..., local_edge: _Optional[_Iterable[bool]] = ..., retired_scan_stamp_ns: _Optional[_Iterable[int]] = ..., retired_local_pose: _Optional[_Iterable[float]] = ..., retired_local_edge: _Optional[_Iterable[bool]] = ..., retired_anchor_stamp_ns: _Optional[_Iterable[int]] = ..., retired_offset: _Optional[_Iterable[float]] = ...) -> None: ...
+
+class MapGrid(_message.Message):
+    __slots__ = ("header", "resolution_m", "tile_cells", "whole", "tile_row", "tile_col", "cells", "keyframes", "pending")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    RESOLUTION_M_FIELD_NUMBER: _ClassVar[int]
+    TILE_CELLS_FIELD_NUMBER: _ClassVar[int]
+    WHOLE_FIELD_NUMBER: _ClassVar[int]
+    TILE_ROW_FIELD_NUMBER: _ClassVar[int]
+    TILE_COL_FIELD_NUMBER: _ClassVar[int]
+    CELLS_FIELD_NUMBER: _ClassVar[int]
+    KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
+    PENDING_FIELD_NUMBER: _ClassVar[int]
+    header: _common_pb2.Header
+    resolution_m: float
+    tile_cells: int
+    whole: bool
+    tile_row: _containers.RepeatedScalarFieldContainer[int]
+    tile_col: _containers.RepeatedScalarFieldContainer[int]
+    cells: bytes
+    keyframes: int
+    pending: int
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., resolution_m: _Optional[float] = ..., tile_cells: _Optional[int] = ..., whole: _Optional[bool] = ..., tile_row: _Optional[_Iterable[int]] = ..., tile_col: _Optional[_Iterable[int]] = ..., cells: _Optional[bytes] = ..., keyframes: _Optional[int] = ..., pending: _Optional[int] = ...) -> None: ...

@@ -1,0 +1,149 @@
+"""The live occupancy grid of a pose graph: each keyframe's scan laid at its pose, and laid again
+when an optimisation moves it.
+
+The map is the scans of the graph's keyframes at their optimised poses, as slam_toolbox draws the
+scans of its graph's nodes and as ``lrfslam export`` draws a recording with the mapper's output.
+Scans wait by stamp (the last ``recent``) until the mapper makes a keyframe of one, which is then
+laid at once (:class:`~lrfslam.algo.tiled_grid.TiledGrid`).
+
+After an optimisation, the keyframes that moved by more than a quarter of a cell (at the end of a beam of
+the grid's reach, for a turn) are *pending*; :meth:`KeyframeGrid.work` lays at most
+``relays_per_call`` of them again each time it is called (once per scan), oldest first, so a
+closure that bends the whole map is spread over the scans that follow instead of stalling the
+mapper for seconds. A keyframe that leaves the graph (folded into an older one) is taken out: the
+grid holds what the graph holds, so it grows with the area mapped, not with the hours driven.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+
+from lrfslam.algo.occupancy_grid import GridParams
+from lrfslam.algo.tiled_grid import TILE_CELLS, TiledGrid
+from lrfslam.errors import InputError
+
+
+class KeyframeGrid:
+    """The keyframes' scans at their poses, as tiles.
+
+    Parameters
+    ----------
+    params : GridParams, optional
+        As :class:`TiledGrid`'s (default ``lrfslam export``'s).
+    tile_cells : int
+        Side of a tile, cells (a power of two).
+    recent : int
+        Scans held for a keyframe still to come (the mapper makes a keyframe of a scan after its
+        slam state, which waits for it a few scans at most).
+    relays_per_call : int
+        Moved keyframes laid again per :meth:`work`.
+    """
+
+    def __init__(self, params: GridParams | None = None, tile_cells: int = TILE_CELLS, recent: int = 64,
+                 relays_per_call: int = 1) -> None:
+        self.grid = TiledGrid(params, tile_cells)
+        self.relays_per_call = int(relays_per_call)
+        self._recent_size = int(recent)
+        self._recent: OrderedDict[int, tuple[np.ndarray, float, float]] = OrderedDict()
+        self._target: dict[int, np.ndarray] = {}   # laid keyframe -> its pose in the graph now
+        self._pending: list[int] = []              # moved keyframes, oldest first
+        self.missing = 0                           # keyframes whose scan was not held
+
+    @property
+    def pending(self) -> int:
+        """Moved keyframes not laid again yet."""
+        return len(self._pending)
+
+    @property
+    def keyframes(self) -> int:
+        """Keyframes laid."""
+        return len(self._target)
+
+    def add_scan(self, stamp_ns: int, ranges, angle_min_rad: float, angle_increment_rad: float) -> None:
+        """Hold a scan (ranges (N,) m, +inf no return, NaN invalid) for a keyframe to come."""
+        self._recent[int(stamp_ns)] = (np.asarray(ranges, np.float32), float(angle_min_rad), float(angle_increment_rad))
+        while len(self._recent) > self._recent_size:
+            self._recent.popitem(last=False)
+
+    def add_keyframe(self, stamp_ns: int, pose) -> bool:
+        """Lay the scan stamped ``stamp_ns`` at ``pose`` (3,); False when that scan is not held."""
+        scan = self._recent.pop(int(stamp_ns), None)
+        if scan is None:
+            self.missing += 1
+            return False
+        pose = np.asarray(pose, dtype=float).reshape(3)
+        self.grid.lay(int(stamp_ns), pose, *scan)
+        self._target[int(stamp_ns)] = pose.copy()
+        return True
+
+    def set_poses(self, stamps_ns, poses) -> None:
+        """The graph's keyframes now: stamps (K,) and poses (K, 3). Laid keyframes not among them
+        are taken out; those that moved become pending."""
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        if stamps.size != poses.shape[0]:
+            raise InputError(f"{stamps.size} keyframe stamps but {poses.shape[0]} poses")
+        now = dict(zip(stamps.tolist(), poses))
+        for key in [k for k in self._target if k not in now]:
+            self.grid.remove(key)
+            del self._target[key]
+        for key in self._target:
+            self._target[key] = now[key].copy()
+        self._pending = sorted(k for k in self._target if self._moved(k))
+
+    def work(self, limit: int | None = None) -> int:
+        """Lay again up to ``limit`` (default ``relays_per_call``; -1: all) pending keyframes; returns how many."""
+        limit = self.relays_per_call if limit is None else limit
+        done = 0
+        while self._pending and (limit < 0 or done < limit):
+            key = self._pending.pop(0)
+            if key in self._target and self._moved(key):
+                self.grid.move(key, self._target[key])
+                done += 1
+        return done
+
+    def _moved(self, key: int) -> bool:
+        """Whether keyframe ``key``'s graph pose is more than a quarter of a cell from where it is laid."""
+        laid, target = self.grid.pose_of(key), self._target[key]
+        quarter = 0.25 * self.grid.resolution_m
+        turn = abs((target[2] - laid[2] + np.pi) % (2 * np.pi) - np.pi)
+        return bool(np.hypot(*(target[:2] - laid[:2])) > quarter or turn * self.grid.reach_m > quarter)
+
+    # -- checkpoint ----------------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """The laid keyframes (stamps, laid poses, graph poses, scans) as named arrays."""
+        keys = sorted(self._target)
+        laid = [self.grid.laid(k) for k in keys]
+        width = max((scan.ranges.size for scan in laid), default=0)
+        ranges = np.full((len(keys), width), np.nan, np.float32)
+        for row, scan in enumerate(laid):
+            ranges[row, :scan.ranges.size] = scan.ranges
+        return {"grid_stamp_ns": np.array(keys, np.int64),
+                "grid_laid_pose": np.array([s.pose for s in laid], float).reshape(-1, 3),
+                "grid_target_pose": np.array([self._target[k] for k in keys], float).reshape(-1, 3),
+                "grid_ranges": ranges,
+                "grid_angles": np.array([(s.angle_min_rad, s.angle_increment_rad) for s in laid], float).reshape(-1, 2)}
+
+    def restore(self, arrays) -> None:
+        """Lay again what :meth:`snapshot` gave (a checkpoint without a grid leaves this one empty).
+
+        Raises
+        ------
+        InputError
+            The arrays disagree with each other.
+        """
+        if "grid_stamp_ns" not in arrays:
+            return
+        stamps = np.asarray(arrays["grid_stamp_ns"], np.int64)
+        laid, target = np.asarray(arrays["grid_laid_pose"], float), np.asarray(arrays["grid_target_pose"], float)
+        ranges, angles = np.asarray(arrays["grid_ranges"], np.float32), np.asarray(arrays["grid_angles"], float)
+        if not (laid.shape == target.shape == (stamps.size, 3) and ranges.shape[0] == stamps.size
+                and angles.shape == (stamps.size, 2)):
+            raise InputError("grid checkpoint: arrays of different lengths")
+        for i, key in enumerate(stamps.tolist()):
+            self.grid.lay(key, laid[i], ranges[i], angles[i, 0], angles[i, 1])
+            self._target[key] = target[i].copy()
+        self._pending = sorted(k for k in self._target if self._moved(k))
