@@ -101,6 +101,7 @@ PAGE_FACTS = """JSON.stringify({
   trajectory: window.snapshot ? window.snapshot.trajectory.length : 0,
   landmarks: Number(document.getElementById('landmarks').textContent),
   conn: document.getElementById('conn').textContent,
+  grid: gridImage ? [gridImage.naturalWidth, gridImage.naturalHeight] : null,
   canvas: document.getElementById('map').getBoundingClientRect().toJSON()})"""
 
 
@@ -123,7 +124,8 @@ async def look_at_page(debug_port: int, timeout_s: float) -> tuple[dict, dict, b
                 pytest.fail(f"the page never showed six services and scans: {facts}")
             await asyncio.sleep(0.3)
         first = facts
-        while facts["states"] < first["states"] + 20 or facts["trajectory"] <= first["trajectory"]:
+        while facts["states"] < first["states"] + 20 or facts["trajectory"] <= first["trajectory"] \
+                or not facts["grid"]:
             if time.monotonic() > deadline:
                 pytest.fail(f"the map on the page did not grow: {first} -> {facts}")
             await asyncio.sleep(0.3)
@@ -225,6 +227,10 @@ def test_a_late_monitor_and_a_browser_see_the_map_and_the_services(cluster, tmp_
     red = (crop[..., 0] > 0.7) & (crop[..., 1] < 0.3) & (crop[..., 2] < 0.3)
     assert drawn.sum() > 500, f"{drawn.sum()} drawn pixels"
     assert red.sum() > 10, f"{red.sum()} landmark-red pixels"
+    # The mapper's grid, loaded as a picture and drawn under the rest: its walls grey (black at 60 %).
+    assert facts["grid"][0] > 0 and facts["grid"][1] > 0
+    grey = (np.ptp(crop, axis=-1) < 0.06) & (crop.max(axis=-1) < 0.5)
+    assert grey.sum() > 200, f"{grey.sum()} wall-grey pixels"
 
 
 TOKEN = "browser-test-token-0123456789"

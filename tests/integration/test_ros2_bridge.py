@@ -27,9 +27,10 @@ import zenoh
 import zenoh.ext
 
 from lrfslam.algo.geometry import wrap_angle
-from lrfslam.algo.occupancy_grid import GridParams, build_grid
+from lrfslam.algo.tiled_grid import TiledGrid
 from lrfslam.msgs import codec, topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.grid_replica import GridReplica
 from lrfslam.ros2 import convert, views, wire
 from lrfslam.runtime.bus import attachment, parse_attachment, producer_id
 from lrfslam.runtime.recording import read_recording
@@ -106,14 +107,20 @@ def test_a_ros2_node_sees_the_pipeline(cluster):
                               timeout=120)
         assert play.returncode == 0, play.stderr
         assert status.main(["--check-file", str(health)]) == 0   # what its container's healthcheck runs
-        # The mapper's keyframes (this session stands in for it): every 10th scan at the EKF's pose.
+        # The mapper's live grid (this session stands in for it): every 10th scan laid at the EKF's pose.
         kf_stamps = sorted(recorded("scan", source))[::10]
-        kf_poses = np.array([recorded("slam/state", source)[s].pose for s in kf_stamps])
-        kf = t.MapKeyframes(stamp_ns=kf_stamps[-1], seq=1, scan_stamp_ns=kf_stamps, local_pose=kf_poses,
-                            map_pose=kf_poses)
-        session.put(topics.key(cluster.robot, topics.MAP_KEYFRAMES.name), topics.MAP_KEYFRAMES.codec.encode(kf),
-                    encoding=zenoh.Encoding(topics.MAP_KEYFRAMES.codec.encoding),
-                    attachment=attachment(1, kf.stamp_ns, producer_id(session)))
+        scan_at, state_at = recorded("scan", source), recorded("slam/state", source)
+        tiled = TiledGrid()
+        for s in kf_stamps:
+            tiled.lay(s, state_at[s].pose, scan_at[s].grid_ranges(), scan_at[s].angle_min_rad,
+                      scan_at[s].angle_increment_rad)
+        tiles = tiled.tiles()
+        grid_value = t.MapGrid(stamp_ns=kf_stamps[-1], seq=1, resolution_m=tiled.resolution_m,
+                               tile_cells=tiled.tile_cells, tiles=tiles, cells=[tiled.trinary(x) for x in tiles],
+                               whole=True, keyframes=len(kf_stamps))
+        session.put(topics.key(cluster.robot, topics.MAP_GRID.name), topics.MAP_GRID.codec.encode(grid_value),
+                    encoding=zenoh.Encoding(topics.MAP_GRID.codec.encoding),
+                    attachment=attachment(1, grid_value.stamp_ns, producer_id(session)))
         deadline = time.monotonic() + 10
         while (len(received[views.POSE.qualified(NS)]) < 80 or not received[views.MAP.qualified(NS)]) \
                 and time.monotonic() < deadline:
@@ -185,18 +192,19 @@ def test_a_ros2_node_sees_the_pipeline(cluster):
     assert len(odoms) + len(states) - 1 <= len(decoded["/tf"]) <= len(odoms) + len(states)
     (static,) = [convert.deserialize(p, wire.TF_MESSAGE) for p in late["/tf_static"][:1]]
     assert [(tr.header.frame_id, tr.child_frame_id) for tr in static.transforms] == [("itest/base_link", "itest/laser")]
-    # The map: the grid of the keyframes' scans at their poses, as lrfslam's own grid code draws it.
+    # The map: the mapper's tiles put together, every other cell unknown.
     (grid_msg,) = decoded["/itest/map"]
     assert [convert.deserialize(p, wire.OCCUPANCY_GRID).data.tolist() for p in late[f"{NS}/map"][:1]] == \
         [grid_msg.data.tolist()]
-    kf_scans = [scans[s] for s in kf_stamps]
-    grid = build_grid(kf_poses, np.array([views.grid_ranges(s) for s in kf_scans]),
-                      np.array([s.angles_rad for s in kf_scans]), GridParams(), fit=True)
+    replica = GridReplica()
+    replica.apply(grid_value)
+    grid = replica.image()
     assert (grid_msg.header.frame_id, convert.stamp_ns(grid_msg.header.stamp)) == ("itest/map", kf_stamps[-1])
-    assert (grid_msg.info.height, grid_msg.info.width) == grid.shape
+    assert (grid_msg.info.height, grid_msg.info.width) == grid.cells.shape
     assert (grid_msg.info.origin.position.x, grid_msg.info.origin.position.y) == tuple(grid.origin_xy_m)
     assert grid_msg.info.resolution == pytest.approx(grid.resolution_m)
-    assert grid_msg.data.tolist() == grid.trinary().reshape(-1).tolist()
+    assert grid_msg.data.tolist() == grid.cells.reshape(-1).tolist()
+    assert {100, 0, -1} <= set(grid_msg.data.tolist())
 
 
 def test_a_ros2_robots_scans_and_odometry_reach_the_pipeline(cluster):

@@ -9,6 +9,7 @@ read with urllib and a ``websockets`` client.
 from __future__ import annotations
 
 import asyncio
+import io
 import json
 import logging
 import math
@@ -19,12 +20,14 @@ import numpy as np
 import pytest
 import websockets
 from lrfslam.services import stage
+from PIL import Image
 from test_steps import sim_outputs
 from websockets.sync.client import connect
 
 from lrfslam.errors import StartupError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.grid_replica import GridReplica
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.step import Message
@@ -143,6 +146,22 @@ def test_the_server_serves_the_page_the_snapshot_and_a_websocket(wire):
         with urllib.request.urlopen(base + "/state.json") as r:
             snap = json.loads(r.read())
         assert snap["scans"] == 80 and snap["title"] == "lrfslam r1"
+        # The mapper's grid as a picture: walls black, free space white, unknown transparent, top row the highest y.
+        replica = GridReplica()
+        for name, _, _, value in wire:
+            if name == topics.MAP_GRID.name:
+                replica.apply(value)
+        cells = replica.image().cells
+        grid = snap["grid"]
+        assert (grid["height"], grid["width"]) == cells.shape and grid["resolution"] == replica.resolution_m
+        with urllib.request.urlopen(base + "/map.png") as r:
+            assert r.headers["Content-Type"] == "image/png"
+            picture = np.asarray(Image.open(io.BytesIO(r.read())).convert("LA"))
+        want = np.flipud(cells)
+        np.testing.assert_array_equal(picture[..., 1], np.where(want == -1, 0, 255))
+        known = want != -1
+        np.testing.assert_array_equal(picture[..., 0][known], np.where(want[known] == 100, 0, 255))
+        assert {0, 100, -1} <= set(np.unique(cells).tolist())
 
         async def first_frame():
             async with websockets.connect(f"ws://127.0.0.1:{server.port}/ws") as ws:

@@ -304,7 +304,33 @@ def test_a_bad_payload_is_a_decode_error_and_other_topics_have_no_views():
 def test_every_channel_is_under_the_prefix_with_a_foxglove_schema():
     assert all(topics.is_foxglove(c) for c in fx.CHANNELS)
     assert set(_SCHEMAS) == {"foxglove.LaserScan", "foxglove.SceneUpdate", "foxglove.PosesInFrame",
-                             "foxglove.FrameTransforms", "foxglove.Log"}
+                             "foxglove.FrameTransforms", "foxglove.Grid", "foxglove.Log"}
+
+
+def test_the_map_is_the_tiles_put_together_at_most_every_map_period():
+    views = fx.FoxgloveViews(fx.ViewConfig(map_period_s=5.0))
+    wall, free = np.full((4, 4), 100, np.int8), np.zeros((4, 4), np.int8)
+
+    def grid(stamp_s: float, tiles: dict) -> t.MapGrid:
+        return t.MapGrid(stamp_ns=round(stamp_s * 1e9), seq=1, resolution_m=0.1, tile_cells=4, tiles=list(tiles),
+                         cells=np.array(list(tiles.values()), np.int8).reshape(-1, 4, 4))
+
+    (view,) = views.convert(topics.MAP_GRID.name, grid(10.0, {(0, 0): wall, (1, -1): free}), 10)
+    assert view.topic == fx.GRID and view.schema == "foxglove.Grid"
+    msg = decode(view)
+    assert msg.frame_id == "map" and msg.column_count == 8 and msg.row_stride == 8 and msg.cell_stride == 1
+    assert (msg.pose.position.x, msg.pose.position.y) == pytest.approx((-0.4, 0.0))
+    assert (msg.cell_size.x, msg.cell_size.y) == pytest.approx((0.1, 0.1))
+    assert [(f.name, f.offset) for f in msg.fields] == [("occupancy", 0)]
+    cells = np.frombuffer(msg.data, np.int8).reshape(8, 8)   # row 0 at the lowest y
+    want = np.full((8, 8), -1, np.int8)
+    want[0:4, 4:8], want[4:8, 0:4] = wall, free
+    np.testing.assert_array_equal(cells, want)
+    # Changes within five seconds of data wait; the first after them brings every tile as it is now.
+    assert views.convert(topics.MAP_GRID.name, grid(12.0, {(0, 0): free}), 12) == []
+    (later,) = views.convert(topics.MAP_GRID.name, grid(15.0, {(2, 2): wall}), 15)
+    cells = np.frombuffer(decode(later).data, np.int8)
+    assert (cells == 100).sum() == 16 and (cells == 0).sum() == 32
 
 
 def test_the_mappers_correction_moves_the_slam_frame_and_the_robot():

@@ -105,41 +105,27 @@ def grid_fields(msg) -> tuple:
             back.data.tolist(), back.header.frame_id, convert.stamp_ns(back.header.stamp))
 
 
-def test_the_map_is_the_grid_of_the_keyframes_scans_relaid_as_they_move():
-    from lrfslam.algo.occupancy_grid import GridParams, build_grid
+def grid_message(stamp_ns: int, seq: int, tiles: dict, whole: bool = False) -> t.MapGrid:
+    return t.MapGrid(stamp_ns=stamp_ns, seq=seq, resolution_m=0.05, tile_cells=4, tiles=list(tiles),
+                     cells=np.array(list(tiles.values()), np.int8).reshape(-1, 4, 4), whole=whole)
+
+
+def test_the_map_is_the_mappers_grid_put_together_at_most_once_a_second():
     v = views.RosViews("/robot1")
-    msgs = pipeline_messages()
-    scans = [value for name, value in msgs if name == "scan"]
-    states = {value.stamp_ns: value.pose for name, value in msgs if name == "slam/state"}
-    for s in scans:
-        assert [p.topic.name for p in v.on_message("scan", s)] == ["scan"]   # no keyframes yet: no map
-    chosen = scans[::10]
-    stamps = np.array([s.stamp_ns for s in chosen])
-    poses = np.array([states[s] for s in stamps])
-    last = scans[-1].stamp_ns
-
-    def expected(use_poses, use_scans):
-        ranges = np.array([views.grid_ranges(s) for s in use_scans])
-        angles = np.array([s.angles_rad for s in use_scans])
-        return build_grid(use_poses, ranges, angles, GridParams(), fit=True)
-
-    (pub,) = v.on_message("map/keyframes", keyframes(last, 1, stamps, poses))
+    scan = next(value for name, value in pipeline_messages() if name == "scan")
+    assert [p.topic.name for p in v.on_message("scan", scan)] == ["scan"]   # no grid yet: no map
+    wall, free = np.full((4, 4), 100, np.int8), np.zeros((4, 4), np.int8)
+    t0 = scan.stamp_ns
+    (pub,) = v.on_message("map/grid", grid_message(t0, 1, {(0, 0): wall, (-1, 2): free}))
     assert pub.topic is views.MAP and pub.topic.latched
-    grid = expected(poses, chosen)
-    h, w = grid.shape
-    assert grid_fields(pub.message) == (w, h, grid.resolution_m, *grid.origin_xy_m, grid.trinary().reshape(-1).tolist(),
-                                        "robot1/map", last)
-    assert {100, 0, -1} <= set(grid.trinary().reshape(-1).tolist())   # walls, free space and unknown
-    # An optimisation moves every keyframe 1 m along x and drops two: within 1 s of data time of the
-    # last map nothing goes out; the first scan after it draws them where they are now.
-    moved = poses + (1.0, 0.0, 0.0)
-    assert v.on_message("map/keyframes", keyframes(last + 300_000_000, 2, stamps[2:], moved[2:])) == []
-    later = [dataclasses.replace(scans[-1], stamp_ns=last + k * 250_000_000) for k in (2, 3, 4, 5)]
-    assert [[p.topic.name for p in v.on_message("scan", s)] for s in later] == \
-        [["scan"], ["scan"], ["scan", "map"], ["scan"]]
-    (pub,) = [p for p in v.on_message("map/keyframes", keyframes(last + 2_000_000_000, 3, stamps[2:], moved[2:]))]
-    relaid = expected(moved[2:], chosen[2:])
-    h, w = relaid.shape
-    assert grid_fields(pub.message) == (w, h, relaid.resolution_m, *relaid.origin_xy_m,
-                                        relaid.trinary().reshape(-1).tolist(), "robot1/map", last + 2_000_000_000)
-    assert relaid.origin_xy_m[0] != grid.origin_xy_m[0]
+    # Tiles (0, 0) and (-1, 2): rows -4..3 and columns 0..11 at 5 cm; the rest unknown.
+    want = np.full((8, 12), -1, np.int8)
+    want[4:8, 0:4], want[0:4, 8:12] = wall, free
+    assert grid_fields(pub.message) == (12, 8, 0.05, 0.0, -0.2, want.reshape(-1).tolist(), "robot1/map", t0)
+    # A changed tile within a second of data: it waits for the first message a second after the last map.
+    assert v.on_message("map/grid", grid_message(t0 + 500_000_000, 2, {(0, 0): free})) == []
+    later = [dataclasses.replace(scan, stamp_ns=t0 + k * 250_000_000) for k in (3, 4, 5)]
+    assert [[p.topic.name for p in v.on_message("scan", s)] for s in later] == [["scan"], ["scan", "map"], ["scan"]]
+    # A whole grid (a resolution change, or the late joiner's reply) replaces every tile.
+    (pub,) = v.on_message("map/grid", grid_message(t0 + 3_000_000_000, 3, {(1, 1): wall}, whole=True))
+    assert grid_fields(pub.message)[:5] == (4, 4, 0.05, 0.2, 0.2)

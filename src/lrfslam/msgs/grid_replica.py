@@ -57,14 +57,24 @@ class GridReplica:
             self.tiles[tile] = cells
         return changed
 
-    def image(self) -> GridImage | None:
-        """Every tile in one array over their bounding box; None before the first tile."""
+    def frame(self) -> tuple[np.ndarray, tuple[int, int]] | None:
+        """The lower-left corner (2,) m and the (H, W) cells of the tiles' bounding box; None before the first tile."""
         if not self.tiles:
             return None
-        keys = np.array(sorted(self.tiles))
+        keys = np.array(list(self.tiles))
         (r0, c0), (r1, c1) = keys.min(axis=0), keys.max(axis=0)
         side = self.tile_cells
-        out = np.full(((r1 - r0 + 1) * side, (c1 - c0 + 1) * side), UNKNOWN, np.int8)
+        return np.array([c0, r0], float) * side * self.resolution_m, ((r1 - r0 + 1) * side, (c1 - c0 + 1) * side)
+
+    def image(self) -> GridImage | None:
+        """Every tile in one array over their bounding box (:meth:`frame`); None before the first tile."""
+        frame = self.frame()
+        if frame is None:
+            return None
+        origin, shape = frame
+        side = self.tile_cells
+        r0, c0 = np.round(origin[::-1] / (side * self.resolution_m)).astype(int)
+        out = np.full(shape, UNKNOWN, np.int8)
         for (r, c), cells in self.tiles.items():
             out[(r - r0) * side:(r - r0 + 1) * side, (c - c0) * side:(c - c0 + 1) * side] = cells
-        return GridImage(out, self.resolution_m, np.array([c0, r0], float) * side * self.resolution_m)
+        return GridImage(out, self.resolution_m, origin)

@@ -10,7 +10,7 @@ Out (what ``lrfslam ros2`` publishes; frames per REP-105, each prefixed ``<ns>/`
   covariance placed in the 6×6 one, rows and columns 0, 1, 5);
 - :func:`landmark_markers`: ``visualization_msgs/msg/MarkerArray``, a flat cylinder per landmark
   whose footprint is its 2-sigma ellipse;
-- :func:`occupancy_grid`: ``nav_msgs/msg/OccupancyGrid`` of an :class:`~lrfslam.algo.occupancy_grid.OccupancyGrid`.
+- :func:`occupancy_grid`: ``nav_msgs/msg/OccupancyGrid`` of the live grid (:class:`~lrfslam.msgs.grid_replica.GridImage`).
 
 In (``lrfslam ros2 --subscribe``): :func:`scan_from_ros`, :func:`odometry_from_ros`.
 
@@ -26,9 +26,9 @@ import numpy as np
 from rosbags.serde import SerdeError
 
 from lrfslam.algo.geometry import ellipse_axes
-from lrfslam.algo.occupancy_grid import OccupancyGrid
 from lrfslam.errors import InputError
 from lrfslam.msgs import types as t
+from lrfslam.msgs.grid_replica import GridImage
 from lrfslam.ros2 import wire
 
 _GOOD = t.BEAM_VALID
@@ -207,17 +207,17 @@ def landmark_markers(landmarks: t.Landmarks, stamp_ns_: int, frame_id: str):
     return ty[wire.MARKER_ARRAY](markers=out)
 
 
-def occupancy_grid(grid: OccupancyGrid, stamp_ns_: int, frame_id: str):
+def occupancy_grid(grid: GridImage, stamp_ns_: int, frame_id: str):
     """``nav_msgs/msg/OccupancyGrid``: cells 100 occupied, 0 free, -1 unknown (map_server's thresholds),
     row-major from row 0 at the lowest y, the origin the lower-left corner of cell [0, 0]."""
     ty = _types()
-    h, w = grid.shape
+    h, w = grid.cells.shape
     x0, y0 = grid.origin_xy_m
     return ty[wire.OCCUPANCY_GRID](
         header=header(stamp_ns_, frame_id),
         info=ty["nav_msgs/msg/MapMetaData"](map_load_time=stamp(stamp_ns_), resolution=float(grid.resolution_m),
                                             width=int(w), height=int(h), origin=pose((x0, y0, 0.0))),
-        data=grid.trinary().reshape(-1))
+        data=grid.cells.reshape(-1))
 
 
 def serialize(message) -> bytes:

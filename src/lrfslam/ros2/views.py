@@ -13,9 +13,9 @@ the ROS messages to publish, each with its topic (fully qualified). Frames (REP-
   correction that puts the odometry's pose of the same stamp (interpolated) on it;
 - the EKF's landmarks (rebuilt from ``slam/state`` and ``slam/map``), in the map frame, at most
   every :data:`LANDMARK_PERIOD_S` of data time: ``/<ns>/landmarks`` (``MarkerArray``);
-- the occupancy grid of the scans of the mapper's keyframes at their optimised poses
-  (:class:`KeyframeGrid`), after a ``map/keyframes``, at most every :data:`MAP_PERIOD_S` of data
-  time: ``/<ns>/map`` (``OccupancyGrid``, transient local).
+- the mapper's live occupancy grid, its ``map/grid`` tiles put together (``msgs/grid_replica.py``),
+  after a change, at most every :data:`MAP_PERIOD_S` of data time: ``/<ns>/map``
+  (``OccupancyGrid``, transient local).
 """
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from lrfslam.algo.geometry import compose, from_frame, inverse, rotate_covariance
-from lrfslam.algo.occupancy_grid import GridParams, OccupancyGrid, build_grid
 from lrfslam.algo.stream_alignment import interpolate_pose
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.grid_replica import GridReplica
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.ros2 import convert, wire
 
@@ -40,8 +40,6 @@ ODOM_KEPT = 256
 COV_KEPT = 64
 #: The map goes out at most this often, s of data time.
 MAP_PERIOD_S = 1.0
-#: Recent scans kept for keyframes still to come (the mapper announces a keyframe after its scan).
-RECENT_SCANS = 1024
 
 
 @dataclass(frozen=True)
@@ -81,56 +79,6 @@ class Publication:
     stamp_ns: int
 
 
-def grid_ranges(scan: t.LaserScan) -> np.ndarray:
-    """A scan's ranges as the grid takes them (as ``lrfslam export`` does): (N,) float32, a valid
-    beam's range, +inf for no return, NaN for the rest."""
-    return np.where(scan.status == t.BEAM_VALID, scan.ranges_m,
-                    np.where(scan.status == t.BEAM_NO_RETURN, np.inf, np.nan)).astype(np.float32)
-
-
-class KeyframeGrid:
-    """The occupancy grid of the mapper's keyframes: each keyframe's scan at its optimised pose.
-
-    Scans are held by stamp: the last :data:`RECENT_SCANS`, and those of the graph's keyframes
-    for as long as they are in it (a keyframe retired from the graph, a folded revisit, takes its
-    scan with it). Each ``map/keyframes`` replaces the poses; :meth:`build` traces the grid anew
-    from all of them, with ``lrfslam export``'s default parameters (coarsened as it does when too large).
-    """
-
-    def __init__(self) -> None:
-        self.params = GridParams()
-        self._recent: OrderedDict[int, tuple[np.ndarray, float, float]] = OrderedDict()
-        self._kept: dict[int, tuple[np.ndarray, float, float]] = {}
-        self._stamps = np.zeros(0, np.int64)
-        self._poses = np.zeros((0, 3))
-
-    def add_scan(self, scan: t.LaserScan) -> None:
-        self._recent[scan.stamp_ns] = (grid_ranges(scan), scan.angle_min_rad, scan.angle_increment_rad)
-        while len(self._recent) > RECENT_SCANS:
-            self._recent.popitem(last=False)
-
-    def set_keyframes(self, keyframes: t.MapKeyframes) -> None:
-        """The graph's keyframes and their poses now."""
-        self._stamps, self._poses = keyframes.scan_stamp_ns, keyframes.map_pose
-        wanted = {int(s) for s in self._stamps}
-        self._kept = {s: v for s, v in self._kept.items() if s in wanted}
-        for s in wanted - set(self._kept):
-            if s in self._recent:
-                self._kept[s] = self._recent[s]
-
-    def build(self) -> OccupancyGrid | None:
-        """The grid of every keyframe whose scan is held; None when there is none."""
-        placed = [(i, self._kept[int(s)]) for i, s in enumerate(self._stamps) if int(s) in self._kept]
-        if not placed:
-            return None
-        width = max(r.size for _, (r, _, _) in placed)
-        ranges = np.full((len(placed), width), np.nan, dtype=np.float32)
-        for row, (_, (r, _, _)) in enumerate(placed):
-            ranges[row, :r.size] = r
-        angles = np.array([a0 + da * np.arange(width) for _, (_, a0, da) in placed])
-        return build_grid(self._poses[[i for i, _ in placed]], ranges, angles, self.params, fit=True)
-
-
 class RosViews:
     """The ROS 2 views of one robot's messages (the module's docstring), for namespace ``namespace``
     (fully qualified, ``/robot1``)."""
@@ -146,17 +94,16 @@ class RosViews:
         self._landmarks = LandmarkMapReplica()
         self._landmarks_due_ns: int | None = None
         self._static_sent = False
-        self.grid = KeyframeGrid()
-        self._map_pending_ns: int | None = None   # the stamp of keyframes not yet drawn
+        self.grid = GridReplica()
+        self._map_pending_ns: int | None = None   # the stamp of tiles not yet drawn
         self._map_due_ns: int | None = None
 
     def on_message(self, name: str, value) -> list[Publication]:
         """The publications for message ``value`` of relative topic ``name`` (none for the others)."""
         if name == topics.SCAN.name:
-            self.grid.add_scan(value)
             return [Publication(SCAN, convert.laser_scan(value, self.namespace), value.stamp_ns), *self._map(value.stamp_ns)]
-        if name == topics.MAP_KEYFRAMES.name:
-            self.grid.set_keyframes(value)
+        if name == topics.MAP_GRID.name:
+            self.grid.apply(value)
             self._map_pending_ns = value.stamp_ns
             return self._map(value.stamp_ns)
         if name == topics.SCAN_FILTERED.name:
@@ -178,12 +125,12 @@ class RosViews:
         return []
 
     def _map(self, stamp_ns: int) -> list[Publication]:
-        """``/<ns>/map`` if keyframes wait and :data:`MAP_PERIOD_S` of data time has passed (or time went back)."""
+        """``/<ns>/map`` if tiles wait and :data:`MAP_PERIOD_S` of data time has passed (or time went back)."""
         due = self._map_due_ns
         if self._map_pending_ns is None or not (due is None or stamp_ns >= due
                                                 or stamp_ns < due - int(MAP_PERIOD_S * 1e9)):
             return []
-        grid = self.grid.build()
+        grid = self.grid.image()
         if grid is None:
             return []
         self._map_pending_ns = None

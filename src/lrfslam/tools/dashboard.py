@@ -7,7 +7,9 @@ package's, on its own thread: src/lrfslam/tools/webserver.py) serves
 * ``/``: the page (src/lrfslam/tools/dashboard.html), a canvas and a table of the services;
 * ``/ws``: a WebSocket on which the page gets the model's snapshot as JSON, at most every
   ``period_s`` and only when it changed;
-* ``/state.json``: the same snapshot once (for scripts and ``curl``).
+* ``/state.json``: the same snapshot once (for scripts and ``curl``);
+* ``/map.png``: the mapper's live grid as a picture (404 before the first ``map/grid``), which the
+  page loads again when the snapshot's ``grid.version`` changes.
 
 With a token (the monitor requires one beyond loopback) every one of them answers only a request
 that presents it: ``http://HOST:PORT/?token=TOKEN`` opens the page, whose answer sets a cookie
@@ -101,6 +103,11 @@ class DashboardServer:
             return response(HTTPStatus.OK, "text/html; charset=utf-8", self._page, **cookie)
         if path == "/state.json":
             return response(HTTPStatus.OK, "application/json", self.snapshot()[1], **cookie)
+        if path == "/map.png":
+            with self._lock:
+                png = self.model.grid_png()
+            if png is not None:
+                return response(HTTPStatus.OK, "image/png", png, **cookie)
         return response(HTTPStatus.NOT_FOUND, "text/plain", b"not found\n")
 
     async def _client(self, ws: ServerConnection) -> None:

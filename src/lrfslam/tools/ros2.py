@@ -8,12 +8,12 @@ wire format there (src/lrfslam/ros2/wire.py), so a ROS 2 machine using ``rmw_zen
 router sees a node ``/<ns>/lrfslam`` and its topics (docs/ros2.md).
 
 Publishing (the default): subscribes to the robot's ``scan``, ``scan/filtered``, ``odom``,
-``slam/state``, ``slam/map``, ``map/pose`` and ``map/keyframes`` and publishes their ROS 2 views
+``slam/state``, ``slam/map``, ``map/pose`` and ``map/grid`` and publishes their ROS 2 views
 (src/lrfslam/ros2/views.py): ``/<ns>/scan``, ``/<ns>/scan_filtered``, ``/<ns>/odom``, ``/<ns>/pose``,
 ``/<ns>/landmarks``, ``/tf``, and transient local ``/tf_static`` and ``/<ns>/map``, each on its data key with a CDR
 payload and the 33-byte attachment (its sequence number, the data stamp as source timestamp, the
 publisher's GID), after declaring the node's liveliness token and one per publisher. Joining late, it
-asks the ``latest`` queryables for the current SLAM state, landmark map and map pose first.
+asks the ``latest`` queryables for the current SLAM state, landmark map, map pose and whole grid first.
 
 ``--subscribe``: the other way. Declares the node with a subscription token for each topic (default
 ``/<ns>/scan``, ``sensor_msgs/msg/LaserScan``, and ``/<ns>/odom``, ``nav_msgs/msg/Odometry``), takes
@@ -78,9 +78,9 @@ log = logging.getLogger("lrfslam.ros2")
 NODE_NAME = "lrfslam"
 #: The robot's topics the publishing bridge takes.
 INPUTS = (topics.SCAN, topics.SCAN_FILTERED, topics.ODOM, topics.SLAM_STATE, topics.SLAM_MAP, topics.MAP_POSE,
-          topics.MAP_KEYFRAMES)
-#: The topics whose newest message a late bridge asks for (``topics.latest``).
-CATCH_UP = (topics.SLAM_MAP, topics.SLAM_STATE, topics.MAP_POSE)
+          topics.MAP_GRID)
+#: The topics whose newest message a late bridge asks for (``topics.latest``; the grid: whole).
+CATCH_UP = (topics.SLAM_MAP, topics.SLAM_STATE, topics.MAP_POSE, topics.MAP_GRID)
 #: Samples taken from ROS 2 waiting to be converted, at most.
 QUEUE_SIZE = BusConfig.queue_size
 
@@ -163,7 +163,7 @@ class Publishing:
         self._once = LogOnce(log)
 
     def catch_up(self, timeout_s: float = 2.0) -> None:
-        """The newest landmark map, SLAM state and map pose the services keep for late joiners."""
+        """The newest landmark map, SLAM state and map pose, and the whole grid, that the services keep for late joiners."""
         for topic in CATCH_UP:
             for _, value in query_latest(self.session, self.robot, topic, timeout_s):
                 if isinstance(value, DecodeError):

@@ -3,10 +3,11 @@
 :class:`DashboardModel` keeps what ``lrfslam monitor --dashboard`` draws (src/lrfslam/tools/dashboard.py
 serves it): the scan of the newest SLAM state (every beam, and the beams the denoiser kept) with
 its corners, placed at that state's pose; the EKF's landmarks with their 95 % ellipses; the EKF's
-trajectory, the mapper's loop-closed one and the simulator's ground truth; and a row per service
-from its health (level, message, rates, drops, gaps, errors) and its liveliness. Everything is
-drawn in the EKF's ``slam`` frame (x, y in m): the loop-closed trajectory is moved there by the
-mapper's ``map_from_slam``, the truth by the first EKF pose that has a true pose at its stamp (as
+trajectory, the mapper's loop-closed one and the simulator's ground truth; the mapper's live
+occupancy grid (its ``map/grid`` tiles put together, served as a picture, :meth:`DashboardModel.grid_png`);
+and a row per service from its health (level, message, rates, drops, gaps, errors) and its
+liveliness. Everything is drawn in the EKF's ``slam`` frame (x, y in m): the loop-closed trajectory
+and the grid are moved there by the mapper's ``map_from_slam``, the truth by the first EKF pose that has a true pose at its stamp (as
 lrfslam/viz/foxglove.py ties ``world`` to ``map``). No transport, no clock: rates come from the
 services' own wall stamps.
 """
@@ -25,9 +26,11 @@ from lrfslam.errors import ConfigError
 from lrfslam.msgs import counters as names
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.grid_replica import GridReplica
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.viz.foxglove import ellipse_axes
 from lrfslam.viz.keyframe_path import KeyframePath
+from lrfslam.viz.png import gray_alpha_png
 
 LEVELS = {t.HEALTH_OK: "OK", t.HEALTH_WARN: "WARN", t.HEALTH_ERROR: "ERROR", t.HEALTH_STALE: "STALE"}
 
@@ -128,6 +131,8 @@ class DashboardModel:
         self._map_from_slam = np.zeros(3)
         self._keyframes_until_ns = 0
         self._keyframe_path = KeyframePath(self.cfg.max_path_poses // 4)
+        self.grid = GridReplica()
+        self.grid_version = 0              # bumped with every map/grid
         self.status: dict[str, t.ServiceStatus] = {}
         self._rates: dict[str, tuple[float, float]] = {}
         self.alive: dict[str, bool] = {}
@@ -170,6 +175,9 @@ class DashboardModel:
             self._map_from_slam = np.asarray(value.map_from_slam, float)
             if value.stamp_ns > self._keyframes_until_ns:
                 self.map_path.add(*value.pose[:2])
+        elif name == topics.MAP_GRID.name:
+            self.grid.apply(value)
+            self.grid_version += 1
         elif name == topics.MAP_KEYFRAMES.name:
             stamps, poses = self._keyframe_path.update(value)
             if value.scan_stamp_ns.size:
@@ -248,9 +256,31 @@ class DashboardModel:
             rows.append(row)
         return rows
 
+    def grid_png(self) -> bytes | None:
+        """The grid as a PNG (walls black, free space white, unknown transparent; the top row the highest y),
+        None before the first ``map/grid``."""
+        image = self.grid.image()
+        if image is None:
+            return None
+        cells = np.flipud(image.cells)
+        gray = np.where(cells == 100, 0, 255).astype(np.uint8)
+        return gray_alpha_png(gray, np.where(cells == -1, 0, 255).astype(np.uint8))
+
+    def _grid_placement(self) -> dict[str, Any] | None:
+        """Where the page draws :meth:`grid_png`: its lower-left corner and cell in the map frame, and the
+        map frame in the ``slam`` frame."""
+        frame = self.grid.frame()
+        if frame is None:
+            return None
+        origin, (h, w) = frame
+        return {"version": self.grid_version, "origin": [float(v) for v in origin],
+                "resolution": self.grid.resolution_m, "width": int(w), "height": int(h),
+                "slam_from_map": [round(float(v), 6) for v in inverse(self._map_from_slam)]}
+
     def snapshot(self) -> dict[str, Any]:
         """Everything the page draws, JSON-able; positions in the ``slam`` frame, m."""
         snap: dict[str, Any] = {"version": self.version, "scans": self.scans, "states": self.states,
+                                "grid": self._grid_placement(),
                                 "services": self.services(), "trajectory": _moved(np.zeros(3), self.slam_path.xy),
                                 "map_trajectory": _moved(inverse(self._map_from_slam), self.map_path.xy),
                                 "truth": [] if self._slam_from_world is None

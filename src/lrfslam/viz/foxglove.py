@@ -16,6 +16,7 @@ features                   /foxglove/features              foxglove.SceneUpdate 
 slam/state, slam/map       /foxglove/landmarks             foxglove.SceneUpdate      slam
 slam/state                 /foxglove/trajectory/slam       foxglove.PosesInFrame     slam
 map/pose, map/keyframes    /foxglove/trajectory/map        foxglove.PosesInFrame     map
+map/grid                   /foxglove/map                   foxglove.Grid             map
 odom                       /foxglove/trajectory/odom       foxglove.PosesInFrame     odom
 truth                      /foxglove/trajectory/truth      foxglove.PosesInFrame     world
 odom, slam/state, map/pose /foxglove/tf                    foxglove.FrameTransforms  (tree below)
@@ -36,7 +37,11 @@ Each view carries its source's data stamp (a health status's is the wall clock);
 recording writes it as the view's ``publish_time`` and gives the view its source's
 ``log_time`` (lrfslam/runtime/recording.py). Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
 at most every ``path_period_s`` of data time, a long one less often, so that their cost stays
-bounded (:class:`ViewConfig`). A service's health is logged when its level or message changes.
+bounded (:class:`ViewConfig`). The map is the mapper's tiles put together (``msgs/grid_replica.py``)
+as one ``foxglove.Grid`` (Foxglove's 3D panel draws the newest message of a channel), one int8
+field ``occupancy``: 100 occupied, 0 free, -1 unknown, as ``nav_msgs/OccupancyGrid``; it goes out
+after a change at most every ``map_period_s`` of data time, and a large map less often (a second
+per ``map_cells_per_s`` cells). A service's health is logged when its level or message changes.
 """
 
 from __future__ import annotations
@@ -56,6 +61,7 @@ from lrfslam.algo.stream_alignment import interpolate_pose
 from lrfslam.errors import ConfigError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.grid_replica import GridImage, GridReplica
 from lrfslam.msgs.landmark_map import LandmarkMapReplica
 from lrfslam.viz.keyframe_path import KeyframePath
 
@@ -69,13 +75,14 @@ TRAJECTORY_MAP = P + "trajectory/map"
 TRAJECTORY_ODOM = P + "trajectory/odom"
 TRAJECTORY_TRUTH = P + "trajectory/truth"
 TF = P + "tf"
+GRID = P + "map"
 LOG = topics.FOXGLOVE_LOG
 
 #: Every view channel and the foxglove-sdk message class it carries.
 CHANNELS: dict[str, type] = {
     SCAN: fm.LaserScan, SCAN_FILTERED: fm.LaserScan, FEATURES: fm.SceneUpdate, LANDMARKS: fm.SceneUpdate,
     TRAJECTORY_SLAM: fm.PosesInFrame, TRAJECTORY_MAP: fm.PosesInFrame, TRAJECTORY_ODOM: fm.PosesInFrame,
-    TRAJECTORY_TRUTH: fm.PosesInFrame, TF: fm.FrameTransforms, LOG: fm.Log,
+    TRAJECTORY_TRUTH: fm.PosesInFrame, TF: fm.FrameTransforms, GRID: fm.Grid, LOG: fm.Log,
 }
 
 WORLD, MAP, SLAM, ODOM, BASE, LASER = "world", "map", "slam", "odom", "base_link", "laser"
@@ -113,6 +120,8 @@ class ViewConfig:
     #: however long the run (an hour of driving at 0.5 m/s is 18,000 poses at path_step_m).
     path_max_poses: int = 4000
     landmark_period_s: float = 0.5   # landmarks at most this often; 0: with every slam/state
+    map_period_s: float = 5.0        # the map at most this often (slam_toolbox's map_update_interval) ...
+    map_cells_per_s: float = 200_000.0   # ... and a map of n cells at most every n / this s (200 kB/s)
 
     def __post_init__(self) -> None:
         if min(self.path_period_s, self.path_step_m, self.path_turn_rad, self.landmark_period_s) < 0 \
@@ -271,6 +280,15 @@ def landmarks_scene(state: t.SlamState, landmarks: t.Landmarks) -> fm.SceneUpdat
     return replace_all(state.stamp_ns, entities)
 
 
+def occupancy_grid(stamp_ns: int, image: GridImage) -> fm.Grid:
+    """``foxglove.Grid`` of the map in frame ``map``: one int8 field ``occupancy`` per cell (100, 0, -1)."""
+    w = image.cells.shape[1]
+    return fm.Grid(timestamp=timestamp(stamp_ns), frame_id=MAP, pose=pose(*image.origin_xy_m), column_count=w,
+                   cell_size=fm.Vector2(x=image.resolution_m, y=image.resolution_m), row_stride=w, cell_stride=1,
+                   fields=[fm.PackedElementField(name="occupancy", offset=0, type=fm.PackedElementFieldNumericType.Int8)],
+                   data=image.cells.tobytes())
+
+
 def health_log(status: t.ServiceStatus) -> fm.Log:
     return fm.Log(timestamp=timestamp(status.wall_stamp_ns), level=LOG_LEVELS.get(status.level, fm.LogLevel.Unknown),
                   message=status.message, name=status.service)
@@ -353,12 +371,15 @@ class FoxgloveViews:
         self._landmarks_sent_ns: int | None = None
         self._map = LandmarkMapReplica()
         self._keyframe_path = KeyframePath(self.cfg.path_max_poses // 4)
+        self._grid = GridReplica()
+        self._grid_due_ns: int | None = None
         self._health: dict[str, tuple[int, str]] = {}
         self._handlers: dict[str, Callable[[Any, int], list[View]]] = {
             topics.SCAN.name: self._scan, topics.SCAN_FILTERED.name: self._filtered,
             topics.FEATURES.name: self._features, topics.SLAM_STATE.name: self._slam, topics.SLAM_MAP.name: self._map_of,
             topics.ODOM.name: self._odometry, topics.TRUTH.name: self._ground_truth,
             topics.MAP_POSE.name: self._map_pose, topics.MAP_KEYFRAMES.name: self._keyframes,
+            topics.MAP_GRID.name: self._map_grid,
         }
 
     def viewed(self, name: str) -> bool:
@@ -461,6 +482,18 @@ class FoxgloveViews:
             return []
         path = self.paths[TRAJECTORY_MAP].replace(kf.stamp_ns, poses, int(stamps.max()))
         return [View(TRAJECTORY_MAP, path, at)]
+
+    def _map_grid(self, grid: t.MapGrid, at: int) -> list[View]:
+        self._grid.apply(grid)
+        due = self._grid_due_ns
+        if not (due is None or grid.stamp_ns >= due or grid.stamp_ns < due - int(self.cfg.map_period_s * 1e9)):
+            return []
+        image = self._grid.image()
+        if image is None:
+            return []
+        wait_s = max(self.cfg.map_period_s, image.cells.size / self.cfg.map_cells_per_s)
+        self._grid_due_ns = grid.stamp_ns + int(wait_s * 1e9)
+        return [View(GRID, occupancy_grid(grid.stamp_ns, image), at)]
 
     def _status(self, status: t.ServiceStatus, at: int) -> list[View]:
         now = (status.level, status.message)
