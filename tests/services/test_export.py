@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import yaml
 from lrfslam.services import stage
+from test_mapper import GRID_AGREEMENT, occupied_near
 from test_steps import chain, sim_outputs
 
 from lrfslam.algo.geometry import from_frame
@@ -26,6 +27,7 @@ from lrfslam.errors import InputError
 from lrfslam.evaluation.map_trajectory import final_trajectory
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.msgs.grid_replica import GridReplica
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.recording import RecordingWriter, read_recording
 from lrfslam.sim import SimConfig, Simulator
@@ -169,6 +171,22 @@ def test_the_grid_is_built_on_the_mappers_final_trajectory(sim_run):
     assert doc["figures"]["scans_placed"] == graph.scan_stamp_ns.size < N_SCANS
     # Measured 0.025 m for the estimate and 0.46 m for this poor odometry.
     assert doc["figures"]["rmse_vs_truth_m"] < 0.1 < doc["figures"]["odometry_rmse_vs_truth_m"]
+
+
+def test_the_live_grid_ends_as_the_map_export_draws_from_the_recording(sim_run):
+    """The recording's map/grid messages put together, against export's map.pgm as map_server reads it:
+    every occupied cell within one cell of an occupied cell of the other, but at most 1 %."""
+    out, folder, _ = sim_run
+    replica = GridReplica()
+    for m in read_recording(out, [topics.MAP_GRID.name]):
+        replica.apply(topics.MAP_GRID.codec.decode(m.data, m.schema))
+    live = replica.image()
+    meta, cells = read_map_server(folder / "map.yaml")
+    assert meta["resolution"] == live.resolution_m and replica.pending == 0
+    origin = np.array(meta["origin"][:2])
+    assert occupied_near(live.cells, live.origin_xy_m, live.resolution_m, cells, origin) >= GRID_AGREEMENT
+    assert occupied_near(cells, origin, live.resolution_m, live.cells, live.origin_xy_m) >= GRID_AGREEMENT
+    assert (live.cells == 100).sum() > 100
 
 
 def fit_to_truth(estimate_xy: np.ndarray, truth_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

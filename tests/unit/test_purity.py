@@ -22,7 +22,7 @@ PURE = sorted(
 IMPURE = ("lrfslam.drivers.lms200.port", "lrfslam.drivers.lms200.emulator")
 
 ALLOWED_ROOTS = {"__future__", "collections", "dataclasses", "typing", "math", "enum", "functools",
-                 "itertools", "heapq", "operator", "struct", "decimal", "numpy", "scipy", "filterpy", "numba",
+                 "itertools", "heapq", "operator", "struct", "zlib", "decimal", "numpy", "scipy", "filterpy", "numba",
                  "lrfslam"}
 ALLOWED_LRFSLAM_PREFIXES = ("lrfslam.errors", "lrfslam.algo", "lrfslam.sim", "lrfslam.drivers.lms200")
 FORBIDDEN_CALLS = {"print", "open", "input", "exec", "eval", "breakpoint"}

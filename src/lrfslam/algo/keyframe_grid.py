@@ -8,9 +8,9 @@ laid at once (:class:`~lrfslam.algo.tiled_grid.TiledGrid`).
 
 After an optimisation, the keyframes that moved by more than a quarter of a cell (at the end of a beam of
 the grid's reach, for a turn) are *pending*; :meth:`KeyframeGrid.work` lays at most
-``relays_per_call`` of them again each time it is called (once per scan), oldest first, so a
-closure that bends the whole map is spread over the scans that follow instead of stalling the
-mapper for seconds. A keyframe that leaves the graph (folded into an older one) is taken out: the
+``relays_per_call`` of them again each time it is called (once per scan), those that moved most
+first, so a closure that bends the whole map is spread over the scans that follow instead of
+stalling the mapper for seconds, and what a viewer sees wrong shrinks fastest. A keyframe that leaves the graph (folded into an older one) is taken out: the
 grid holds what the graph holds, so it grows with the area mapped, not with the hours driven.
 """
 
@@ -48,13 +48,18 @@ class KeyframeGrid:
         self._recent_size = int(recent)
         self._recent: OrderedDict[int, tuple[np.ndarray, float, float]] = OrderedDict()
         self._target: dict[int, np.ndarray] = {}   # laid keyframe -> its pose in the graph now
-        self._pending: list[int] = []              # moved keyframes, oldest first
+        self._pending: list[tuple[float, int]] = []   # (how far moved, m; keyframe), the farthest last
         self.missing = 0                           # keyframes whose scan was not held
 
     @property
     def pending(self) -> int:
         """Moved keyframes not laid again yet."""
         return len(self._pending)
+
+    @property
+    def largest_pending_m(self) -> float:
+        """How far from the graph's pose the farthest moved pending keyframe lies, m (0: none)."""
+        return self._pending[-1][0] if self._pending else 0.0
 
     @property
     def keyframes(self) -> int:
@@ -91,25 +96,34 @@ class KeyframeGrid:
             del self._target[key]
         for key in self._target:
             self._target[key] = now[key].copy()
-        self._pending = sorted(k for k in self._target if self._moved(k))
+        self._queue()
 
     def work(self, limit: int | None = None) -> int:
         """Lay again up to ``limit`` (default ``relays_per_call``; -1: all) pending keyframes; returns how many."""
         limit = self.relays_per_call if limit is None else limit
         done = 0
         while self._pending and (limit < 0 or done < limit):
-            key = self._pending.pop(0)
-            if key in self._target and self._moved(key):
+            _, key = self._pending.pop()
+            if self._moved(key):
                 self.grid.move(key, self._target[key])
                 done += 1
         return done
 
+    def _displacement_m(self, key: int) -> float:
+        """How far keyframe ``key``'s scan is from where the graph puts it: the larger of its shift and its
+        turn at the grid's reach, m."""
+        laid, target = self.grid.pose_of(key), self._target[key]
+        turn = abs((target[2] - laid[2] + np.pi) % (2 * np.pi) - np.pi)
+        return max(float(np.hypot(*(target[:2] - laid[:2]))), turn * self.grid.reach_m)
+
     def _moved(self, key: int) -> bool:
         """Whether keyframe ``key``'s graph pose is more than a quarter of a cell from where it is laid."""
-        laid, target = self.grid.pose_of(key), self._target[key]
-        quarter = 0.25 * self.grid.resolution_m
-        turn = abs((target[2] - laid[2] + np.pi) % (2 * np.pi) - np.pi)
-        return bool(np.hypot(*(target[:2] - laid[:2])) > quarter or turn * self.grid.reach_m > quarter)
+        return self._displacement_m(key) > 0.25 * self.grid.resolution_m
+
+    def _queue(self) -> None:
+        """Every moved keyframe pending, the farthest moved at the end (taken first)."""
+        moved = [(d, k) for k in self._target if (d := self._displacement_m(k)) > 0.25 * self.grid.resolution_m]
+        self._pending = sorted(moved)
 
     # -- checkpoint ----------------------------------------------------------------------------
 
@@ -146,4 +160,4 @@ class KeyframeGrid:
         for i, key in enumerate(stamps.tolist()):
             self.grid.lay(key, laid[i], ranges[i], angles[i, 0], angles[i, 1])
             self._target[key] = target[i].copy()
-        self._pending = sorted(k for k in self._target if self._moved(k))
+        self._queue()
