@@ -122,8 +122,16 @@ class KeyframeGrid:
 
     def _queue(self) -> None:
         """Every moved keyframe pending, the farthest moved at the end (taken first)."""
-        moved = [(d, k) for k in self._target if (d := self._displacement_m(k)) > 0.25 * self.grid.resolution_m]
-        self._pending = sorted(moved)
+        keys = list(self._target)
+        if not keys:
+            self._pending = []
+            return
+        laid = np.array([self.grid.laid(k).pose for k in keys])
+        target = np.array([self._target[k] for k in keys])
+        turn = np.abs((target[:, 2] - laid[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+        far = np.maximum(np.hypot(*(target[:, :2] - laid[:, :2]).T), turn * self.grid.reach_m)
+        moved = np.flatnonzero(far > 0.25 * self.grid.resolution_m)
+        self._pending = [(float(far[i]), keys[i]) for i in moved[np.argsort(far[moved], kind="stable")]]
 
     # -- checkpoint ----------------------------------------------------------------------------
 
