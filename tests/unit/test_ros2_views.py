@@ -129,3 +129,13 @@ def test_the_map_is_the_mappers_grid_put_together_at_most_once_a_second():
     # A whole grid (a resolution change, or the late joiner's reply) replaces every tile.
     (pub,) = v.on_message("map/grid", grid_message(t0 + 3_000_000_000, 3, {(1, 1): wall}, whole=True))
     assert grid_fields(pub.message)[:5] == (4, 4, 0.05, 0.2, 0.2)
+
+
+def test_a_large_map_goes_out_less_often(monkeypatch):
+    monkeypatch.setattr(views, "MAP_CELLS_PER_S", 32)   # the 8 x 12 cells below: every 3 s of data
+    v = views.RosViews("/robot1")
+    wall, free = np.full((4, 4), 100, np.int8), np.zeros((4, 4), np.int8)
+    (first,) = v.on_message("map/grid", grid_message(10**9, 1, {(0, 0): wall, (-1, 2): free}))
+    assert grid_fields(first.message)[:2] == (12, 8)
+    assert v.on_message("map/grid", grid_message(3 * 10**9, 2, {(0, 0): free})) == []
+    assert [p.topic for p in v.on_message("map/grid", grid_message(4 * 10**9, 3, {(0, 0): wall}))] == [views.MAP]

@@ -14,8 +14,9 @@ the ROS messages to publish, each with its topic (fully qualified). Frames (REP-
 - the EKF's landmarks (rebuilt from ``slam/state`` and ``slam/map``), in the map frame, at most
   every :data:`LANDMARK_PERIOD_S` of data time: ``/<ns>/landmarks`` (``MarkerArray``);
 - the mapper's live occupancy grid, its ``map/grid`` tiles put together (``msgs/grid_replica.py``),
-  after a change, at most every :data:`MAP_PERIOD_S` of data time: ``/<ns>/map``
-  (``OccupancyGrid``, transient local).
+  after a change, at most every :data:`MAP_PERIOD_S` of data time, a map of n cells at most every
+  n / :data:`MAP_CELLS_PER_S` s (whole, as ROS 2's ``/map`` goes: a large one must not flood the
+  link): ``/<ns>/map`` (``OccupancyGrid``, transient local).
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ ODOM_KEPT = 256
 COV_KEPT = 64
 #: The map goes out at most this often, s of data time.
 MAP_PERIOD_S = 1.0
+#: ... and a map of n cells at most every n / this many s (Killian's 20 million cells: every 10 s).
+MAP_CELLS_PER_S = 2_000_000
 
 
 @dataclass(frozen=True)
@@ -134,7 +137,7 @@ class RosViews:
         if grid is None:
             return []
         self._map_pending_ns = None
-        self._map_due_ns = stamp_ns + int(MAP_PERIOD_S * 1e9)
+        self._map_due_ns = stamp_ns + int(max(MAP_PERIOD_S, grid.cells.size / MAP_CELLS_PER_S) * 1e9)
         return [Publication(MAP, convert.occupancy_grid(grid, stamp_ns, self.frames["map"]), stamp_ns)]
 
     def _odometry(self, odom: t.Odometry) -> list[Publication]:
