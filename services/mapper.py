@@ -233,8 +233,16 @@ class MapperStep(StepBase):
         arrays.update(service_seq=self.seq, service_keyframes_seq=self.keyframes_seq,
                       service_last_stamp_ns=self._last_stamp, service_last_state_seq=self._last_state_seq,
                       service_local_pose=np.full(3, np.nan) if self._local is None else self._local,
-                      service_last_slam_pose=self._last_slam_pose, service_grid_seq=self.grid_seq)
+                      service_last_slam_pose=self._last_slam_pose, service_grid_seq=self.grid_seq,
+                      service_grid_due_ns=-1 if self._grid_due_ns is None else self._grid_due_ns,
+                      service_grid_resolution_changes=self._grid_resolution_changes)
         arrays.update(self.grid.snapshot())
+        # The tiles changed since the last map/grid, as then published: every other tile is as published.
+        changed = [tile for tile in map(tuple, arrays["grid_changed"].tolist()) if tile in self._grid_sent]
+        side = self.grid.grid.tile_cells
+        arrays.update(service_grid_sent_tiles=np.array(changed, np.int64).reshape(-1, 2),
+                      service_grid_sent_cells=np.frombuffer(b"".join(self._grid_sent[tl] for tl in changed),
+                                                            np.int8).reshape(-1, side, side))
         return arrays
 
     def restore(self, arrays) -> str:
@@ -250,9 +258,17 @@ class MapperStep(StepBase):
         self.optimisations = mapper.stats.optimisations
         self.grid = KeyframeGrid()
         self.grid.restore(arrays)
-        self.grid_seq = int(arrays.get("service_grid_seq", 0))
-        self._grid_due_ns, self._grid_sent = None, {}
-        self._grid_resolution_changes = self.grid.grid.resolution_changes - 1   # the first grid goes out whole
+        if "service_grid_seq" in arrays:
+            due = int(arrays["service_grid_due_ns"])
+            self.grid_seq, self._grid_due_ns = int(arrays["service_grid_seq"]), None if due < 0 else due
+            self._grid_resolution_changes = int(arrays["service_grid_resolution_changes"])
+            changed = {tuple(tl) for tl in arrays["grid_changed"].tolist()}
+            self._grid_sent = {tl: self.grid.grid.trinary(tl).tobytes() for tl in self.grid.grid.tiles()
+                               if tl not in changed}
+            self._grid_sent.update((tuple(tl), cells.tobytes()) for tl, cells in
+                                   zip(arrays["service_grid_sent_tiles"].tolist(), arrays["service_grid_sent_cells"]))
+        else:   # a checkpoint from before the grid: it starts empty, and its first message is whole
+            self._grid_resolution_changes = self.grid.grid.resolution_changes - 1
         return f"{mapper.keyframe_count} keyframes, {mapper.stats.accepted - mapper.stats.removed} closures"
 
     def health(self) -> tuple[int, str]:

@@ -305,7 +305,8 @@ def placed_hits(path: Path, stamps: np.ndarray, poses: np.ndarray, max_range_m: 
 
 
 def check_intel_extent(run_mcap: Path, folder: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The grid's occupied cells span the returns placed on the estimate; their and the odometry's spans."""
+    """The grid's occupied cells span the returns of its scans placed on the estimate (the EKF's poses, or the
+    mapper's graph's keyframes at theirs); their and the odometry's spans."""
     meta, cells = read_map_server(folder / "map.yaml")
     doc = json.loads((folder / "map.json").read_text())
     stamps = np.array([p["stamp_ns"] for p in doc["map_trajectory"]])
@@ -313,12 +314,16 @@ def check_intel_extent(run_mcap: Path, folder: Path) -> tuple[np.ndarray, np.nda
     data = recording_map.collect(run_mcap, scans=False)
     odom = recording_map.in_frame(stamps, est, data["odom"])
     odom_at = dict(zip(sorted(data["odom"]), odom))
+    if data["graph"] is not None:   # the grid is the scans of the mapper's graph at their final poses
+        stamps, est = data["graph"].scan_stamp_ns, data["graph"].map_pose
     on_est = placed_hits(run_mcap, stamps, est, GridParams.max_range_m)
     on_odom = placed_hits(run_mcap, stamps, np.array([odom_at[int(s)] for s in stamps]), GridParams.max_range_m)
     occ = cell_centres(meta, *np.nonzero(cells == 100))
     span = np.r_[occ.min(axis=0), occ.max(axis=0)]
     res = meta["resolution"]
-    np.testing.assert_allclose(span, np.r_[on_est.min(axis=0), on_est.max(axis=0)], atol=3 * res)
+    # Within 5 cells: an outlying return that one keyframe saw and another's beam crossed is not a
+    # wall (measured 0.18 m on Intel's first 1000 scans, 3.6 cells).
+    np.testing.assert_allclose(span, np.r_[on_est.min(axis=0), on_est.max(axis=0)], atol=5 * res)
     return span, np.r_[on_odom.min(axis=0), on_odom.max(axis=0)]
 
 
@@ -351,4 +356,6 @@ def test_intel_grid_follows_the_estimate_not_the_drifting_odometry(tmp_path):
     assert np.max(np.abs(span - odom_span)) > 3.0, (span, odom_span)
     sc = recording_map.scene(run_mcap, recording_map.collect(run_mcap), GridParams())
     x0, x1, y0, y1 = sc.view
-    assert x0 >= span[0] - 2 and x1 <= span[2] + 2 and y0 >= span[1] - 2 and y1 <= span[3] + 2
+    # The picture holds the observed grid, free space too: 2.07 m past the walls' span at most here
+    # (beams through an opening), and nowhere near the odometry's 3 m and more.
+    assert x0 >= span[0] - 2.5 and x1 <= span[2] + 2.5 and y0 >= span[1] - 2.5 and y1 <= span[3] + 2.5

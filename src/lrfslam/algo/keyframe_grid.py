@@ -143,14 +143,16 @@ class KeyframeGrid:
         ranges = np.full((len(keys), width), np.nan, np.float32)
         for row, scan in enumerate(laid):
             ranges[row, :scan.ranges.size] = scan.ranges
-        return {"grid_stamp_ns": np.array(keys, np.int64),
+        state = {f"grid_{name}": value for name, value in self.grid.state().items()}
+        return state | {"grid_stamp_ns": np.array(keys, np.int64),
                 "grid_laid_pose": np.array([s.pose for s in laid], float).reshape(-1, 3),
                 "grid_target_pose": np.array([self._target[k] for k in keys], float).reshape(-1, 3),
                 "grid_ranges": ranges,
                 "grid_angles": np.array([(s.angle_min_rad, s.angle_increment_rad) for s in laid], float).reshape(-1, 2)}
 
     def restore(self, arrays) -> None:
-        """Lay again what :meth:`snapshot` gave (a checkpoint without a grid leaves this one empty).
+        """Lay again what :meth:`snapshot` gave, at its resolution, with the same tiles changed since they
+        were last taken (a checkpoint without a grid leaves this one empty).
 
         Raises
         ------
@@ -165,7 +167,10 @@ class KeyframeGrid:
         if not (laid.shape == target.shape == (stamps.size, 3) and ranges.shape[0] == stamps.size
                 and angles.shape == (stamps.size, 2)):
             raise InputError("grid checkpoint: arrays of different lengths")
+        state = {name: arrays[f"grid_{name}"] for name in ("resolution_m", "resolution_changes", "bounds", "changed")}
+        self.grid.set_state(state)
         for i, key in enumerate(stamps.tolist()):
             self.grid.lay(key, laid[i], ranges[i], angles[i, 0], angles[i, 1])
             self._target[key] = target[i].copy()
+        self.grid.set_state(state)
         self._queue()

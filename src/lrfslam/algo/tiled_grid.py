@@ -185,6 +185,32 @@ class TiledGrid:
             out[(r - r0) * t:(r - r0 + 1) * t, (c - c0) * t:(c - c0 + 1) * t] = self.log_odds((r, c))
         return OccupancyGrid(out, self.resolution_m, np.array([c0 * t, r0 * t], float) * self.resolution_m)
 
+    def state(self) -> dict[str, np.ndarray]:
+        """What the scans alone do not give back, as named arrays: the resolution, the bounds of every
+        cell touched (they never shrink) and the tiles changed since :meth:`take_changed`."""
+        return {"resolution_m": np.float64(self.resolution_m), "resolution_changes": np.int64(self.resolution_changes),
+                "bounds": self._bounds.copy(),
+                "changed": np.array(sorted(self._changed), np.int64).reshape(-1, 2)}
+
+    def set_state(self, state) -> None:
+        """Take :meth:`state`'s values (before any scan is laid, then the tiles changed after them).
+
+        Raises
+        ------
+        InputError
+            The arrays are not such a state.
+        """
+        bounds = np.asarray(state["bounds"], np.int64)
+        changed = np.asarray(state["changed"], np.int64)
+        if bounds.shape != (4,) or changed.ndim != 2 or changed.shape[1] != 2 or not float(state["resolution_m"]) > 0:
+            raise InputError("tiled grid state: bounds (4,), changed (n, 2) and a resolution > 0 expected")
+        if self._laid:
+            self._changed = {(int(r), int(c)) for r, c in changed}
+            return
+        self.resolution_m = float(state["resolution_m"])
+        self.resolution_changes = int(state["resolution_changes"])
+        self._bounds = bounds.copy()
+
     @property
     def nbytes(self) -> int:
         """Memory of the counts and the laid scans, bytes."""
