@@ -104,24 +104,13 @@ class KeyframeGrid:
         done = 0
         while self._pending and (limit < 0 or done < limit):
             _, key = self._pending.pop()
-            if self._moved(key):
-                self.grid.move(key, self._target[key])
-                done += 1
+            self.grid.move(key, self._target[key])
+            done += 1
         return done
 
-    def _displacement_m(self, key: int) -> float:
-        """How far keyframe ``key``'s scan is from where the graph puts it: the larger of its shift and its
-        turn at the grid's reach, m."""
-        laid, target = self.grid.pose_of(key), self._target[key]
-        turn = abs((target[2] - laid[2] + np.pi) % (2 * np.pi) - np.pi)
-        return max(float(np.hypot(*(target[:2] - laid[:2]))), turn * self.grid.reach_m)
-
-    def _moved(self, key: int) -> bool:
-        """Whether keyframe ``key``'s graph pose is more than a quarter of a cell from where it is laid."""
-        return self._displacement_m(key) > 0.25 * self.grid.resolution_m
-
     def _queue(self) -> None:
-        """Every moved keyframe pending, the farthest moved at the end (taken first)."""
+        """Pending: every keyframe whose graph pose is more than a quarter of a cell from where it is laid
+        (the larger of its shift and its turn at the grid's reach), the farthest moved at the end (taken first)."""
         keys = list(self._target)
         if not keys:
             self._pending = []
