@@ -24,7 +24,7 @@ closures that follow correct what the filter got wrong meanwhile.
 
 The live occupancy grid (``lrfslam.algo.keyframe_grid``) is the graph's keyframes' raw scans at
 their optimised poses, traced as ``lrfslam export`` traces a recording's; keyframes an optimisation
-moved are laid again, a few per scan. It travels as the tiles whose cells changed, so a message
+moved are laid again, one per scan. It travels as the tiles whose cells changed, so a message
 stays small however large the building; the checkpoint keeps the keyframes' scans, so a restarted
 mapper has its grid again.
 """

@@ -89,7 +89,7 @@ def test_taking_scans_out_and_moving_them_is_exact():
     assert len(grid) == 4 and 4 not in grid and 3 in grid
     for tile in set(grid.tiles()) | set(fresh.tiles()):
         np.testing.assert_array_equal(grid.counts(tile), fresh.counts(tile))
-    np.testing.assert_array_equal(grid.pose_of(0), moved[0])
+    np.testing.assert_array_equal(grid.laid(0).pose, moved[0])
     for i in range(4):
         grid.remove(i)
     assert all(not grid.counts(tile).any() for tile in grid.tiles())

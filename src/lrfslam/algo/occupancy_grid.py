@@ -63,7 +63,7 @@ class GridParams:
     hit_log_odds, miss_log_odds : float
         Log-odds added by a hit (> 0) and a miss (< 0); the defaults are P = 0.7 and P = 0.4.
     min_log_odds, max_log_odds : float
-        Clamp, so a cell that changes (a door, a person) can change back.
+        Bounds of a cell's log-odds as read (how sure it reads; map_server's thresholds lie inside).
     max_cells : int
         Largest grid built; a larger one is refused (:class:`~lrfslam.errors.InputError`).
     batch_scans : int

@@ -6,9 +6,8 @@ cells, the same hit-or-miss rule per scan); when an optimisation moves a keyfram
 taken out where it was laid and laid again where it now is.
 
 A cell keeps its numbers of hits and misses (integers, so taking a scan out is exact); its
-log-odds ``hits · hit_log_odds + misses · miss_log_odds`` is clamped to
-``[min_log_odds, max_log_odds]`` when read, where export clamps after each batch of scans: the
-two differ only on cells whose evidence changed sides many times over.
+log-odds ``hits · hit_log_odds + misses · miss_log_odds``, clamped to
+``[min_log_odds, max_log_odds]``, is export's for the same scans at the same poses.
 
 Tiles of ``tile_cells × tile_cells`` cells exist where scans reached: memory is 8 bytes a cell
 of those tiles, so it grows with the area seen, not with the time. The resolution is
@@ -29,11 +28,6 @@ import numpy as np
 
 from lrfslam.algo import grid_kernel
 from lrfslam.algo.occupancy_grid import (
-    FREE,
-    FREE_THRESH,
-    OCCUPIED,
-    OCCUPIED_THRESH,
-    UNKNOWN,
     GridParams,
     OccupancyGrid,
     beam_lengths,
@@ -44,9 +38,6 @@ from lrfslam.errors import InputError
 
 #: Default side of a tile, cells (64 × 64 cells: 3.2 m at 5 cm, 4 KB of trinary cells).
 TILE_CELLS = 64
-
-_OCCUPIED_LOG_ODDS = float(np.log(OCCUPIED_THRESH / (1 - OCCUPIED_THRESH)))
-_FREE_LOG_ODDS = float(np.log(FREE_THRESH / (1 - FREE_THRESH)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,11 +91,6 @@ class TiledGrid:
         """Scan ``key`` as laid (KeyError when it is not)."""
         return self._laid[key]
 
-    def pose_of(self, key: int) -> np.ndarray | None:
-        """The pose (3,) scan ``key`` is laid at; None when it is not."""
-        laid = self._laid.get(key)
-        return None if laid is None else laid.pose.copy()
-
     def lay(self, key: int, pose, ranges, angle_min_rad: float, angle_increment_rad: float) -> None:
         """Lay one scan at ``pose``; a scan already laid under ``key`` is taken out first.
 
@@ -122,7 +108,7 @@ class TiledGrid:
         if not (np.all(np.isfinite(pose)) and np.isfinite(angle_min_rad) and np.isfinite(angle_increment_rad)):
             raise InputError("tiled grid: pose and beam angles must be finite")
         laid = LaidScan(pose.copy(), np.asarray(ranges, dtype=np.float32).reshape(-1),
-                     float(angle_min_rad), float(angle_increment_rad))
+                        float(angle_min_rad), float(angle_increment_rad))
         self.remove(key)
         self._laid[key] = laid
         self._apply(laid, 1)
@@ -167,23 +153,7 @@ class TiledGrid:
 
     def trinary(self, tile: tuple[int, int]) -> np.ndarray:
         """Tile ``tile``'s cells as OCCUPIED (100), FREE (0) or UNKNOWN (-1): (T, T) int8, map_server's thresholds."""
-        value = self.log_odds(tile)
-        out = np.full(value.shape, UNKNOWN, dtype=np.int8)
-        out[value > _OCCUPIED_LOG_ODDS] = OCCUPIED
-        out[value < _FREE_LOG_ODDS] = FREE
-        return out
-
-    def to_grid(self) -> OccupancyGrid | None:
-        """The tiles as one :class:`OccupancyGrid` over their bounding box; None before any scan."""
-        if not self._slot:
-            return None
-        keys = np.array(self.tiles())
-        (r0, c0), (r1, c1) = keys.min(axis=0), keys.max(axis=0)
-        t = self.tile_cells
-        out = np.zeros(((r1 - r0 + 1) * t, (c1 - c0 + 1) * t), np.float32)
-        for r, c in self._slot:
-            out[(r - r0) * t:(r - r0 + 1) * t, (c - c0) * t:(c - c0 + 1) * t] = self.log_odds((r, c))
-        return OccupancyGrid(out, self.resolution_m, np.array([c0 * t, r0 * t], float) * self.resolution_m)
+        return OccupancyGrid(self.log_odds(tile), self.resolution_m, np.zeros(2)).trinary()
 
     def state(self) -> dict[str, np.ndarray]:
         """What the scans alone do not give back, as named arrays: the resolution, the bounds of every
