@@ -40,10 +40,14 @@ import numpy as np
 from lrfslam.algo import kernels
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
 from lrfslam.algo.keyframe_grid import KeyframeGrid
+from lrfslam.algo.localization import Localizer, Status, Walls
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
+from lrfslam.algo.tiled_grid import tiles_of
+from lrfslam.errors import ConfigError, MapFormatError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime.saved_map import SavedMap, load_map
 from lrfslam.runtime.step import Message, Output, RunContext, ServiceSpec, StepBase
 
 log = logging.getLogger("lrfslam.mapper")
@@ -58,11 +62,18 @@ GRID_PERIOD_NS = 1_000_000_000
 
 @dataclass(frozen=True)
 class MapperConfig:
-    """The mapper stage's configuration; ``SETTINGS`` are the names an operator sets (docs/settings.md)."""
+    """The mapper stage's configuration; ``SETTINGS`` are the names an operator sets (docs/settings.md).
+
+    ``map``: a saved map's folder (``lrfslam map save``); ``localize``: find and track the robot on
+    it instead of mapping (``lrfslam up --map MAP --localize``; docs/maps.md).
+    """
 
     loop_closure: LoopClosureParams = field(default_factory=LoopClosureParams)
+    map: str = ""
+    localize: bool = False
 
     SETTINGS: ClassVar[tuple[str, ...]] = (
+        "map", "localize",
         *(f"loop_closure.{name}" for name in (
             "keyframe_trans_m", "keyframe_rot_rad", "max_range_m", "min_travel_m", "candidate_radius_m",
             "max_window_m", "min_score", "max_second_ratio", "gate_chi2", "match_cov_scale",
@@ -77,6 +88,13 @@ class MapperConfig:
         "loop_closure.drift_scale": "replaced by the drift model (loop_closure.odom_*); 1 did nothing",
         "loop_closure.interpolate": "always on: each scan is placed between its keyframes",
     }
+
+
+    def __post_init__(self) -> None:
+        if self.localize and not self.map:
+            raise ConfigError("mapper: localize needs map, a saved map's folder (lrfslam map save)")
+        if self.map and not self.localize:
+            raise ConfigError("mapper: mapping on from a saved map is not built yet; with map, set localize=true")
 
 
 class MapperStep(StepBase):
@@ -276,6 +294,93 @@ class MapperStep(StepBase):
         return t.HEALTH_OK, f"{self.mapper.keyframe_count} keyframes, {s.accepted - s.removed} closures"
 
 
+class LocalizeStep(StepBase):
+    """The mapper on a saved map (``localize``): finds the robot on it and tracks it, the map unchanged.
+
+    Each slam state, once its scan is here, goes to :class:`~lrfslam.algo.localization.Localizer`
+    with the state's pose as the local trajectory; ``map/pose`` says whether the scan was placed on
+    the map, with the pose's covariance. The saved map's grid goes out whole on ``map/grid`` with
+    the first pose (and to a late joiner), so viewers draw the map the robot is localized in.
+    """
+
+    def __init__(self, cfg: MapperConfig, ctx: RunContext, saved: SavedMap | None = None) -> None:
+        super().__init__()
+        kernels.prepare()
+        if saved is None:
+            try:
+                saved = load_map(cfg.map)
+            except MapFormatError as exc:
+                raise ConfigError(f"mapper: map {cfg.map}: {exc}") from None
+        self.saved = saved
+        self.localizer = Localizer(saved.map_pose, [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])],
+                                   Walls(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m))
+        self.tiles, self.tile_cells = tiles_of(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)
+        self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
+            wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))
+        self.seq = 0
+        self.grid_sent = False
+        self._last_stamp = 0
+        self._status: Status | None = None
+
+    def on_message(self, msg: Message):
+        v = msg.value
+        if msg.topic is topics.SCAN:
+            valid = (v.status == t.BEAM_VALID) & np.isfinite(v.ranges_m)
+            self.align.add_scan(v.seq, v.stamp_ns, polar_to_xy(v.ranges_m[valid], v.angles_rad[valid]))
+        elif msg.topic is topics.SLAM_STATE:
+            self.align.add_features(v.stamp_ns, v.scan_seq, v)
+        return [out for a in self.align.ready() for out in self._place(a.features, a.scan_xy_m)]
+
+    def finish(self):
+        return [out for a in self.align.ready(final=True) for out in self._place(a.features, a.scan_xy_m)]
+
+    def _place(self, state: t.SlamState, points: np.ndarray | None) -> list[Output]:
+        if points is None:
+            self.counts["scan_missing"] += 1
+            points = np.zeros((0, 2))
+        placed = self.localizer.add_scan(state.pose, points)
+        if placed.status is not self._status:
+            log.info("%s (%d global searches, %d fixes)", "localized" if placed.status is Status.LOCALIZED
+                     else "not localized", self.localizer.searches, self.localizer.fixes)
+            self._status = placed.status
+        self.counts["scans"] += 1
+        self.counts["localized" if placed.status is Status.LOCALIZED else "not_localized"] += 1
+        self.counts["global_searches"] = self.localizer.searches
+        self.counts["fixes"] = self.localizer.fixes
+        self.counts["fixes_lost"] = self.localizer.lost
+        self._last_stamp = state.stamp_ns
+        self.seq += 1
+        outs = [Output(topics.MAP_POSE, t.MapPose(
+            stamp_ns=state.stamp_ns, seq=self.seq, scan_seq=state.scan_seq, pose=placed.pose,
+            map_from_slam=compose(placed.pose, relative(state.pose, np.zeros(3))),
+            keyframes=self.saved.map_pose.shape[0], local_pose=state.pose,
+            localization=t.LOCALIZED if placed.status is Status.LOCALIZED else t.NOT_LOCALIZED, pose_cov=placed.cov))]
+        if not self.grid_sent:
+            self.grid_sent = True
+            outs.append(Output(topics.MAP_GRID, self._grid(state.stamp_ns)))
+        return outs
+
+    def _grid(self, stamp_ns: int) -> t.MapGrid:
+        return t.MapGrid(stamp_ns=stamp_ns, seq=1, resolution_m=self.saved.grid_resolution_m,
+                         tile_cells=self.tile_cells.shape[1], tiles=self.tiles, cells=self.tile_cells, whole=True,
+                         keyframes=self.saved.map_pose.shape[0], pending=0)
+
+    def latest(self, topic):
+        """The saved map's grid for a late joiner."""
+        return self._grid(self._last_stamp) if topic is topics.MAP_GRID and self.grid_sent else None
+
+    def health(self) -> tuple[int, str]:
+        loc = self.localizer
+        if self._status is Status.LOCALIZED:
+            return t.HEALTH_OK, f"localized on {self.saved.map_pose.shape[0]} keyframes"
+        what = "lost the map" if loc.localized else f"searching ({loc.searches} global searches)"
+        return t.HEALTH_WARN if self._status is not None else t.HEALTH_OK, f"not localized: {what}"
+
+
+def _build(cfg: MapperConfig, ctx: RunContext) -> MapperStep | LocalizeStep:
+    return LocalizeStep(cfg, ctx) if cfg.localize else MapperStep(cfg, ctx)
+
+
 SPEC = ServiceSpec(
     name="mapper",
     summary="Loop closing behind the EKF: keyframes in a pose graph, closures by correlative search; "
@@ -288,5 +393,5 @@ SPEC = ServiceSpec(
     # An optimisation holds the mapper up to a second now and then (docs/delivery.md); it catches up
     # within milliseconds after, so it skips only when behind for longer than that.
     max_lag_s=1.0,
-    build=lambda cfg, ctx: MapperStep(cfg, ctx),
+    build=_build,
 )

@@ -30,6 +30,10 @@ Design choices
 * **Zero border.** The grid has a border of empty cells and indices are clipped
   into it, so a point pushed out of the map scores 0 at the leaves and the
   pooled bound stays an upper bound.
+* **A good first bound.** A greedy descent from the best root gives the first bound. Over a
+  window the size of a building one descent can end far below the best leaf, and a low bound cuts
+  little at the coarse levels, where the pooled bounds are near 1 there: the best of descents from
+  the ``greedy_starts`` best roots is then usually the best leaf or near it.
 * **Second peak.** The best leaf more than ``peak_separation_m`` away (or a
   rotation step away by more than ``peak_separation_rad``) from the winner is
   reported too, so a caller can refuse an ambiguous match (a repeated corridor).
@@ -177,7 +181,7 @@ class SearchResult:
 
 
 def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_angle_rad: float,
-           min_score: float) -> SearchResult:
+           min_score: float, max_frontier: int = MAX_FRONTIER, greedy_starts: int = 1) -> SearchResult:
     """Best pose of the points within ``centre ± (half_width_m, half_width_m, half_angle_rad)``.
 
     Parameters
@@ -191,6 +195,10 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         Half sizes of the square translation window (m) and of the rotation window (rad).
     min_score : float
         Leaves scoring below are not of interest (an initial bound; 0–1).
+    max_frontier : int
+        Candidates kept per level at most (the module's notes).
+    greedy_starts : int
+        Greedy descents for the first bound, from as many of the best roots (the module's notes).
 
     Returns
     -------
@@ -214,8 +222,8 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     rows = np.floor((y - grid.origin_xy_m[1]) / p.cell_m).astype(np.int64)
     top = p.levels - 1
 
-    def scores(level: int, cand: np.ndarray) -> np.ndarray:
-        return kernel.scores(grid.pooled[level], rows, cols, cand)
+    def scores(level: int, cand: np.ndarray, bound: float = -np.inf) -> np.ndarray:
+        return kernel.scores(grid.pooled[level], rows, cols, cand, bound)
 
     def children(level: int, cand: np.ndarray) -> np.ndarray:
         """The four sub-blocks (level − 1) of each candidate that start inside the window."""
@@ -239,12 +247,12 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         admitted = keep(roots, block) & (root_scores >= bound)
         frontier, front_scores = roots[admitted], root_scores[admitted]
         for level in range(top, 0, -1):
-            if frontier.shape[0] > MAX_FRONTIER:
-                best_first = np.argsort(-front_scores, kind="stable")[: MAX_FRONTIER]
+            if frontier.shape[0] > max_frontier:
+                best_first = np.argsort(-front_scores, kind="stable")[: max_frontier]
                 frontier, is_exact = frontier[best_first], False
             frontier = children(level, frontier)
             frontier = frontier[keep(frontier, 1 << (level - 1))]
-            front_scores = scores(level - 1, frontier)
+            front_scores = scores(level - 1, frontier, bound)
             if level == 1:
                 n_leaves += frontier.shape[0]
             frontier = frontier[front_scores >= bound]
@@ -252,18 +260,21 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         return frontier, front_scores, n_leaves, is_exact
 
     def greedy(keep) -> float:
-        """Score of the leaf reached by always taking the best admitted child, from the best admitted root."""
+        """Best score of the leaves reached by always taking the best admitted child, from each of
+        the ``greedy_starts`` best admitted roots."""
         admitted = np.flatnonzero(keep(roots, block))
-        if admitted.size == 0:
-            return 0.0
-        cand = roots[admitted[np.argmax(root_scores[admitted])]][None, :]
-        for level in range(top, 0, -1):
-            cand = children(level, cand)
-            cand = cand[keep(cand, 1 << (level - 1))]
-            if cand.shape[0] == 0:
-                return 0.0
-            cand = cand[np.argmax(scores(level - 1, cand))][None, :]
-        return float(scores(0, cand)[0])
+        best = 0.0
+        for start in admitted[np.argsort(-root_scores[admitted], kind="stable")[:greedy_starts]]:
+            cand = roots[start][None, :]
+            for level in range(top, 0, -1):
+                cand = children(level, cand)
+                cand = cand[keep(cand, 1 << (level - 1))]
+                if cand.shape[0] == 0:
+                    break
+                cand = cand[np.argmax(scores(level - 1, cand))][None, :]
+            else:
+                best = max(best, float(scores(0, cand)[0]))
+        return best
 
     def to_pose(cand: np.ndarray) -> np.ndarray:
         return np.array([centre[0] + cand[1] * p.cell_m, centre[1] + cand[2] * p.cell_m, angles[cand[0]]])
@@ -285,12 +296,16 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
 
     sep_cells = PEAK_SEPARATION_M / p.cell_m
     sep_angles = PEAK_SEPARATION_RAD / step
+    full_turn = 2.0 * np.pi / step
 
     def separated(cand: np.ndarray, size: int) -> np.ndarray:
         """Blocks of side ``size`` cells holding a leaf separated from the best (its farthest corner is)."""
         dx = np.maximum(np.abs(cand[:, 1] - best[1]), np.abs(cand[:, 1] + size - 1 - best[1]))
         dy = np.maximum(np.abs(cand[:, 2] - best[2]), np.abs(cand[:, 2] + size - 1 - best[2]))
-        return (np.hypot(dx, dy) >= sep_cells) | (np.abs(cand[:, 0] - best[0]) >= sep_angles)
+        # Angle steps apart, the short way round: a window of a whole turn holds a heading twice.
+        turned = np.abs(cand[:, 0] - best[0])
+        turned = np.minimum(turned, np.abs(full_turn - turned))
+        return (np.hypot(dx, dy) >= sep_cells) | (turned >= sep_angles)
 
     # The second peak: the best leaf separated from the winner.
     second_bound = max(min_score, greedy(separated))

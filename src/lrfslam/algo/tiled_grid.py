@@ -255,3 +255,27 @@ class TiledGrid:
         self.resolution_changes += 1
         for laid in self._laid.values():
             self._apply(laid, 1)
+
+
+def tiles_of(cells: np.ndarray, resolution_m: float, origin_xy_m, tile_cells: int = TILE_CELLS
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """A whole trinary grid cut into the tiles ``map/grid`` carries.
+
+    ``cells`` (H, W) int8 (100 / 0 / -1, row 0 the lowest y) with cell ``[0, 0]``'s corner at
+    ``origin_xy_m`` (2,) m. Each cell goes to the tile cell holding its centre, so a grid whose origin
+    is not on a whole cell moves by less than half a cell. Returns the tiles (n, 2) int64 (row, col)
+    that hold a known cell and their cells (n, T, T) int8, unknown elsewhere.
+    """
+    cells = np.asarray(cells, dtype=np.int8)
+    h, w = cells.shape
+    side = int(tile_cells)
+    r0, c0 = (int(np.floor(v / resolution_m + 0.5)) for v in (origin_xy_m[1], origin_xy_m[0]))
+    tr0, tc0 = r0 // side, c0 // side
+    top, left = r0 - tr0 * side, c0 - tc0 * side
+    rows, cols = -(-(top + h) // side), -(-(left + w) // side)
+    canvas = np.full((rows * side, cols * side), -1, np.int8)
+    canvas[top:top + h, left:left + w] = cells
+    blocks = canvas.reshape(rows, side, cols, side).swapaxes(1, 2)   # (rows, cols, T, T)
+    keep = np.argwhere(np.any(blocks != -1, axis=(2, 3)))
+    tiles = (keep + [tr0, tc0]).astype(np.int64).reshape(-1, 2)
+    return tiles, blocks[keep[:, 0], keep[:, 1]].reshape(-1, side, side).copy()

@@ -354,8 +354,10 @@ def _pose2d_or_none(p, name: str) -> np.ndarray | None:
 
 def _map_pose_to(m: t.MapPose):
     p = map_pb2.MapPose(scan_seq=m.scan_seq, keyframes=m.keyframes, closures=m.closures,
-                        closures_rejected=m.closures_rejected)
+                        closures_rejected=m.closures_rejected, localization=m.localization)
     _header(p.header, m.stamp_ns, m.seq, "map")
+    if m.pose_cov is not None:
+        p.pose_covariance.extend(m.pose_cov.ravel().tolist())
     _pose2d(p.pose, m.pose)
     _pose2d(p.map_from_slam, m.map_from_slam)
     if m.local_pose is not None:
@@ -363,12 +365,20 @@ def _map_pose_to(m: t.MapPose):
     return p
 
 
+def _localization(value: int) -> int:
+    if value not in (t.MAPPING, t.LOCALIZED, t.NOT_LOCALIZED):
+        raise ValueError(f"localization {value} is none of 0 (mapping), 1 (localized), 2 (not localized)")
+    return value
+
+
 def _map_pose_from(p) -> t.MapPose:
     pose = _bounded("pose", (p.pose.x_m, p.pose.y_m, p.pose.theta_rad))
     t_map = _bounded("map_from_slam", (p.map_from_slam.x_m, p.map_from_slam.y_m, p.map_from_slam.theta_rad))
     return t.MapPose(stamp_ns=p.header.stamp_ns, seq=p.header.seq, scan_seq=p.scan_seq, pose=pose,
                      map_from_slam=t_map, keyframes=p.keyframes, closures=p.closures,
-                     closures_rejected=p.closures_rejected, local_pose=_pose2d_or_none(p, "local_pose"))
+                     closures_rejected=p.closures_rejected, local_pose=_pose2d_or_none(p, "local_pose"),
+                     localization=_localization(p.localization),
+                     pose_cov=_pose_covariance(p) if len(p.pose_covariance) else None)
 
 
 def _keyframes_to(m: t.MapKeyframes):

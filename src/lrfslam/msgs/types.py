@@ -24,6 +24,8 @@ FEATURE_FORWARD = 1
 FEATURE_BACKWARD = 2
 
 HEALTH_OK, HEALTH_WARN, HEALTH_ERROR, HEALTH_STALE = 0, 1, 2, 3
+# MapPose.localization
+MAPPING, LOCALIZED, NOT_LOCALIZED = 0, 1, 2
 
 
 def _array(values, dtype, shape=None) -> np.ndarray:
@@ -165,7 +167,12 @@ class Features:
 class MapPose:
     """The loop-closing back end after one scan: ``pose`` (3,) corrected by the closures so far,
     ``map_from_slam`` (3,), the transform with ``pose = map_from_slam ⊕ slam pose``, and
-    ``local_pose`` (3,), the scan on the mapper's local trajectory (None in older recordings)."""
+    ``local_pose`` (3,), the scan on the mapper's local trajectory (None in older recordings).
+
+    On a saved map (the mapper's ``localize``), ``localization`` says whether this scan was placed on
+    it (:data:`LOCALIZED`) or not (:data:`NOT_LOCALIZED`: ``pose`` is carried by the last fix, or is
+    the slam pose before any), and ``pose_cov`` (3, 3) is the pose's covariance; while mapping
+    ``localization`` is :data:`MAPPING` and ``pose_cov`` None."""
 
     stamp_ns: int
     seq: int
@@ -176,12 +183,16 @@ class MapPose:
     closures: int = 0
     closures_rejected: int = 0
     local_pose: np.ndarray | None = None
+    localization: int = 0
+    pose_cov: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "pose", _array(self.pose, np.float64, (3,)))
         object.__setattr__(self, "map_from_slam", _array(self.map_from_slam, np.float64, (3,)))
         if self.local_pose is not None:
             object.__setattr__(self, "local_pose", _array(self.local_pose, np.float64, (3,)))
+        if self.pose_cov is not None:
+            object.__setattr__(self, "pose_cov", _array(self.pose_cov, np.float64, (3, 3)))
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

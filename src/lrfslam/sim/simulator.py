@@ -52,6 +52,8 @@ class SimConfig:
         Radius of the rounded loop corners; the turn rate is ``speed_mps / corner_radius_m``.
     truth_max_range_m : float
         Range within which corners count as visible (the paper's 4 m cut), metres.
+    start_m : float
+        Where along the loop the run starts, metres of arc length (0: the first waypoint).
     seed : int
     """
 
@@ -64,6 +66,7 @@ class SimConfig:
     rate_hz: float = 10.0
     corner_radius_m: float = 0.8
     truth_max_range_m: float = 4.0
+    start_m: float = 0.0
     seed: int = 0
 
 
@@ -133,7 +136,7 @@ class Simulator:
         self.world: World = place.build()
         self.map_corners: MapCorners = self.world.corners()
         self.trajectory = LoopTrajectory(
-            loop_path(place.path(), config.corner_radius_m), config.speed_mps, config.rate_hz
+            loop_path(place.path(), config.corner_radius_m), config.speed_mps, config.rate_hz, config.start_m
         )
         self.odometry_error = place.odometry_error if config.odometry_error is None else config.odometry_error
         root = np.random.default_rng(config.seed)

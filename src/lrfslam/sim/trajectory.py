@@ -150,11 +150,14 @@ class LoopTrajectory:
         Forward speed, m/s.
     rate_hz : float
         Sampling rate (the scan rate), Hz.
+    start_m : float
+        Arc length where sample 0 lies, m (0: the path's first waypoint).
     """
 
     path: LoopPath
     speed_mps: float = 0.5
     rate_hz: float = 10.0
+    start_m: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.speed_mps > 0 and self.rate_hz > 0):
@@ -167,7 +170,7 @@ class LoopTrajectory:
 
     def pose(self, index) -> np.ndarray:
         """True pose at sample ``index`` (time ``index / rate_hz``); shape (3,) or (T, 3) for an index array."""
-        return self.path.pose_at(np.asarray(index, dtype=float) * self.speed_mps / self.rate_hz)
+        return self.path.pose_at(self.start_m + np.asarray(index, dtype=float) * self.speed_mps / self.rate_hz)
 
     def __iter__(self) -> Iterator[np.ndarray]:
         """Poses at samples 0, 1, 2, ... without end."""

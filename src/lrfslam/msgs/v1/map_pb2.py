@@ -25,7 +25,7 @@ _sym_db = _symbol_database.Default()
 from lrfslam.msgs.v1 import common_pb2 as lrfslam_dot_msgs_dot_v1_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x19lrfslam/msgs/v1/map.proto\x12\x0flrfslam.msgs.v1\x1a\x1clrfslam/msgs/v1/common.proto\"\x88\x02\n\x07MapPose\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12\x10\n\x08scan_seq\x18\x02 \x01(\x04\x12%\n\x04pose\x18\x03 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\x12.\n\rmap_from_slam\x18\x04 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\x12\x11\n\tkeyframes\x18\x05 \x01(\r\x12\x10\n\x08\x63losures\x18\x06 \x01(\r\x12\x19\n\x11\x63losures_rejected\x18\x07 \x01(\r\x12+\n\nlocal_pose\x18\x08 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\"\x98\x02\n\x0cMapKeyframes\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12\x15\n\rscan_stamp_ns\x18\x02 \x03(\x04\x12\x12\n\nlocal_pose\x18\x03 \x03(\x01\x12\x10\n\x08map_pose\x18\x04 \x03(\x01\x12\x12\n\nlocal_edge\x18\x05 \x03(\x08\x12\x1d\n\x15retired_scan_stamp_ns\x18\x06 \x03(\x04\x12\x1a\n\x12retired_local_pose\x18\x07 \x03(\x01\x12\x1a\n\x12retired_local_edge\x18\x08 \x03(\x08\x12\x1f\n\x17retired_anchor_stamp_ns\x18\t \x03(\x04\x12\x16\n\x0eretired_offset\x18\n \x03(\x01\"\xc2\x01\n\x07MapGrid\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12\x14\n\x0cresolution_m\x18\x02 \x01(\x01\x12\x12\n\ntile_cells\x18\x03 \x01(\r\x12\r\n\x05whole\x18\x04 \x01(\x08\x12\x10\n\x08tile_row\x18\x05 \x03(\x11\x12\x10\n\x08tile_col\x18\x06 \x03(\x11\x12\r\n\x05\x63\x65lls\x18\x07 \x01(\x0c\x12\x11\n\tkeyframes\x18\x08 \x01(\r\x12\x0f\n\x07pending\x18\t \x01(\rb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x19lrfslam/msgs/v1/map.proto\x12\x0flrfslam.msgs.v1\x1a\x1clrfslam/msgs/v1/common.proto\"\xb7\x02\n\x07MapPose\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12\x10\n\x08scan_seq\x18\x02 \x01(\x04\x12%\n\x04pose\x18\x03 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\x12.\n\rmap_from_slam\x18\x04 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\x12\x11\n\tkeyframes\x18\x05 \x01(\r\x12\x10\n\x08\x63losures\x18\x06 \x01(\r\x12\x19\n\x11\x63losures_rejected\x18\x07 \x01(\r\x12+\n\nlocal_pose\x18\x08 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Pose2D\x12\x14\n\x0clocalization\x18\t \x01(\r\x12\x17\n\x0fpose_covariance\x18\n \x03(\x01\"\x98\x02\n\x0cMapKeyframes\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12\x15\n\rscan_stamp_ns\x18\x02 \x03(\x04\x12\x12\n\nlocal_pose\x18\x03 \x03(\x01\x12\x10\n\x08map_pose\x18\x04 \x03(\x01\x12\x12\n\nlocal_edge\x18\x05 \x03(\x08\x12\x1d\n\x15retired_scan_stamp_ns\x18\x06 \x03(\x04\x12\x1a\n\x12retired_local_pose\x18\x07 \x03(\x01\x12\x1a\n\x12retired_local_edge\x18\x08 \x03(\x08\x12\x1f\n\x17retired_anchor_stamp_ns\x18\t \x03(\x04\x12\x16\n\x0eretired_offset\x18\n \x03(\x01\"\xc2\x01\n\x07MapGrid\x12\'\n\x06header\x18\x01 \x01(\x0b\x32\x17.lrfslam.msgs.v1.Header\x12\x14\n\x0cresolution_m\x18\x02 \x01(\x01\x12\x12\n\ntile_cells\x18\x03 \x01(\r\x12\r\n\x05whole\x18\x04 \x01(\x08\x12\x10\n\x08tile_row\x18\x05 \x03(\x11\x12\x10\n\x08tile_col\x18\x06 \x03(\x11\x12\r\n\x05\x63\x65lls\x18\x07 \x01(\x0c\x12\x11\n\tkeyframes\x18\x08 \x01(\r\x12\x0f\n\x07pending\x18\t \x01(\rb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -33,9 +33,9 @@ _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'lrfslam.msgs.v1.map_pb2', _
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
   _globals['_MAPPOSE']._serialized_start=77
-  _globals['_MAPPOSE']._serialized_end=341
-  _globals['_MAPKEYFRAMES']._serialized_start=344
-  _globals['_MAPKEYFRAMES']._serialized_end=624
-  _globals['_MAPGRID']._serialized_start=627
-  _globals['_MAPGRID']._serialized_end=821
+  _globals['_MAPPOSE']._serialized_end=388
+  _globals['_MAPKEYFRAMES']._serialized_start=391
+  _globals['_MAPKEYFRAMES']._serialized_end=671
+  _globals['_MAPGRID']._serialized_start=674
+  _globals['_MAPGRID']._serialized_end=868
 # @@protoc_insertion_point(module_scope)

@@ -8,7 +8,7 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class MapPose(_message.Message):
-    __slots__ = ("header", "scan_seq", "pose", "map_from_slam", "keyframes", "closures", "closures_rejected", "local_pose")
+    __slots__ = ("header", "scan_seq", "pose", "map_from_slam", "keyframes", "closures", "closures_rejected", "local_pose", "localization", "pose_covariance")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     SCAN_SEQ_FIELD_NUMBER: _ClassVar[int]
     POSE_FIELD_NUMBER: _ClassVar[int]
@@ -17,6 +17,8 @@ class MapPose(_message.Message):
     CLOSURES_FIELD_NUMBER: _ClassVar[int]
     CLOSURES_REJECTED_FIELD_NUMBER: _ClassVar[int]
     LOCAL_POSE_FIELD_NUMBER: _ClassVar[int]
+    LOCALIZATION_FIELD_NUMBER: _ClassVar[int]
+    POSE_COVARIANCE_FIELD_NUMBER: _ClassVar[int]
     header: _common_pb2.Header
     scan_seq: int
     pose: _common_pb2.Pose2D
@@ -25,7 +27,9 @@ class MapPose(_message.Message):
     closures: int
     closures_rejected: int
     local_pose: _common_pb2.Pose2D
-    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., map_from_slam: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., keyframes: _Optional[int] = ..., closures: _Optional[int] = ..., closures_rejected: _Optional[int] = ..., local_pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ...) -> None: ...
+    localization: int
+    pose_covariance: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, header: _Optional[_Union[_common_pb2.Header, _Mapping]] = ..., scan_seq: _Optional[int] = ..., pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., map_from_slam: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., keyframes: _Optional[int] = ..., closures: _Optional[int] = ..., closures_rejected: _Optional[int] = ..., local_pose: _Optional[_Union[_common_pb2.Pose2D, _Mapping]] = ..., localization: _Optional[int] = ..., pose_covariance: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class MapKeyframes(_message.Message):
     __slots__ = ("header", "scan_stamp_ns", "local_pose", "map_pose", "local_edge", "retired_scan_stamp_ns", "retired_local_pose", "retired_local_edge", "retired_anchor_stamp_ns", "retired_offset")

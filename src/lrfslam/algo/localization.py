@@ -1,0 +1,370 @@
+"""Localization on a saved map: a global search of the whole map until a fix is verified, then tracking.
+
+The robot starts anywhere, with no initial pose. Its own filter (the EKF) gives a local trajectory
+that drifts slowly but is right to centimetres over metres; the localizer finds the transform
+``map_from_local`` that lays that trajectory on the saved map, and keeps it up to date.
+
+* **Searching.** The scans of the last :data:`QUERY_TRAVEL_M` of travel, merged on the local
+  trajectory into the robot's current frame, are searched for over the whole map, every
+  :data:`SEARCH_SPACING_M` of travel: branch and bound over every position and heading
+  (:func:`lrfslam.algo.correlative_match.search`, the mapper's closure search, here with a window
+  the size of the map). A merged stretch tells look-alike places apart where one scan cannot: a
+  room seen from its door looks like the next room, the corridor that led there does not.
+* **Verifying.** A search's answer is a *candidate* when it scores at least :data:`MIN_SCORE`,
+  point-to-line matching against the map's keyframes near it converges, and its beams do not pass
+  through the map's walls there (:data:`MAX_SEE_THROUGH`: the walls a look-alike place has behind
+  the ones matched disagree with what the scans saw through). Its best rival elsewhere (a metre or
+  20° away) must score below :data:`MAX_SECOND_RATIO` of it unless the walls contradict the rival
+  clearly more (:data:`SEE_THROUGH_MARGIN`): twin corridors leave both peaks alike and both
+  consistent, so the robot waits for more evidence. A fix is *trusted* only when
+  :data:`CONFIRM_CANDIDATES` successive candidates over :data:`CONFIRM_TRAVEL_M` of travel put the
+  local trajectory in the same place (:data:`AGREE_M`, :data:`AGREE_RAD`): one lucky search is not
+  a fix.
+* **Tracking.** Once trusted, each scan is matched against the map's keyframes near the predicted
+  pose (``map_from_local ⊕ local pose``) and the transform follows the match. A scan is
+  *localized* when it lies on the map there (its points' mean likelihood at least
+  :data:`ON_MAP_SCORE`); a scan outside the mapped area, or where the building changed, is *not
+  localized* — reported, not forced onto the map — and the transform carries the local trajectory
+  on. After :data:`LOST_TRAVEL_M` of travel without a localized scan the fix is dropped and the
+  search starts again.
+
+The map is never changed. Everything is in metres and radians, poses ``(x_m, y_m, theta_rad)``.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+from lrfslam.algo import correlative_match as cm
+from lrfslam.algo.geometry import compose, from_frame, inverse, relative, thin_points
+from lrfslam.algo.scan_match import ReferenceScan, ScanMatchParams, match
+from lrfslam.errors import InputError
+
+#: Travel whose scans make a global search's query (m): long enough to leave a look-alike room or
+#: corridor behind, short enough for the filter's drift over it to stay within a cell.
+QUERY_TRAVEL_M = 15.0
+#: The query keeps a scan each time the robot moved this far (m) or turned this much (rad).
+QUERY_SPACING_M = 0.25
+QUERY_SPACING_RAD = 0.15
+#: The query's points are thinned to one per square of this side (m), then to at most
+#: :data:`MAX_QUERY_POINTS` (the search's cost is linear in them).
+QUERY_CELL_M = 0.1
+MAX_QUERY_POINTS = 400
+#: Points of a scan farther than this are not used (m): the scan matcher's range.
+MAX_RANGE_M = ScanMatchParams().max_point_range_m
+#: The point-to-line matching of a candidate's query (its points reach back over the query's
+#: travel) and of a tracked scan.
+QUERY_MATCH = ScanMatchParams(max_point_range_m=QUERY_TRAVEL_M + MAX_RANGE_M)
+TRACK_MATCH = ScanMatchParams(max_point_range_m=MAX_RANGE_M)
+#: Candidates per level of a global search at most: its window is the whole map, where the pooled
+#: bounds of the coarse levels are near 1 almost everywhere; a capped search is not exact, and an
+#: ambiguity it did not see cannot be refused, so it is not used.
+MAX_FRONTIER = 1_000_000
+#: Greedy descents for a global search's first bound (``correlative_match.search``'s notes).
+GREEDY_STARTS = 32
+#: Travel between global searches while not localized (m).
+SEARCH_SPACING_M = 1.0
+#: A candidate's mean likelihood (0–1) at least this...
+MIN_SCORE = 0.5
+#: ...and its best separated rival's below this fraction of it.
+MAX_SECOND_RATIO = 0.9
+#: A candidate is refused when more than this share of its query's beams passes through an
+#: occupied cell of the map (:meth:`Localizer.see_through`), followed up to SEE_THROUGH_CLEAR_M (m)
+#: short of its return (the wall it ends on, blurred by a cell and the filter's drift).
+MAX_SEE_THROUGH = 0.05
+#: A rival scoring as well is dismissed when this much more of the query's beams (a share, 0–1)
+#: passes through walls there than at the best pose: at ~20 beams a metre of travel, a hundred
+#: beams more over the query is no chance.
+SEE_THROUGH_MARGIN = 0.01
+SEE_THROUGH_CLEAR_M = 0.4
+#: Two candidates agree when their ``map_from_local`` differ by at most this (m, rad).
+AGREE_M = 0.3
+AGREE_RAD = 0.05
+#: A fix is trusted when this many successive candidates agree over at least this travel (m); a
+#: candidate that disagrees starts the count again. A building's symmetric halves, or two rooms
+#: alike, agree with a wrong place for a few metres; the walls beyond part them.
+CONFIRM_CANDIDATES = 3
+CONFIRM_TRAVEL_M = 4.0
+#: A tracked scan lies on the map when its points' mean likelihood is at least this (0–1).
+ON_MAP_SCORE = 0.35
+#: Travel without a scan on the map after which the fix is dropped (m).
+LOST_TRAVEL_M = 3.0
+#: The map's keyframes within this distance of the predicted pose make the reference for
+#: tracking and verifying (m); it is rebuilt when the pose moved :data:`REFERENCE_MOVE_M` from
+#: where it was built.
+REFERENCE_RADIUS_M = 12.0
+REFERENCE_MOVE_M = 2.0
+#: The map's points are thinned to one per square of this side (m) for the reference.
+REFERENCE_CELL_M = 0.05
+#: The likelihood grid's cell (m) and the side (m) its coarsest level's blocks reach at least.
+GRID_CELL_M = 0.1
+TOP_BLOCK_M = 6.4
+#: A tracking match that moves the prediction farther than this is not taken (m, rad).
+MAX_TRACK_STEP_M = 0.5
+MAX_TRACK_STEP_RAD = 0.2
+#: Growth of the pose's standard deviation per metre travelled without a match (m/m, rad/m).
+DEAD_RECKONING_M_PER_M = 0.02
+DEAD_RECKONING_RAD_PER_M = 0.01
+
+
+#: An occupied cell of a saved map's grid (nav_msgs/OccupancyGrid's value).
+OCCUPIED = 100
+
+
+class Status(enum.IntEnum):
+    """Whether a scan was placed on the map (``MapPose.localization``'s values 1 and 2)."""
+
+    LOCALIZED = 1
+    NOT_LOCALIZED = 2
+
+
+@dataclass(frozen=True, eq=False)
+class Placement:
+    """What :meth:`Localizer.add_scan` says of one scan.
+
+    Attributes
+    ----------
+    status : Status
+    pose : ndarray, shape (3,)
+        The scan's pose in the map frame: matched on the map when localized; the local pose carried
+        by the last fix when not (the local pose itself before any fix).
+    cov : ndarray, shape (3, 3), or None
+        Its covariance (m², m·rad, rad²); None before any fix.
+    map_from_local : ndarray, shape (3,)
+        ``pose = map_from_local ⊕ local pose``.
+    score : float
+        The scan's points' mean likelihood on the map at ``pose`` (0–1); 0 before any fix.
+    """
+
+    status: Status
+    pose: np.ndarray
+    cov: np.ndarray | None
+    map_from_local: np.ndarray
+    score: float
+
+
+@dataclass(frozen=True, eq=False)
+class Walls:
+    """A saved map's occupancy grid: ``cells`` (H, W) int8, 100 occupied, 0 free, -1 unknown, row 0
+    the lowest y, cell ``[0, 0]``'s corner at ``origin_xy_m`` (2,), ``resolution_m`` a side (m)."""
+
+    cells: np.ndarray
+    resolution_m: float
+    origin_xy_m: np.ndarray
+
+    def occupied_xy_m(self) -> np.ndarray:
+        """Centres of the occupied cells (M, 2), m."""
+        rows, cols = np.nonzero(self.cells == OCCUPIED)
+        return self.origin_xy_m + (np.column_stack((cols, rows)) + 0.5) * self.resolution_m
+
+    def occupied_at(self, xy_m: np.ndarray) -> np.ndarray:
+        """Whether each point (N, 2) lies in an occupied cell (N,) bool; outside the grid: no."""
+        idx = np.floor((np.asarray(xy_m, float) - self.origin_xy_m) / self.resolution_m).astype(np.int64)
+        h, w = self.cells.shape
+        ok = (idx[:, 0] >= 0) & (idx[:, 0] < w) & (idx[:, 1] >= 0) & (idx[:, 1] < h)
+        out = np.zeros(idx.shape[0], bool)
+        out[ok] = self.cells[idx[ok, 1], idx[ok, 0]] == OCCUPIED
+        return out
+
+
+@dataclass
+class _QueryScan:
+    local_pose: np.ndarray   # (3,)
+    points_xy_m: np.ndarray  # (N, 2) robot frame, thinned
+
+
+class Localizer:
+    """Finds and tracks the robot on a saved map (the module's docstring).
+
+    Parameters
+    ----------
+    keyframe_poses : array_like, shape (K, 3)
+        The saved map's keyframes' poses in the map frame.
+    keyframe_points : sequence of K arrays, shape (N_k, 2)
+        Each keyframe's scan points in its own frame (m): the reference that tracking matches.
+    walls : Walls
+        The saved map's occupancy grid: the global search's map and the see-through test's walls.
+    """
+
+    def __init__(self, keyframe_poses, keyframe_points, walls: Walls) -> None:
+        poses = np.asarray(keyframe_poses, dtype=float).reshape(-1, 3)
+        if poses.shape[0] == 0 or len(keyframe_points) != poses.shape[0]:
+            raise InputError("a localizer needs a map with keyframes, one point set each")
+        self._kf_xy = poses[:, :2].copy()
+        self._kf_points = [thin_points(from_frame(np.asarray(p, float).reshape(-1, 2), pose), REFERENCE_CELL_M)
+                           for p, pose in zip(keyframe_points, poses, strict=True)]
+        self.walls = walls
+        # The search's map is the grid's occupied cells: what stayed put while mapping (a person who
+        # walked by was seen through later, and is free there), not every point ever returned.
+        every = walls.occupied_xy_m()
+        if every.shape[0] == 0:
+            raise InputError("a localizer needs a map with occupied cells")
+        extent = float(np.max(np.ptp(every, axis=0)))
+        levels = int(min(12, max(1, np.ceil(np.log2(max(TOP_BLOCK_M, extent / 8.0) / GRID_CELL_M)) + 1)))
+        self.grid = cm.LikelihoodGrid(every, cm.CorrelativeParams(cell_m=GRID_CELL_M, levels=levels))
+        lo, hi = every.min(axis=0), every.max(axis=0)
+        self._centre_xy = (lo + hi) / 2.0
+        self._half_width_m = float(np.max(hi - lo)) / 2.0 + 1.0
+        self._query: list[_QueryScan] = []
+        self._travel_m = 0.0                       # along the local trajectory, from the first scan
+        self._last_local: np.ndarray | None = None
+        self._next_search_m = 0.0
+        self._agreeing: list[tuple[float, np.ndarray]] = []   # (travel m, map_from_local) of agreeing candidates
+        self.map_from_local: np.ndarray | None = None   # the trusted fix
+        self._last_on_map_m = 0.0
+        self._since_match_m = 0.0
+        self._last_cov = np.diag([0.01, 0.01, 0.001])
+        self._reference: tuple[np.ndarray, ReferenceScan] | None = None
+        #: Global searches run, of them capped (not exact: not used), candidates found, fixes
+        #: trusted, fixes dropped.
+        self.searches = self.inexact = self.candidates = self.fixes = self.lost = 0
+
+    @property
+    def localized(self) -> bool:
+        """Whether a fix is trusted (the last scan may still have been off the map)."""
+        return self.map_from_local is not None
+
+    def add_scan(self, local_pose, points_xy_m) -> Placement:
+        """Take one scan: its pose on the local trajectory (3,) and its points (N, 2) in the robot frame (m)."""
+        local = np.asarray(local_pose, dtype=float).reshape(3)
+        pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
+        pts = pts[np.all(np.isfinite(pts), axis=1) & (np.hypot(pts[:, 0], pts[:, 1]) <= MAX_RANGE_M)]
+        step_m = 0.0 if self._last_local is None else float(np.hypot(*relative(self._last_local, local)[:2]))
+        self._travel_m += step_m
+        self._last_local = local
+        self._keep_for_query(local, pts)
+        if self.map_from_local is None:
+            self._search(local)
+        if self.map_from_local is None:
+            return Placement(Status.NOT_LOCALIZED, local.copy(), None, np.zeros(3), 0.0)
+        return self._track(local, pts, step_m)
+
+    # -- searching
+
+    def _keep_for_query(self, local: np.ndarray, pts: np.ndarray) -> None:
+        if self._query:
+            d = relative(self._query[-1].local_pose, local)
+            if np.hypot(d[0], d[1]) < QUERY_SPACING_M and abs(d[2]) < QUERY_SPACING_RAD:
+                return
+        self._query.append(_QueryScan(local, thin_points(pts, QUERY_CELL_M)))
+        # Only the last QUERY_TRAVEL_M of travel: drop the oldest beyond it.
+        while len(self._query) > 2 and self._path_m(self._query[1:]) > QUERY_TRAVEL_M:
+            self._query.pop(0)
+
+    @staticmethod
+    def _path_m(scans: list[_QueryScan]) -> float:
+        xy = np.array([q.local_pose[:2] for q in scans])
+        return float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) if len(scans) > 1 else 0.0
+
+    def query_points(self, local: np.ndarray) -> np.ndarray:
+        """The query's points in the robot frame at ``local`` (M, 2): every kept scan merged, thinned."""
+        merged = np.vstack([from_frame(q.points_xy_m, relative(local, q.local_pose)) for q in self._query])
+        pts = thin_points(merged, QUERY_CELL_M)
+        if pts.shape[0] > MAX_QUERY_POINTS:
+            pts = pts[np.linspace(0, pts.shape[0] - 1, MAX_QUERY_POINTS).astype(int)]
+        return pts
+
+    def _search(self, local: np.ndarray) -> None:
+        if self._travel_m < self._next_search_m:
+            return
+        self._next_search_m = self._travel_m + SEARCH_SPACING_M
+        query = self.query_points(local)
+        if query.shape[0] < 20:
+            return
+        self.searches += 1
+        centre = np.array([self._centre_xy[0], self._centre_xy[1], 0.0])
+        found = cm.search(self.grid, query, centre, self._half_width_m, np.pi, MIN_SCORE, MAX_FRONTIER,
+                          GREEDY_STARTS)
+        if not found.exact:
+            self.inexact += 1
+            return
+        if found.score < MIN_SCORE:
+            return
+        seen_through = self.see_through(compose(found.pose, inverse(local)))
+        if seen_through > MAX_SEE_THROUGH:
+            return
+        if found.second_score >= MAX_SECOND_RATIO * found.score:
+            rival = self.see_through(compose(found.second_pose, inverse(local)))
+            if rival <= min(MAX_SEE_THROUGH, seen_through + SEE_THROUGH_MARGIN):
+                return   # a rival as good, where the walls do not contradict it more: wait
+        refined = match(self._reference_at(found.pose), query, found.pose, QUERY_MATCH)
+        if not refined.ok:
+            return
+        candidate = compose(refined.pose, inverse(local))
+        self.candidates += 1
+        chain = self._agreeing
+        if chain and not _agree(chain[-1][1], candidate):
+            chain.clear()
+        chain.append((self._travel_m, candidate))
+        if len(chain) >= CONFIRM_CANDIDATES and self._travel_m - chain[0][0] >= CONFIRM_TRAVEL_M:
+            self.fixes += 1
+            self.map_from_local = candidate
+            chain.clear()
+            self._last_on_map_m = self._travel_m
+            self._last_cov = refined.cov
+
+    def see_through(self, map_from_local: np.ndarray) -> float:
+        """Share (0–1) of the query's beams that pass through an occupied cell of the map when the
+        query's scans are laid by ``map_from_local`` (3,): at the true place a beam ends at the first
+        wall on its way (a person or an opened door aside); at a look-alike place the walls behind
+        the ones it matched disagree."""
+        walls = self.walls
+        step = walls.resolution_m
+        shares = []
+        for q in self._query:
+            pts = q.points_xy_m
+            r = np.hypot(pts[:, 0], pts[:, 1])
+            # One point a cell along each beam, from the sensor to SEE_THROUGH_CLEAR_M short of its return.
+            n = int(np.ceil(max(float(r.max(initial=0.0)) - SEE_THROUGH_CLEAR_M, 0.0) / step))
+            if n == 0:
+                continue
+            dist = step * np.arange(1, n + 1)
+            inside = dist[None, :] <= (r - SEE_THROUGH_CLEAR_M)[:, None]
+            along = pts[:, None, :] * (dist[None, :] / np.maximum(r, 1e-9)[:, None])[..., None]
+            hit = walls.occupied_at(from_frame(along.reshape(-1, 2), compose(map_from_local, q.local_pose)))
+            shares.append(np.any(hit.reshape(inside.shape) & inside, axis=1))
+        every = np.concatenate(shares) if shares else np.zeros(0, bool)
+        return float(np.mean(every)) if every.size else 1.0
+
+    # -- tracking
+
+    def _reference_at(self, pose: np.ndarray) -> ReferenceScan:
+        """Point-to-line reference of the map's keyframes near ``pose`` (cached while the pose stays near)."""
+        if self._reference is not None and np.hypot(*(self._reference[0] - pose[:2])) <= REFERENCE_MOVE_M:
+            return self._reference[1]
+        near = np.flatnonzero(np.hypot(*(self._kf_xy - pose[:2]).T) <= REFERENCE_RADIUS_M)
+        pts = thin_points(np.vstack([self._kf_points[k] for k in near]), REFERENCE_CELL_M) if near.size else np.zeros((0, 2))
+        self._reference = (pose[:2].copy(), ReferenceScan.build(pts))
+        return self._reference[1]
+
+    def _track(self, local: np.ndarray, pts: np.ndarray, step_m: float) -> Placement:
+        predicted = compose(self.map_from_local, local)
+        pose, cov = predicted, None
+        if pts.shape[0]:
+            res = match(self._reference_at(predicted), pts, predicted, TRACK_MATCH)
+            d = relative(predicted, res.pose)
+            if res.ok and np.hypot(d[0], d[1]) <= MAX_TRACK_STEP_M and abs(d[2]) <= MAX_TRACK_STEP_RAD:
+                pose, cov = res.pose, res.cov
+        score = self.grid.score(pts, pose) if pts.shape[0] else 0.0
+        if cov is not None and score >= ON_MAP_SCORE:
+            self.map_from_local = compose(pose, inverse(local))
+            self._last_on_map_m, self._since_match_m, self._last_cov = self._travel_m, 0.0, cov
+            return Placement(Status.LOCALIZED, pose, cov, self.map_from_local.copy(), score)
+        self._since_match_m += step_m
+        grown = self._last_cov + np.diag([(DEAD_RECKONING_M_PER_M * self._since_match_m) ** 2] * 2
+                                         + [(DEAD_RECKONING_RAD_PER_M * self._since_match_m) ** 2])
+        placement = Placement(Status.NOT_LOCALIZED, predicted, grown, self.map_from_local.copy(),
+                              self.grid.score(pts, predicted) if pts.shape[0] else 0.0)
+        if self._travel_m - self._last_on_map_m > LOST_TRAVEL_M:
+            self.lost += 1
+            self.map_from_local = None
+            self._next_search_m = self._travel_m
+        return placement
+
+
+def _agree(a: np.ndarray, b: np.ndarray) -> bool:
+    d = relative(a, b)
+    return bool(np.hypot(d[0], d[1]) <= AGREE_M and abs(d[2]) <= AGREE_RAD)
