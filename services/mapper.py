@@ -40,7 +40,7 @@ import numpy as np
 from lrfslam.algo import kernels
 from lrfslam.algo.geometry import compose, polar_to_xy, relative
 from lrfslam.algo.keyframe_grid import KeyframeGrid
-from lrfslam.algo.localization import Localizer, Status, Walls
+from lrfslam.algo.localization import LocalizationMap, Localizer, Status, Walls
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
 from lrfslam.algo.tiled_grid import tiles_of
@@ -312,8 +312,9 @@ class LocalizeStep(StepBase):
             except MapFormatError as exc:
                 raise ConfigError(f"mapper: map {cfg.map}: {exc}") from None
         self.saved = saved
-        self.localizer = Localizer(saved.map_pose, [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])],
-                                   Walls(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m))
+        self.localizer = Localizer(LocalizationMap(
+            saved.map_pose, [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])],
+            Walls(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)))
         self.tiles, self.tile_cells = tiles_of(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))

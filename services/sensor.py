@@ -46,6 +46,7 @@ class SensorConfig:
     odom_trans_sigma_per_sqrt_m: float = 0.02   # the simulated odometry's random walks (σ·√m, σ·√rad)
     odom_rot_sigma_per_sqrt_rad: float = 0.02
     max_scans: int = 0                  # stop producing after this many (0 = endless)
+    start_m: float = 0.0                # where along the world's loop the robot starts (m of arc length)
     # Wall-clock ns of the run's first frame; 0: now. A sensor restarted with its run's epoch
     # continues where the simulated robot is by now (lrfslam up passes it), skipping what it missed.
     epoch_ns: int = 0
@@ -76,7 +77,7 @@ class SimSource(StepBase):
         odom = OdometryNoise(trans_sigma_per_sqrt_m=cfg.odom_trans_sigma_per_sqrt_m,
                              rot_sigma_per_sqrt_rad=cfg.odom_rot_sigma_per_sqrt_rad)
         self.sim = Simulator(SimConfig(world_name=cfg.world, lidar=lidar, odometry=odom, speed_mps=cfg.speed_mps,
-                                       rate_hz=cfg.rate_hz, seed=cfg.seed))
+                                       rate_hz=cfg.rate_hz, start_m=cfg.start_m, seed=cfg.seed))
         self.frames = iter(self.sim)
         self.corners_xy = self.sim.map_corners.xy_m
         # Whole milliseconds keep stamps readable; the rest of each stamp is simulated time.

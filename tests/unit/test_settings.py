@@ -53,6 +53,7 @@ SETTINGS = {
         "odom_trans_sigma_per_sqrt_m": 0.02,
         "odom_rot_sigma_per_sqrt_rad": 0.02,
         "max_scans": 0,
+        "start_m": 0.0,
         "epoch_ns": 0,
         "device": "",
         "baud": 38400,
@@ -97,6 +98,8 @@ SETTINGS = {
         "tracker.free_space_check": True,
     },
     "mapper": {
+        "map": "",
+        "localize": False,
         "loop_closure.keyframe_trans_m": 0.5,
         "loop_closure.keyframe_rot_rad": 0.35,
         "loop_closure.max_range_m": 20.0,

@@ -181,7 +181,8 @@ class SearchResult:
 
 
 def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_angle_rad: float,
-           min_score: float, max_frontier: int = MAX_FRONTIER, greedy_starts: int = 1) -> SearchResult:
+           min_score: float, max_frontier: int = MAX_FRONTIER, greedy_starts: int = 1,
+           second_ratio: float = 0.0) -> SearchResult:
     """Best pose of the points within ``centre ± (half_width_m, half_width_m, half_angle_rad)``.
 
     Parameters
@@ -199,6 +200,9 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         Candidates kept per level at most (the module's notes).
     greedy_starts : int
         Greedy descents for the first bound, from as many of the best roots (the module's notes).
+    second_ratio : float
+        Only a second peak scoring at least this share of the best is of interest: it is searched
+        for with that bound (far cheaper over a large window), and reported as none if below.
 
     Returns
     -------
@@ -308,7 +312,7 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         return (np.hypot(dx, dy) >= sep_cells) | (turned >= sep_angles)
 
     # The second peak: the best leaf separated from the winner.
-    second_bound = max(min_score, greedy(separated))
+    second_bound = max(min_score, second_ratio * best_score, greedy(separated))
     others, other_scores, n, ok = descend(second_bound, separated)
     leaves += n
     exact &= ok

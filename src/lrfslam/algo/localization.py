@@ -25,8 +25,10 @@ that drifts slowly but is right to centimetres over metres; the localizer finds 
   *localized* when it lies on the map there (its points' mean likelihood at least
   :data:`ON_MAP_SCORE`); a scan outside the mapped area, or where the building changed, is *not
   localized* — reported, not forced onto the map — and the transform carries the local trajectory
-  on. After :data:`LOST_TRAVEL_M` of travel without a localized scan the fix is dropped and the
-  search starts again.
+  on, its uncertainty growing with the travel. After :data:`LOST_TRAVEL_M` of travel without a
+  localized scan the robot is searched for again, verified as before, but only as far from the
+  dead-reckoned pose as it may have drifted: a robot back from an unmapped wing is where it left,
+  and a mapped place elsewhere that looks like the wing is not a place to jump to.
 
 The map is never changed. Everything is in metres and radians, poses ``(x_m, y_m, theta_rad)``.
 """
@@ -52,7 +54,7 @@ QUERY_SPACING_RAD = 0.15
 #: The query's points are thinned to one per square of this side (m), then to at most
 #: :data:`MAX_QUERY_POINTS` (the search's cost is linear in them).
 QUERY_CELL_M = 0.1
-MAX_QUERY_POINTS = 400
+MAX_QUERY_POINTS = 300
 #: Points of a scan farther than this are not used (m): the scan matcher's range.
 MAX_RANGE_M = ScanMatchParams().max_point_range_m
 #: The point-to-line matching of a candidate's query (its points reach back over the query's
@@ -90,8 +92,10 @@ CONFIRM_CANDIDATES = 3
 CONFIRM_TRAVEL_M = 4.0
 #: A tracked scan lies on the map when its points' mean likelihood is at least this (0–1).
 ON_MAP_SCORE = 0.35
-#: Travel without a scan on the map after which the fix is dropped (m).
+#: Travel without a scan on the map after which the fix is searched for again, around the
+#: dead-reckoned pose, in a window of WINDOW_SIGMAS of its uncertainty (and this travel) (m).
 LOST_TRAVEL_M = 3.0
+WINDOW_SIGMAS = 3.0
 #: The map's keyframes within this distance of the predicted pose make the reference for
 #: tracking and verifying (m); it is rebuilt when the pose moved :data:`REFERENCE_MOVE_M` from
 #: where it was built.
@@ -102,6 +106,10 @@ REFERENCE_CELL_M = 0.05
 #: The likelihood grid's cell (m) and the side (m) its coarsest level's blocks reach at least.
 GRID_CELL_M = 0.1
 TOP_BLOCK_M = 6.4
+#: The prediction's error a tracking match starts from, beyond the last match's (m, rad): the local
+#: trajectory's between scans, with room.
+TRACK_GUESS_SIGMA_M = 0.05
+TRACK_GUESS_SIGMA_RAD = 0.02
 #: A tracking match that moves the prediction farther than this is not taken (m, rad).
 MAX_TRACK_STEP_M = 0.5
 MAX_TRACK_STEP_RAD = 0.2
@@ -176,8 +184,8 @@ class _QueryScan:
     points_xy_m: np.ndarray  # (N, 2) robot frame, thinned
 
 
-class Localizer:
-    """Finds and tracks the robot on a saved map (the module's docstring).
+class LocalizationMap:
+    """A saved map made ready to localize in (built once; the grids are read-only after).
 
     Parameters
     ----------
@@ -187,15 +195,20 @@ class Localizer:
         Each keyframe's scan points in its own frame (m): the reference that tracking matches.
     walls : Walls
         The saved map's occupancy grid: the global search's map and the see-through test's walls.
+
+    Attributes
+    ----------
+    grid : LikelihoodGrid
+        The occupied cells' likelihood grid, pooled for the global search.
     """
 
     def __init__(self, keyframe_poses, keyframe_points, walls: Walls) -> None:
         poses = np.asarray(keyframe_poses, dtype=float).reshape(-1, 3)
         if poses.shape[0] == 0 or len(keyframe_points) != poses.shape[0]:
             raise InputError("a localizer needs a map with keyframes, one point set each")
-        self._kf_xy = poses[:, :2].copy()
-        self._kf_points = [thin_points(from_frame(np.asarray(p, float).reshape(-1, 2), pose), REFERENCE_CELL_M)
-                           for p, pose in zip(keyframe_points, poses, strict=True)]
+        self.keyframe_xy_m = poses[:, :2].copy()
+        self.keyframe_points = [thin_points(from_frame(np.asarray(p, float).reshape(-1, 2), pose), REFERENCE_CELL_M)
+                                for p, pose in zip(keyframe_points, poses, strict=True)]
         self.walls = walls
         # The search's map is the grid's occupied cells: what stayed put while mapping (a person who
         # walked by was seen through later, and is free there), not every point ever returned.
@@ -206,8 +219,27 @@ class Localizer:
         levels = int(min(12, max(1, np.ceil(np.log2(max(TOP_BLOCK_M, extent / 8.0) / GRID_CELL_M)) + 1)))
         self.grid = cm.LikelihoodGrid(every, cm.CorrelativeParams(cell_m=GRID_CELL_M, levels=levels))
         lo, hi = every.min(axis=0), every.max(axis=0)
-        self._centre_xy = (lo + hi) / 2.0
-        self._half_width_m = float(np.max(hi - lo)) / 2.0 + 1.0
+        self.centre = np.array([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, 0.0])
+        self.half_width_m = float(np.max(hi - lo)) / 2.0 + 1.0
+
+    def reference_near(self, pose: np.ndarray) -> ReferenceScan:
+        """Point-to-line reference of the keyframes within :data:`REFERENCE_RADIUS_M` of ``pose`` (3,)."""
+        near = np.flatnonzero(np.hypot(*(self.keyframe_xy_m - pose[:2]).T) <= REFERENCE_RADIUS_M)
+        pts = np.vstack([self.keyframe_points[k] for k in near]) if near.size else np.zeros((0, 2))
+        return ReferenceScan.build(thin_points(pts, REFERENCE_CELL_M))
+
+
+class Localizer:
+    """Finds and tracks the robot on a saved map (the module's docstring); one per run.
+
+    Parameters
+    ----------
+    place : LocalizationMap
+        The map, shared by any number of localizers.
+    """
+
+    def __init__(self, place: LocalizationMap) -> None:
+        self.map = place
         self._query: list[_QueryScan] = []
         self._travel_m = 0.0                       # along the local trajectory, from the first scan
         self._last_local: np.ndarray | None = None
@@ -218,8 +250,9 @@ class Localizer:
         self._since_match_m = 0.0
         self._last_cov = np.diag([0.01, 0.01, 0.001])
         self._reference: tuple[np.ndarray, ReferenceScan] | None = None
-        #: Global searches run, of them capped (not exact: not used), candidates found, fixes
-        #: trusted, fixes dropped.
+        self._lost = False                         # off the map for LOST_TRAVEL_M since the last match
+        #: Searches run (global, or around a lost fix), of them capped (not exact: not used),
+        #: candidates found, fixes trusted, times the fix was lost (off the map).
         self.searches = self.inexact = self.candidates = self.fixes = self.lost = 0
 
     @property
@@ -237,7 +270,7 @@ class Localizer:
         self._last_local = local
         self._keep_for_query(local, pts)
         if self.map_from_local is None:
-            self._search(local)
+            self._search(local, self.map.centre, self.map.half_width_m, np.pi)
         if self.map_from_local is None:
             return Placement(Status.NOT_LOCALIZED, local.copy(), None, np.zeros(3), 0.0)
         return self._track(local, pts, step_m)
@@ -267,7 +300,9 @@ class Localizer:
             pts = pts[np.linspace(0, pts.shape[0] - 1, MAX_QUERY_POINTS).astype(int)]
         return pts
 
-    def _search(self, local: np.ndarray) -> None:
+    def _search(self, local: np.ndarray, centre: np.ndarray, half_width_m: float, half_angle_rad: float) -> None:
+        """Search the query in the window ``centre`` (3,) ± (``half_width_m``, ``half_angle_rad``) of
+        the map (all of it before the first fix); a confirmed candidate becomes the fix."""
         if self._travel_m < self._next_search_m:
             return
         self._next_search_m = self._travel_m + SEARCH_SPACING_M
@@ -275,9 +310,8 @@ class Localizer:
         if query.shape[0] < 20:
             return
         self.searches += 1
-        centre = np.array([self._centre_xy[0], self._centre_xy[1], 0.0])
-        found = cm.search(self.grid, query, centre, self._half_width_m, np.pi, MIN_SCORE, MAX_FRONTIER,
-                          GREEDY_STARTS)
+        found = cm.search(self.map.grid, query, centre, half_width_m, half_angle_rad, MIN_SCORE, MAX_FRONTIER,
+                          GREEDY_STARTS, MAX_SECOND_RATIO)
         if not found.exact:
             self.inexact += 1
             return
@@ -311,7 +345,7 @@ class Localizer:
         query's scans are laid by ``map_from_local`` (3,): at the true place a beam ends at the first
         wall on its way (a person or an opened door aside); at a look-alike place the walls behind
         the ones it matched disagree."""
-        walls = self.walls
+        walls = self.map.walls
         step = walls.resolution_m
         shares = []
         for q in self._query:
@@ -332,24 +366,24 @@ class Localizer:
     # -- tracking
 
     def _reference_at(self, pose: np.ndarray) -> ReferenceScan:
-        """Point-to-line reference of the map's keyframes near ``pose`` (cached while the pose stays near)."""
-        if self._reference is not None and np.hypot(*(self._reference[0] - pose[:2])) <= REFERENCE_MOVE_M:
-            return self._reference[1]
-        near = np.flatnonzero(np.hypot(*(self._kf_xy - pose[:2]).T) <= REFERENCE_RADIUS_M)
-        pts = thin_points(np.vstack([self._kf_points[k] for k in near]), REFERENCE_CELL_M) if near.size else np.zeros((0, 2))
-        self._reference = (pose[:2].copy(), ReferenceScan.build(pts))
+        """The map's reference near ``pose``, kept while the pose stays within :data:`REFERENCE_MOVE_M` of where it was made."""
+        if self._reference is None or np.hypot(*(self._reference[0] - pose[:2])) > REFERENCE_MOVE_M:
+            self._reference = (pose[:2].copy(), self.map.reference_near(pose))
         return self._reference[1]
 
     def _track(self, local: np.ndarray, pts: np.ndarray, step_m: float) -> Placement:
         predicted = compose(self.map_from_local, local)
         pose, cov = predicted, None
         if pts.shape[0]:
-            res = match(self._reference_at(predicted), pts, predicted, TRACK_MATCH)
+            # The prediction's own uncertainty keeps what the scan leaves open (a corridor's length).
+            guess_cov = self._last_cov + np.diag([TRACK_GUESS_SIGMA_M ** 2] * 2 + [TRACK_GUESS_SIGMA_RAD ** 2])
+            res = match(self._reference_at(predicted), pts, predicted, TRACK_MATCH, guess_cov)
             d = relative(predicted, res.pose)
             if res.ok and np.hypot(d[0], d[1]) <= MAX_TRACK_STEP_M and abs(d[2]) <= MAX_TRACK_STEP_RAD:
                 pose, cov = res.pose, res.cov
-        score = self.grid.score(pts, pose) if pts.shape[0] else 0.0
+        score = self.map.grid.score(pts, pose) if pts.shape[0] else 0.0
         if cov is not None and score >= ON_MAP_SCORE:
+            self._lost = False
             self.map_from_local = compose(pose, inverse(local))
             self._last_on_map_m, self._since_match_m, self._last_cov = self._travel_m, 0.0, cov
             return Placement(Status.LOCALIZED, pose, cov, self.map_from_local.copy(), score)
@@ -357,11 +391,16 @@ class Localizer:
         grown = self._last_cov + np.diag([(DEAD_RECKONING_M_PER_M * self._since_match_m) ** 2] * 2
                                          + [(DEAD_RECKONING_RAD_PER_M * self._since_match_m) ** 2])
         placement = Placement(Status.NOT_LOCALIZED, predicted, grown, self.map_from_local.copy(),
-                              self.grid.score(pts, predicted) if pts.shape[0] else 0.0)
+                              self.map.grid.score(pts, predicted) if pts.shape[0] else 0.0)
         if self._travel_m - self._last_on_map_m > LOST_TRAVEL_M:
-            self.lost += 1
-            self.map_from_local = None
-            self._next_search_m = self._travel_m
+            # Off the map, or lost on it: search again around where the fix says the robot is,
+            # as far as the dead reckoning may have drifted (a robot back from an unmapped wing is
+            # where it left it; a copy of a mapped part elsewhere is not a place to jump to).
+            if not self._lost:
+                self._lost, self.lost, self._next_search_m = True, self.lost + 1, self._travel_m
+            sigma_m = float(np.sqrt(max(grown[0, 0], grown[1, 1])))
+            self._search(local, predicted, min(WINDOW_SIGMAS * sigma_m + LOST_TRAVEL_M, self.map.half_width_m),
+                         min(WINDOW_SIGMAS * float(np.sqrt(grown[2, 2])) + MAX_TRACK_STEP_RAD, np.pi))
         return placement
 
 

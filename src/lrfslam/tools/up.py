@@ -336,7 +336,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--save-map", type=Path, metavar="MAP",
                         help="when the run ends, save its map into the folder MAP as lrfslam map save does "
                              "(docs/maps.md); MAP must not exist or be empty")
+    parser.add_argument("--map", type=Path, metavar="MAP",
+                        help="with --localize: the saved map (lrfslam map save) the mapper localizes in")
+    parser.add_argument("--localize", action="store_true",
+                        help="find the robot on --map by a global search and track it there, the map unchanged "
+                             "(docs/maps.md); map/pose says whether each scan is localized")
     args = parser.parse_args(argv)
+    if args.localize != (args.map is not None):
+        parser.error("--map and --localize go together (mapping on from a saved map is not built yet)")
+    if args.localize and (args.save_map or "mapper" in args.skip):
+        parser.error("--localize runs the mapper on --map and changes no map: not with --save-map or --skip mapper")
     if not args.status_period > 0:
         parser.error(f"--status-period must be > 0 s, got {args.status_period}")
     if args.ros2:
@@ -369,6 +378,13 @@ def main(argv: list[str] | None = None) -> int:
     sets["recorder"] += [f"directory={recording.parent}", f"name={recording.name}"]
     if "sensor" in sets:
         sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
+    if args.localize:
+        try:
+            maps.load_map(args.map)   # refused before anything starts, as the mapper would refuse it
+        except MapError as exc:
+            print(f"lrfslam up: error: {exc}", file=sys.stderr)
+            return 1
+        sets["mapper"] += [f"map={args.map.resolve()}", "localize=true"]
     if args.speedup != 1 or "sensor" not in sets:
         # Simulated stamps (or a recording's, played in) leave the wall clock: no stage reports
         # their age (docs/monitoring.md). Through the environment every process up starts shares
