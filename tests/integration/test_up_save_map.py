@@ -33,3 +33,32 @@ def test_up_saves_the_runs_map(tmp_path):
     np.testing.assert_array_equal(saved.stamp_ns, last.scan_stamp_ns)
     np.testing.assert_array_equal(saved.map_pose, last.map_pose)
     assert saved.points_xy_m.shape[0] > 100 * saved.stamp_ns.size and saved.landmark_ids.size > 0
+
+
+def test_up_localizes_in_a_saved_map_from_elsewhere(tmp_path):
+    """Map the hallway with ``up --save-map``, then ``up --map --localize`` from 20 m further along
+    its loop with other noise: the recording's ``map/pose`` says localized after a few metres, and
+    every localized pose lies where the simulator's truth says, in the saved map's frame (the
+    mapping run's EKF started at the true pose, as ``up``'s simulator does)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    base = [sys.executable, "-m", "lrfslam.cli", "up", "--speedup", "4", "--port", str(port), "--quiet"]
+    res = subprocess.run([*base, "--duration", "30", "--robot", "m1", "--save-map", "saved"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=180, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    res = subprocess.run([*base, "--duration", "30", "--robot", "l1", "--map", "saved", "--localize",
+                          "--set", "sensor.start_m=20", "--set", "sensor.seed=7"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=180, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    (recording,) = (tmp_path / "recordings").glob("*_l1")
+    truth = {}
+    for m in read_recording(recording, [topics.TRUTH.name]):
+        v = topics.TRUTH.codec.decode(m.data, m.schema)
+        truth[v.stamp_ns] = np.asarray(v.pose, float)
+    poses = [topics.MAP_POSE.codec.decode(m.data, m.schema) for m in read_recording(recording, [topics.MAP_POSE.name])]
+    localized = [p for p in poses if p.localization == 1]
+    assert len(poses) > 400 and len(localized) > len(poses) / 2, (len(poses), len(localized))
+    errors = [np.hypot(*(p.pose[:2] - truth[p.stamp_ns][:2])) for p in localized if p.stamp_ns in truth]
+    assert errors and max(errors) < 0.5 and np.median(errors) < 0.15, (np.median(errors), max(errors))
+    assert all(p.pose_cov is not None for p in localized)

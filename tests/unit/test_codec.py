@@ -200,6 +200,22 @@ def test_map_messages_round_trip(k, seed):
         np.testing.assert_array_equal(getattr(back, name), getattr(kf, name))
 
 
+def test_a_localized_pose_round_trips_and_an_old_one_reads_as_mapping():
+    cov = np.array([[0.01, 0.002, 0.0], [0.002, 0.02, 0.001], [0.0, 0.001, 0.003]])
+    pose = t.MapPose(stamp_ns=1, seq=1, scan_seq=1, pose=np.ones(3), map_from_slam=np.zeros(3),
+                     localization=t.LOCALIZED, pose_cov=cov)
+    back = codec.MAP_POSE.decode(codec.MAP_POSE.encode(pose))
+    assert back.localization == t.LOCALIZED
+    np.testing.assert_array_equal(back.pose_cov, cov)
+    from lrfslam.msgs.v1 import map_pb2
+    old = map_pb2.MapPose(scan_seq=1)   # written before the fields existed: none set
+    back = codec.MAP_POSE.decode(old.SerializeToString())
+    assert back.localization == t.MAPPING and back.pose_cov is None
+    for bad in (map_pb2.MapPose(localization=7), map_pb2.MapPose(pose_covariance=[1.0] * 4)):
+        with pytest.raises(DecodeError):
+            codec.MAP_POSE.decode(bad.SerializeToString())
+
+
 def test_keyframes_whose_poses_are_not_k_by_3_are_a_decode_error():
     from lrfslam.msgs.v1 import map_pb2
     bad = map_pb2.MapKeyframes(scan_stamp_ns=[1, 2], local_pose=[0.0] * 6, map_pose=[0.0] * 5)

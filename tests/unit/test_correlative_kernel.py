@@ -24,6 +24,11 @@ def test_the_kernel_scores_as_the_numpy_form(seed, height, width, angles, points
     got, want = kernel.scores(grid, rows, cols, cand), oracle(grid, rows, cols, cand)
     assert got.shape == want.shape == (candidates,)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
+    # With a bound, what cannot reach it is cut (-1) and the rest score as without one.
+    bound = float(rng.uniform(0, 1))
+    cut = kernel.scores(grid, rows, cols, cand, bound)
+    assert np.all((cut == got) | ((cut == -1.0) & (want < bound + 1e-12)))
+    assert np.all(cut[want >= bound + 1e-12] == got[want >= bound + 1e-12])
 
 
 def test_a_point_off_the_grid_scores_the_edge_cell():

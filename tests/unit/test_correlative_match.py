@@ -98,6 +98,29 @@ def test_two_identical_rooms_give_two_equal_peaks():
     assert peaks[1] == pytest.approx(13.0, abs=0.1)
 
 
+@settings(max_examples=8, deadline=None)
+@given(st.floats(1.0, 7.0), st.floats(0.5, 5.0), st.floats(-np.pi, np.pi), st.integers(0, 2**31))
+def test_a_whole_turn_from_more_greedy_starts_finds_the_same_best(x, y, th, seed):
+    """The localizer's global search: a window of a whole turn, the first bound from 32 greedy
+    descents, the second peak only above 0.9 of the best. The best is the one-start search's (both
+    are exact), and a second peak is never the winner's own heading seen a turn later."""
+    rng = np.random.default_rng(seed)
+    grid = LikelihoodGrid(ROOM, CorrelativeParams(cell_m=0.1, levels=5))
+    pts = seen_from((x, y, th), rng, n=60)
+    centre = np.array([4.0, 3.0, 0.0])
+    one = search(grid, pts, centre, 5.0, np.pi, 0.3, max_frontier=10**7)
+    many = search(grid, pts, centre, 5.0, np.pi, 0.3, max_frontier=10**7, greedy_starts=32, second_ratio=0.9)
+    assert one.exact and many.exact and many.score == one.score
+    np.testing.assert_array_equal(many.pose, one.pose)
+    if many.second_score:
+        assert many.second_score >= 0.9 * many.score
+        d = many.second_pose - many.pose
+        turned = abs((d[2] + np.pi) % (2 * np.pi) - np.pi)
+        assert np.hypot(d[0], d[1]) >= 1.0 - 1e-9 or turned >= 0.35 - 1e-9
+    else:
+        assert one.second_score < 0.9 * one.score
+
+
 def test_nothing_above_the_minimum():
     grid = LikelihoodGrid(ROOM, CorrelativeParams())
     far_away = np.array([[100.0, 0.0], [100.0, 1.0], [101.0, 0.0]])

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from lrfslam.algo.keyframe_grid import KeyframeGrid
 from lrfslam.algo.occupancy_grid import GridParams, batch_cells, build_grid, grid_frame
-from lrfslam.algo.tiled_grid import TiledGrid
+from lrfslam.algo.tiled_grid import TiledGrid, tiles_of
 from lrfslam.errors import InputError
 
 A0, DA, BEAMS = -np.pi / 2, np.pi / 180, 181
@@ -198,3 +198,25 @@ def test_a_snapshot_restores_the_same_grid_and_what_is_pending():
     broken["grid_laid_pose"] = broken["grid_laid_pose"][:2]
     with pytest.raises(InputError):
         KeyframeGrid().restore(broken)
+
+
+@settings(max_examples=30, deadline=None)
+@given(h=st.integers(1, 150), w=st.integers(1, 150), r0=st.integers(-300, 300), c0=st.integers(-300, 300),
+       shift=st.floats(-0.49, 0.49), seed=st.integers(0, 2**32 - 1))
+def test_a_saved_grid_cut_into_tiles_keeps_every_cell(h, w, r0, c0, shift, seed):
+    """``tiles_of`` (a saved map's grid on ``map/grid``): every known cell lands in the tile cell
+    holding its centre, nothing else is known, and tiles without a known cell are not sent."""
+    rng = np.random.default_rng(seed)
+    cells = rng.choice(np.array([-1, 0, 100], np.int8), size=(h, w), p=[0.5, 0.3, 0.2])
+    res = 0.05
+    origin = (np.array([c0, r0]) + shift) * res
+    tiles, blocks = tiles_of(cells, res, origin, tile_cells=16)
+    assert tiles.shape[0] == blocks.shape[0] and np.all(np.any(blocks != -1, axis=(1, 2)))
+    got = {}
+    for (tr, tc), block in zip(tiles.tolist(), blocks):
+        for r, c in zip(*np.nonzero(block != -1)):
+            got[(tr * 16 + r, tc * 16 + c)] = block[r, c]
+    rows, cols = np.nonzero(cells != -1)
+    want = {(int(np.floor(origin[1] / res + r + 0.5)), int(np.floor(origin[0] / res + c + 0.5))): cells[r, c]
+            for r, c in zip(rows, cols)}
+    assert got == want

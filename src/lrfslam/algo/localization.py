@@ -18,17 +18,21 @@ that drifts slowly but is right to centimetres over metres; the localizer finds 
   clearly more (:data:`SEE_THROUGH_MARGIN`): twin corridors leave both peaks alike and both
   consistent, so the robot waits for more evidence. A fix is *trusted* only when
   :data:`CONFIRM_CANDIDATES` successive candidates over :data:`CONFIRM_TRAVEL_M` of travel put the
-  local trajectory in the same place (:data:`AGREE_M`, :data:`AGREE_RAD`): one lucky search is not
-  a fix.
-* **Tracking.** Once trusted, each scan is matched against the map's keyframes near the predicted
-  pose (``map_from_local ⊕ local pose``) and the transform follows the match. A scan is
-  *localized* when it lies on the map there (its points' mean likelihood at least
+  local trajectory in the same place (:data:`AGREE_M`, :data:`AGREE_RAD`), with no ambiguous search
+  between them: one lucky search is not a fix. The peaks are compared where point-to-line matching
+  puts them, not at the search's cells and angle steps.
+* **Tracking.** Once trusted, ``map_from_local`` is a small filter's state: its uncertainty grows
+  with the travel (the local trajectory drifts, :data:`DRIFT_M_PER_SQRT_M`), and each scan,
+  matched point to line against the map's keyframes near the predicted pose, measures it; a
+  match beyond :data:`TRACK_GATE_CHI2` of the estimate is refused (a person walking by drags a
+  match along; the map's transform does not jump). A scan is *localized* when its match was
+  taken and it lies on the map there (its points' mean likelihood at least
   :data:`ON_MAP_SCORE`); a scan outside the mapped area, or where the building changed, is *not
   localized* — reported, not forced onto the map — and the transform carries the local trajectory
-  on, its uncertainty growing with the travel. After :data:`LOST_TRAVEL_M` of travel without a
-  localized scan the robot is searched for again, verified as before, but only as far from the
-  dead-reckoned pose as it may have drifted: a robot back from an unmapped wing is where it left,
-  and a mapped place elsewhere that looks like the wing is not a place to jump to.
+  on, its uncertainty growing. After :data:`LOST_TRAVEL_M` of travel without a localized scan the
+  robot is searched for again, verified as before, but only as far from the dead-reckoned pose
+  as it may have drifted: a robot back from an unmapped wing is where it left, and a mapped place
+  elsewhere that looks like the wing is not a place to jump to.
 
 The map is never changed. Everything is in metres and radians, poses ``(x_m, y_m, theta_rad)``.
 """
@@ -41,7 +45,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from lrfslam.algo import correlative_match as cm
-from lrfslam.algo.geometry import compose, from_frame, inverse, relative, thin_points
+from lrfslam.algo.geometry import (
+    compose,
+    from_frame,
+    inverse,
+    relative,
+    thin_points,
+    wrap_angle,
+)
 from lrfslam.algo.scan_match import ReferenceScan, ScanMatchParams, match
 from lrfslam.errors import InputError
 
@@ -106,16 +117,23 @@ REFERENCE_CELL_M = 0.05
 #: The likelihood grid's cell (m) and the side (m) its coarsest level's blocks reach at least.
 GRID_CELL_M = 0.1
 TOP_BLOCK_M = 6.4
-#: The prediction's error a tracking match starts from, beyond the last match's (m, rad): the local
+#: The floor of the prediction's error a tracking match starts from (m, rad): the local
 #: trajectory's between scans, with room.
 TRACK_GUESS_SIGMA_M = 0.05
 TRACK_GUESS_SIGMA_RAD = 0.02
-#: A tracking match that moves the prediction farther than this is not taken (m, rad).
-MAX_TRACK_STEP_M = 0.5
-MAX_TRACK_STEP_RAD = 0.2
-#: Growth of the pose's standard deviation per metre travelled without a match (m/m, rad/m).
-DEAD_RECKONING_M_PER_M = 0.02
-DEAD_RECKONING_RAD_PER_M = 0.01
+#: The local trajectory's drift against the map, a random walk (m and rad per √m travelled): the
+#: transform's uncertainty grows so between matches, and off the map.
+DRIFT_M_PER_SQRT_M = 0.02
+DRIFT_RAD_PER_SQRT_M = 0.01
+#: A tracking match's covariance is taken this many times the matcher's (which counts every point
+#: as independent), plus the map's own error (m, rad).
+TRACK_COV_SCALE = 4.0
+MAP_SIGMA_M = 0.02
+MAP_SIGMA_RAD = 0.005
+#: A tracking match whose transform lies beyond this χ²₃ (99.9 %) of the estimate's is refused.
+TRACK_GATE_CHI2 = 16.27
+#: The heading window of a search around a lost fix, beyond its uncertainty's (rad).
+LOST_WINDOW_RAD = 0.2
 
 
 #: An occupied cell of a saved map's grid (nav_msgs/OccupancyGrid's value).
@@ -176,6 +194,14 @@ class Walls:
         out = np.zeros(idx.shape[0], bool)
         out[ok] = self.cells[idx[ok, 1], idx[ok, 0]] == OCCUPIED
         return out
+
+
+@dataclass(frozen=True, eq=False)
+class _Peak:
+    map_from_local: np.ndarray   # (3,)
+    score: float                 # the query's mean likelihood there (0–1)
+    see_through: float           # Localizer.see_through there
+    cov: np.ndarray              # (3, 3) the match's
 
 
 @dataclass
@@ -247,13 +273,14 @@ class Localizer:
         self._agreeing: list[tuple[float, np.ndarray]] = []   # (travel m, map_from_local) of agreeing candidates
         self.map_from_local: np.ndarray | None = None   # the trusted fix
         self._last_on_map_m = 0.0
-        self._since_match_m = 0.0
-        self._last_cov = np.diag([0.01, 0.01, 0.001])
+        self._cov = np.zeros((3, 3))                 # of map_from_local
         self._reference: tuple[np.ndarray, ReferenceScan] | None = None
         self._lost = False                         # off the map for LOST_TRAVEL_M since the last match
         #: Searches run (global, or around a lost fix), of them capped (not exact: not used),
         #: candidates found, fixes trusted, times the fix was lost (off the map).
         self.searches = self.inexact = self.candidates = self.fixes = self.lost = 0
+        #: Tracking matches refused by the gate.
+        self.gated = 0
 
     @property
     def localized(self) -> bool:
@@ -317,17 +344,22 @@ class Localizer:
             return
         if found.score < MIN_SCORE:
             return
-        seen_through = self.see_through(compose(found.pose, inverse(local)))
-        if seen_through > MAX_SEE_THROUGH:
+        # The peaks are compared where point-to-line matching puts them: at the search's cells
+        # and angle steps a place can lose more than its rival, which it may not deserve.
+        best = self._refine(query, found.pose, local)
+        if best is None:
             return
         if found.second_score >= MAX_SECOND_RATIO * found.score:
-            rival = self.see_through(compose(found.second_pose, inverse(local)))
-            if rival <= min(MAX_SEE_THROUGH, seen_through + SEE_THROUGH_MARGIN):
-                return   # a rival as good, where the walls do not contradict it more: wait
-        refined = match(self._reference_at(found.pose), query, found.pose, QUERY_MATCH)
-        if not refined.ok:
+            rival = self._refine(query, found.second_pose, local)
+            if rival is not None and rival.score > best.score:
+                best, rival = rival, best
+            if rival is not None and rival.score >= MAX_SECOND_RATIO * best.score and \
+                    rival.see_through <= min(MAX_SEE_THROUGH, best.see_through + SEE_THROUGH_MARGIN):
+                self._agreeing.clear()   # a rival as good, where the walls do not contradict it more:
+                return                   # wait, and count agreeing candidates from the next on
+        if best.see_through > MAX_SEE_THROUGH:
             return
-        candidate = compose(refined.pose, inverse(local))
+        candidate, refined = best.map_from_local, best
         self.candidates += 1
         chain = self._agreeing
         if chain and not _agree(chain[-1][1], candidate):
@@ -338,7 +370,16 @@ class Localizer:
             self.map_from_local = candidate
             chain.clear()
             self._last_on_map_m = self._travel_m
-            self._last_cov = refined.cov
+            inv = np.linalg.inv(_lever(compose(candidate, local), candidate))
+            self._cov = inv @ (TRACK_COV_SCALE * refined.cov + np.diag([MAP_SIGMA_M ** 2] * 2 + [MAP_SIGMA_RAD ** 2])) @ inv.T
+
+    def _refine(self, query: np.ndarray, pose: np.ndarray, local: np.ndarray) -> _Peak | None:
+        """A search's peak ``pose`` (3,) matched point to line against the map near it; None if that fails."""
+        res = match(self._reference_at(pose), query, pose, QUERY_MATCH)
+        if not res.ok:
+            return None
+        map_from_local = compose(res.pose, inverse(local))
+        return _Peak(map_from_local, self.map.grid.score(query, res.pose), self.see_through(map_from_local), res.cov)
 
     def see_through(self, map_from_local: np.ndarray) -> float:
         """Share (0–1) of the query's beams that pass through an occupied cell of the map when the
@@ -372,36 +413,61 @@ class Localizer:
         return self._reference[1]
 
     def _track(self, local: np.ndarray, pts: np.ndarray, step_m: float) -> Placement:
+        # The transform drifts as the filter's trajectory does: its uncertainty grows with the travel.
+        self._cov += np.diag([DRIFT_M_PER_SQRT_M ** 2 * step_m] * 2 + [DRIFT_RAD_PER_SQRT_M ** 2 * step_m])
         predicted = compose(self.map_from_local, local)
-        pose, cov = predicted, None
+        matched = False
         if pts.shape[0]:
-            # The prediction's own uncertainty keeps what the scan leaves open (a corridor's length).
-            guess_cov = self._last_cov + np.diag([TRACK_GUESS_SIGMA_M ** 2] * 2 + [TRACK_GUESS_SIGMA_RAD ** 2])
+            guess_cov = _lever(predicted, self.map_from_local) @ self._cov @ _lever(predicted, self.map_from_local).T
+            guess_cov = guess_cov + np.diag([TRACK_GUESS_SIGMA_M ** 2] * 2 + [TRACK_GUESS_SIGMA_RAD ** 2])
             res = match(self._reference_at(predicted), pts, predicted, TRACK_MATCH, guess_cov)
-            d = relative(predicted, res.pose)
-            if res.ok and np.hypot(d[0], d[1]) <= MAX_TRACK_STEP_M and abs(d[2]) <= MAX_TRACK_STEP_RAD:
-                pose, cov = res.pose, res.cov
+            if res.ok:
+                matched = self._update(compose(res.pose, inverse(local)), res.pose, res.cov)
+        pose = compose(self.map_from_local, local)
+        lever = _lever(pose, self.map_from_local)
+        cov = lever @ self._cov @ lever.T
         score = self.map.grid.score(pts, pose) if pts.shape[0] else 0.0
-        if cov is not None and score >= ON_MAP_SCORE:
-            self._lost = False
-            self.map_from_local = compose(pose, inverse(local))
-            self._last_on_map_m, self._since_match_m, self._last_cov = self._travel_m, 0.0, cov
+        if matched and score >= ON_MAP_SCORE:
+            self._lost, self._last_on_map_m = False, self._travel_m
             return Placement(Status.LOCALIZED, pose, cov, self.map_from_local.copy(), score)
-        self._since_match_m += step_m
-        grown = self._last_cov + np.diag([(DEAD_RECKONING_M_PER_M * self._since_match_m) ** 2] * 2
-                                         + [(DEAD_RECKONING_RAD_PER_M * self._since_match_m) ** 2])
-        placement = Placement(Status.NOT_LOCALIZED, predicted, grown, self.map_from_local.copy(),
-                              self.map.grid.score(pts, predicted) if pts.shape[0] else 0.0)
+        placement = Placement(Status.NOT_LOCALIZED, pose, cov, self.map_from_local.copy(), score)
         if self._travel_m - self._last_on_map_m > LOST_TRAVEL_M:
             # Off the map, or lost on it: search again around where the fix says the robot is,
             # as far as the dead reckoning may have drifted (a robot back from an unmapped wing is
             # where it left it; a copy of a mapped part elsewhere is not a place to jump to).
             if not self._lost:
                 self._lost, self.lost, self._next_search_m = True, self.lost + 1, self._travel_m
-            sigma_m = float(np.sqrt(max(grown[0, 0], grown[1, 1])))
-            self._search(local, predicted, min(WINDOW_SIGMAS * sigma_m + LOST_TRAVEL_M, self.map.half_width_m),
-                         min(WINDOW_SIGMAS * float(np.sqrt(grown[2, 2])) + MAX_TRACK_STEP_RAD, np.pi))
+            sigma_m = float(np.sqrt(max(cov[0, 0], cov[1, 1])))
+            self._search(local, pose, min(WINDOW_SIGMAS * sigma_m + LOST_TRAVEL_M, self.map.half_width_m),
+                         min(WINDOW_SIGMAS * float(np.sqrt(cov[2, 2])) + LOST_WINDOW_RAD, np.pi))
         return placement
+
+    def _update(self, measured: np.ndarray, pose: np.ndarray, pose_cov: np.ndarray) -> bool:
+        """Fuse a scan's ``map_from_local`` (3,), from its matched ``pose`` (3,) with ``pose_cov``, into
+        the transform's estimate; False if it lies beyond :data:`TRACK_GATE_CHI2` (a person who
+        dragged the match, a look-alike door)."""
+        lever = _lever(pose, measured)
+        inv = np.linalg.inv(lever)   # the pose's error, as the transform's
+        r = inv @ (TRACK_COV_SCALE * pose_cov + np.diag([MAP_SIGMA_M ** 2] * 2 + [MAP_SIGMA_RAD ** 2])) @ inv.T
+        innovation = measured - self.map_from_local
+        innovation[2] = wrap_angle(innovation[2])
+        s = self._cov + r
+        if not float(innovation @ np.linalg.solve(s, innovation)) <= TRACK_GATE_CHI2:
+            self.gated += 1
+            return False
+        gain = np.linalg.solve(s.T, self._cov.T).T   # P S⁻¹
+        step = gain @ innovation
+        self.map_from_local = self.map_from_local + step
+        self.map_from_local[2] = wrap_angle(self.map_from_local[2])
+        self._cov = (np.eye(3) - gain) @ self._cov
+        self._cov = 0.5 * (self._cov + self._cov.T)
+        return True
+
+
+def _lever(pose: np.ndarray, transform: np.ndarray) -> np.ndarray:
+    """Jacobian (3, 3) of ``pose = transform ⊕ local`` by ``transform`` at fixed ``local``: a turn
+    of the transform moves the pose by its distance from the transform's origin."""
+    return np.array([[1.0, 0.0, -(pose[1] - transform[1])], [0.0, 1.0, pose[0] - transform[0]], [0.0, 0.0, 1.0]])
 
 
 def _agree(a: np.ndarray, b: np.ndarray) -> bool:

@@ -60,40 +60,58 @@ def _chain(mapper: Stage, robot: str) -> Chain:
     return Chain([*(services.stage(n) for n in ("denoise", "features", "slam")), mapper], robot=robot, wire=False)
 
 
+class MapTaker:
+    """What a mapping run leaves that ``map save`` keeps: each scan's valid points, the keyframes,
+    the live grid; :meth:`saved` makes the saved map (no landmarks: the localizer does not read them)."""
+
+    def __init__(self) -> None:
+        self.history, self.grid = KeyframeHistory(), GridReplica()
+        self.scans: dict[int, np.ndarray] = {}
+
+    def take(self, messages) -> None:
+        """Keep what of ``messages`` (the chain's, inputs and outputs) a saved map is made of."""
+        for m in messages:
+            if m.topic is topics.SCAN:
+                v = m.value
+                ok = v.status == t.BEAM_VALID
+                self.scans[v.stamp_ns] = polar_to_xy(v.ranges_m[ok], v.angles_rad[ok])
+            elif m.topic is topics.MAP_KEYFRAMES:
+                self.history.add(m.value)
+            elif m.topic is topics.MAP_GRID:
+                self.grid.apply(m.value)
+
+    def saved(self) -> SavedMap:
+        kf = self.history.keyframes()
+        blocks = [self.scans[int(s)] for s in kf.scan_stamp_ns]
+        image = self.grid.image()
+        none = np.zeros(0, np.int64)
+        return SavedMap(manifest={}, stamp_ns=kf.scan_stamp_ns, map_pose=kf.map_pose, local_pose=kf.local_pose,
+                        local_edge=kf.local_edge, edge_from=none, edge_to=none, edge_motion=np.zeros((0, 3)),
+                        points_xy_m=np.vstack(blocks), point_start=np.cumsum([0] + [b.shape[0] for b in blocks]),
+                        landmark_ids=none, landmark_xy_m=np.zeros((0, 2)), landmark_cov_m2=np.zeros((0, 2, 2)),
+                        landmark_kind=np.zeros(0, np.int8), landmark_sightings=none,
+                        landmark_confirmed=np.zeros(0, bool), grid_cells=image.cells,
+                        grid_resolution_m=image.resolution_m, grid_origin_xy_m=image.origin_xy_m)
+
+
+def localize_stage(saved: SavedMap) -> Stage:
+    """The mapper stage in localize mode on ``saved`` (in memory: the service's own step)."""
+    spec = replace(services.spec("mapper"), build=lambda cfg, ctx: LocalizeStep(cfg, ctx, saved))
+    return Stage(spec, MapperConfig(map="(in memory)", localize=True))
+
+
 def map_world(world: str, seed: int) -> SavedMap:
-    """One lap of ``world`` mapped: the final keyframes with their scans' valid points, as ``map save``
-    keeps them, and the mapper's live grid at the end (no landmarks: the localizer does not read them)."""
+    """One lap of ``world`` mapped; its saved map (:class:`MapTaker`)."""
     sim = Simulator(SimConfig(world_name=world, seed=seed))
     steps = int(np.ceil(sim.trajectory.path.total_length_m / sim.config.speed_mps * sim.config.rate_hz))
-    history, grid = KeyframeHistory(), GridReplica()
-    scans: dict[int, np.ndarray] = {}
+    taker = MapTaker()
     with _chain(services.stage("mapper"), "map_world") as chain:
         chain.step("slam").slam.start_at(sim.trajectory.pose(0))
         for frame in (next(sim) for _ in range(steps)):
             odom, scan = _frames_messages(sim, frame)
-            v = scan.value
-            ok = v.status == t.BEAM_VALID
-            scans[v.stamp_ns] = polar_to_xy(v.ranges_m[ok], v.angles_rad[ok])
-            for m in chain.push(odom) + chain.push(scan):
-                if m.topic is topics.MAP_KEYFRAMES:
-                    history.add(m.value)
-                elif m.topic is topics.MAP_GRID:
-                    grid.apply(m.value)
-        for it in chain.finish_items():
-            if it.msg.topic is topics.MAP_KEYFRAMES:
-                history.add(it.msg.value)
-            elif it.msg.topic is topics.MAP_GRID:
-                grid.apply(it.msg.value)
-    kf = history.keyframes()
-    blocks = [scans[int(s)] for s in kf.scan_stamp_ns]
-    image = grid.image()
-    none = np.zeros(0, np.int64)
-    return SavedMap(manifest={}, stamp_ns=kf.scan_stamp_ns, map_pose=kf.map_pose, local_pose=kf.local_pose,
-                    local_edge=kf.local_edge, edge_from=none, edge_to=none, edge_motion=np.zeros((0, 3)),
-                    points_xy_m=np.vstack(blocks), point_start=np.cumsum([0] + [b.shape[0] for b in blocks]),
-                    landmark_ids=none, landmark_xy_m=np.zeros((0, 2)), landmark_cov_m2=np.zeros((0, 2, 2)),
-                    landmark_kind=np.zeros(0, np.int8), landmark_sightings=none, landmark_confirmed=np.zeros(0, bool),
-                    grid_cells=image.cells, grid_resolution_m=image.resolution_m, grid_origin_xy_m=image.origin_xy_m)
+            taker.take([scan, *chain.push(odom), *chain.push(scan)])
+        taker.take([it.msg for it in chain.finish_items()])
+    return taker.saved()
 
 
 @dataclass(frozen=True)
@@ -109,9 +127,8 @@ class StartResult:
 
 def run_start(world: str, saved: SavedMap, seed: int, start_m: float) -> StartResult:
     """One run from ``start_m`` along the loop, localized on ``saved``; see the module docstring."""
-    spec = replace(services.spec("mapper"), build=lambda cfg, ctx: LocalizeStep(cfg, ctx, saved))
     sim = Simulator(SimConfig(world_name=world, seed=seed, start_m=start_m))
-    with _chain(Stage(spec, MapperConfig(map="(in memory)", localize=True)), f"start{seed}") as chain:
+    with _chain(localize_stage(saved), f"start{seed}") as chain:
         step = chain.step("mapper")
         travel, fix_at, wrong, localized, n = 0.0, np.inf, 0, 0, 0
         errors, search_s, last_true = [], [], None

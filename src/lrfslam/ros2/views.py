@@ -121,9 +121,9 @@ class RosViews:
         if name == topics.MAP_POSE.name:
             self.mapper_seen = True
             self._map_from_slam = value.map_from_slam
-            cov = self._covs.get(value.stamp_ns)
-            if cov is not None:   # the EKF's covariance, turned into the mapper's frame
-                cov = rotate_covariance(cov, value.map_from_slam[2])
+            cov = value.pose_cov   # localizing on a saved map: the localizer's own
+            if cov is None and (cov := self._covs.get(value.stamp_ns)) is not None:
+                cov = rotate_covariance(cov, value.map_from_slam[2])   # the EKF's, turned into the mapper's frame
             return self._map_pose(value.stamp_ns, value.pose, cov)
         return []
 

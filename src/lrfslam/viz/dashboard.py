@@ -173,7 +173,8 @@ class DashboardModel:
             self.truth_path.add(*value.pose[:2])
         elif name == topics.MAP_POSE.name:
             self._map_from_slam = np.asarray(value.map_from_slam, float)
-            if value.stamp_ns > self._keyframes_until_ns:
+            # On a saved map, a scan not localized is not drawn on it (its pose is a guess).
+            if value.stamp_ns > self._keyframes_until_ns and value.localization != t.NOT_LOCALIZED:
                 self.map_path.add(*value.pose[:2])
         elif name == topics.MAP_GRID.name:
             self.grid.apply(value)

@@ -473,6 +473,8 @@ class FoxgloveViews:
     def _map_pose(self, mp: t.MapPose, at: int) -> list[View]:
         self._map_from_slam = mp.map_from_slam
         views = [View(TF, fm.FrameTransforms(transforms=[transform(mp.stamp_ns, MAP, SLAM, mp.map_from_slam)]), at)]
+        if mp.localization == t.NOT_LOCALIZED:   # on a saved map, not placed on it: no path point
+            return views
         return views + self._path(TRAJECTORY_MAP, mp.stamp_ns, mp.pose, at)
 
     def _keyframes(self, kf: t.MapKeyframes, at: int) -> list[View]:
