@@ -59,6 +59,9 @@ from lrfslam.errors import InputError
 #: Travel whose scans make a global search's query (m): long enough to leave a look-alike room or
 #: corridor behind, short enough for the filter's drift over it to stay within a cell.
 QUERY_TRAVEL_M = 15.0
+#: No search before the query spans this much travel (m): over the first metres a person in view
+#: outweighs the walls, and a corridor's far end looks like many others.
+MIN_QUERY_TRAVEL_M = 5.0
 #: The query keeps a scan each time the robot moved this far (m) or turned this much (rad).
 QUERY_SPACING_M = 0.25
 QUERY_SPACING_RAD = 0.15
@@ -331,6 +334,8 @@ class Localizer:
         """Search the query in the window ``centre`` (3,) ± (``half_width_m``, ``half_angle_rad``) of
         the map (all of it before the first fix); a confirmed candidate becomes the fix."""
         if self._travel_m < self._next_search_m:
+            return
+        if self._path_m(self._query) < MIN_QUERY_TRAVEL_M:
             return
         self._next_search_m = self._travel_m + SEARCH_SPACING_M
         query = self.query_points(local)
