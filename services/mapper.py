@@ -97,6 +97,42 @@ class MapperConfig:
             raise ConfigError("mapper: mapping on from a saved map is not built yet; with map, set localize=true")
 
 
+class LocalTrajectory:
+    """The chain of the slam states' motions: the mapper's local trajectory (the module's docstring).
+
+    The filter's own pose jumps when it corrects itself; the chain of the motions that moved it
+    does not, so over metres it is as good as scan matching.
+    """
+
+    def __init__(self, counts) -> None:
+        self.counts = counts
+        self.pose: np.ndarray | None = None       # the last state's pose on the local trajectory
+        self.last_slam_pose = np.zeros(3)
+        self.last_state_seq = -1                  # the last state's number; -1: none yet
+
+    def add(self, state: t.SlamState) -> tuple[np.ndarray, np.ndarray | None]:
+        """The state's pose on the local trajectory (3,), and the step the mapper checks it
+        against for jumps (3,): the scan-matched motion; None if there is none."""
+        matched = state.motion if state.motion is not None and state.motion_matched else None
+        if self.pose is None:
+            local, reference = state.pose, matched   # (a chain starts where the filter does)
+        elif state.motion is None:
+            # A slam state recorded before they carried their motion: follow the filter's pose.
+            self.counts["motion_missing"] += 1
+            local, reference = compose(self.pose, relative(self.last_slam_pose, state.pose)), None
+        elif state.seq != self.last_state_seq + 1:
+            # States missed (this stage or the slam stage restarted, or lost): the motion is from a
+            # state this stage never saw. The filter's own pose change bridges the gap; it is
+            # trusted as it stands, because the keyframes' scans cannot check a step metres long.
+            self.counts["motion_bridged"] += 1
+            bridge = relative(self.last_slam_pose, state.pose)
+            local, reference = compose(self.pose, bridge), bridge
+        else:
+            local, reference = compose(self.pose, state.motion), matched
+        self.pose, self.last_slam_pose, self.last_state_seq = local, state.pose, state.seq
+        return local, reference
+
+
 class MapperStep(StepBase):
     def __init__(self, cfg: MapperConfig, ctx: RunContext) -> None:
         super().__init__()
@@ -110,9 +146,7 @@ class MapperStep(StepBase):
         self.keyframes_seq = 0
         self.optimisations = 0
         self._last_stamp = 0
-        self._local: np.ndarray | None = None   # the last state's pose on the local trajectory
-        self._last_slam_pose = np.zeros(3)
-        self._last_state_seq = -1   # the last state's number; -1: none yet
+        self.local = LocalTrajectory(self.counts)
         self.grid = KeyframeGrid()
         self.grid_seq = 0
         self._grid_due_ns: int | None = None
@@ -183,7 +217,7 @@ class MapperStep(StepBase):
         if points is None:
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
-        local, reference = self._local_pose(state)
+        local, reference = self.local.add(state)
         made = self.mapper.keyframe_count
         pose = self.mapper.add_scan(state.stamp_ns, local, points, reference, online_pose=state.pose)
         if self.mapper.keyframe_count != made:   # this scan made a keyframe: its pose is the keyframe's
@@ -206,28 +240,6 @@ class MapperStep(StepBase):
         self.grid.work()
         return outs + self._grid_changes(state.stamp_ns)
 
-    def _local_pose(self, state: t.SlamState) -> tuple[np.ndarray, np.ndarray | None]:
-        """The state's pose on the local trajectory (the chain of the motions that moved the filter), (3,), and the step the
-        mapper checks it against for jumps (3,): the scan-matched motion; None if there is none."""
-        matched = state.motion if state.motion is not None and state.motion_matched else None
-        if self._local is None:
-            local, reference = state.pose, matched   # (a chain starts where the filter does)
-        elif state.motion is None:
-            # A slam state recorded before they carried their motion: follow the filter's pose.
-            self.counts["motion_missing"] += 1
-            local, reference = compose(self._local, relative(self._last_slam_pose, state.pose)), None
-        elif state.seq != self._last_state_seq + 1:
-            # States missed (this stage or the slam stage restarted, or lost): the motion is from a
-            # state this stage never saw. The filter's own pose change bridges the gap; it is
-            # trusted as it stands, because the keyframes' scans cannot check a step metres long.
-            self.counts["motion_bridged"] += 1
-            bridge = relative(self._last_slam_pose, state.pose)
-            local, reference = compose(self._local, bridge), bridge
-        else:
-            local, reference = compose(self._local, state.motion), matched
-        self._local, self._last_slam_pose, self._last_state_seq = local, state.pose, state.seq
-        return local, reference
-
     def _keyframes(self, stamp_ns: int) -> Output:
         stamps, local_poses = self.mapper.keyframe_stamped_local_poses()
         retired = self.mapper.take_retired()   # told once: a reader of the whole run keeps them
@@ -249,9 +261,9 @@ class MapperStep(StepBase):
             return None
         arrays = self.mapper.snapshot()
         arrays.update(service_seq=self.seq, service_keyframes_seq=self.keyframes_seq,
-                      service_last_stamp_ns=self._last_stamp, service_last_state_seq=self._last_state_seq,
-                      service_local_pose=np.full(3, np.nan) if self._local is None else self._local,
-                      service_last_slam_pose=self._last_slam_pose, service_grid_seq=self.grid_seq,
+                      service_last_stamp_ns=self._last_stamp, service_last_state_seq=self.local.last_state_seq,
+                      service_local_pose=np.full(3, np.nan) if self.local.pose is None else self.local.pose,
+                      service_last_slam_pose=self.local.last_slam_pose, service_grid_seq=self.grid_seq,
                       service_grid_due_ns=-1 if self._grid_due_ns is None else self._grid_due_ns,
                       service_grid_resolution_changes=self._grid_resolution_changes)
         arrays.update(self.grid.snapshot())
@@ -270,9 +282,9 @@ class MapperStep(StepBase):
         counters = [int(arrays[k]) for k in ("service_seq", "service_keyframes_seq", "service_last_stamp_ns",
                                              "service_last_state_seq")]
         self.mapper = mapper
-        self.seq, self.keyframes_seq, self._last_stamp, self._last_state_seq = counters
-        self._local = None if np.any(np.isnan(local)) else local
-        self._last_slam_pose = last_slam_pose
+        self.seq, self.keyframes_seq, self._last_stamp, self.local.last_state_seq = counters
+        self.local.pose = None if np.any(np.isnan(local)) else local
+        self.local.last_slam_pose = last_slam_pose
         self.optimisations = mapper.stats.optimisations
         self.grid = KeyframeGrid()
         self.grid.restore(arrays)
@@ -298,7 +310,7 @@ class LocalizeStep(StepBase):
     """The mapper on a saved map (``localize``): finds the robot on it and tracks it, the map unchanged.
 
     Each slam state, once its scan is here, goes to :class:`~lrfslam.algo.localization.Localizer`
-    with the state's pose as the local trajectory; ``map/pose`` says whether the scan was placed on
+    on the mapper's local trajectory (:class:`LocalTrajectory`); ``map/pose`` says whether the scan was placed on
     the map, with the pose's covariance. The saved map's grid goes out whole on ``map/grid`` with
     the first pose (and to a late joiner), so viewers draw the map the robot is localized in.
     """
@@ -318,6 +330,7 @@ class LocalizeStep(StepBase):
         self.tiles, self.tile_cells = tiles_of(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))
+        self.local = LocalTrajectory(self.counts)
         self.seq = 0
         self.grid_sent = False
         self._last_stamp = 0
@@ -339,7 +352,8 @@ class LocalizeStep(StepBase):
         if points is None:
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
-        placed = self.localizer.add_scan(state.pose, points)
+        local, _ = self.local.add(state)
+        placed = self.localizer.add_scan(local, points)
         if placed.status is not self._status:
             log.info("%s (%d global searches, %d fixes)", "localized" if placed.status is Status.LOCALIZED
                      else "not localized", self.localizer.searches, self.localizer.fixes)
@@ -349,12 +363,15 @@ class LocalizeStep(StepBase):
         self.counts["global_searches"] = self.localizer.searches
         self.counts["fixes"] = self.localizer.fixes
         self.counts["fixes_lost"] = self.localizer.lost
+        self.counts["matches_gated"] = self.localizer.gated
+        for why, n in self.localizer.refused.items():
+            self.counts[f"searches_{why}"] = n
         self._last_stamp = state.stamp_ns
         self.seq += 1
         outs = [Output(topics.MAP_POSE, t.MapPose(
             stamp_ns=state.stamp_ns, seq=self.seq, scan_seq=state.scan_seq, pose=placed.pose,
             map_from_slam=compose(placed.pose, relative(state.pose, np.zeros(3))),
-            keyframes=self.saved.map_pose.shape[0], local_pose=state.pose,
+            keyframes=self.saved.map_pose.shape[0], local_pose=local,
             localization=t.LOCALIZED if placed.status is Status.LOCALIZED else t.NOT_LOCALIZED, pose_cov=placed.cov))]
         if not self.grid_sent:
             self.grid_sent = True

@@ -6,7 +6,7 @@ that drifts slowly but is right to centimetres over metres; the localizer finds 
 
 * **Searching.** The scans of the last :data:`QUERY_TRAVEL_M` of travel, merged on the local
   trajectory into the robot's current frame, are searched for over the whole map, every
-  :data:`SEARCH_SPACING_M` of travel: branch and bound over every position and heading
+  :data:`SEARCH_SPACING_M` of travel once they span :data:`MIN_QUERY_TRAVEL_M`: branch and bound over every position and heading
   (:func:`lrfslam.algo.correlative_match.search`, the mapper's closure search, here with a window
   the size of the map). A merged stretch tells look-alike places apart where one scan cannot: a
   room seen from its door looks like the next room, the corridor that led there does not.
@@ -40,6 +40,7 @@ The map is never changed. Everything is in metres and radians, poses ``(x_m, y_m
 from __future__ import annotations
 
 import enum
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -279,9 +280,12 @@ class Localizer:
         self._cov = np.zeros((3, 3))                 # of map_from_local
         self._reference: tuple[np.ndarray, ReferenceScan] | None = None
         self._lost = False                         # off the map for LOST_TRAVEL_M since the last match
-        #: Searches run (global, or around a lost fix), of them capped (not exact: not used),
-        #: candidates found, fixes trusted, times the fix was lost (off the map).
-        self.searches = self.inexact = self.candidates = self.fixes = self.lost = 0
+        #: Searches run (global, or around a lost fix), candidates found, fixes trusted, times the
+        #: fix was lost (off the map).
+        self.searches = self.candidates = self.fixes = self.lost = 0
+        #: Searches that gave no candidate, by why: ``inexact`` (capped), ``low_score``,
+        #: ``refine_failed``, ``ambiguous``, ``seen_through``.
+        self.refused: Counter[str] = Counter()
         #: Tracking matches refused by the gate.
         self.gated = 0
 
@@ -345,14 +349,16 @@ class Localizer:
         found = cm.search(self.map.grid, query, centre, half_width_m, half_angle_rad, MIN_SCORE, MAX_FRONTIER,
                           GREEDY_STARTS, MAX_SECOND_RATIO)
         if not found.exact:
-            self.inexact += 1
+            self.refused["inexact"] += 1
             return
         if found.score < MIN_SCORE:
+            self.refused["low_score"] += 1
             return
         # The peaks are compared where point-to-line matching puts them: at the search's cells
         # and angle steps a place can lose more than its rival, which it may not deserve.
         best = self._refine(query, found.pose, local)
         if best is None:
+            self.refused["refine_failed"] += 1
             return
         if found.second_score >= MAX_SECOND_RATIO * found.score:
             rival = self._refine(query, found.second_pose, local)
@@ -360,9 +366,11 @@ class Localizer:
                 best, rival = rival, best
             if rival is not None and rival.score >= MAX_SECOND_RATIO * best.score and \
                     rival.see_through <= min(MAX_SEE_THROUGH, best.see_through + SEE_THROUGH_MARGIN):
+                self.refused["ambiguous"] += 1
                 self._agreeing.clear()   # a rival as good, where the walls do not contradict it more:
                 return                   # wait, and count agreeing candidates from the next on
         if best.see_through > MAX_SEE_THROUGH:
+            self.refused["seen_through"] += 1
             return
         candidate, refined = best.map_from_local, best
         self.candidates += 1
