@@ -59,7 +59,7 @@ from lrfslam.errors import InputError
 
 #: Travel whose scans make a global search's query (m): long enough to leave a look-alike room or
 #: corridor behind, short enough for the filter's drift over it to stay within a cell.
-QUERY_TRAVEL_M = 15.0
+QUERY_TRAVEL_M = 10.0
 #: No search before the query spans this much travel (m): over the first metres a person in view
 #: outweighs the walls, and a corridor's far end looks like many others.
 MIN_QUERY_TRAVEL_M = 5.0
