@@ -1,6 +1,6 @@
 """Localization on saved maps of the real logs: a map of each log's first half, its second half localized in it.
 
-    python -m lrfslam.evaluation.localization_logs DIR --work W [--logs intel,aces]
+    python -m lrfslam.tools.localization_logs DIR --work W [--logs intel,aces]
 
 ``DIR`` holds the logs as ``lrfslam eval relations --all`` takes them (one folder per log, its
 CARMEN log and relations). For each log with relations:
@@ -158,7 +158,7 @@ def evaluate(log, work: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m lrfslam.evaluation.localization_logs", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m lrfslam.tools.localization_logs", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("root", type=Path, metavar="DIR")
     parser.add_argument("--work", type=Path, required=True, help="a folder for the imported recordings")
