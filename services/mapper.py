@@ -89,7 +89,6 @@ class MapperConfig:
         "loop_closure.interpolate": "always on: each scan is placed between its keyframes",
     }
 
-
     def __post_init__(self) -> None:
         if self.localize and not self.map:
             raise ConfigError("mapper: localize needs map, a saved map's folder (lrfslam map save)")

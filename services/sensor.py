@@ -27,7 +27,7 @@ from lrfslam.msgs import types as t
 from lrfslam.runtime.step import Output, RunContext, ServiceSpec, StepBase
 from lrfslam.sim.lidar import LidarModel
 from lrfslam.sim.odometry import OdometryNoise
-from lrfslam.sim.simulator import SimConfig, Simulator
+from lrfslam.sim.simulator import SimConfig, SimFrame, Simulator
 
 SOURCES = ("auto", "sim", "lms200")
 
@@ -65,6 +65,15 @@ class SensorConfig:
             raise ConfigError("sensor.rate_hz must be > 0 and sensor.speedup >= 0")
         if self.epoch_ns < 0 or (self.epoch_ns and self.speedup == 0):
             raise ConfigError("sensor.epoch_ns must be >= 0, and needs a paced run (speedup > 0)")
+
+
+def frame_outputs(frame: SimFrame, stamp_ns: int, sim: Simulator) -> tuple[Output, Output]:
+    """A frame of ``sim`` as the sensor publishes it, stamped ``stamp_ns``: its odometry, then its scan
+    (the in-process drivers — Monte Carlo, evaluations, benchmarks — feed the stages the same)."""
+    lidar, seq = sim.config.lidar, frame.index + 1
+    scan = t.LaserScan.from_ranges(stamp_ns, seq, frame.scan.ranges_m, lidar.angle_min_rad, lidar.angle_increment_rad,
+                                   lidar.max_range_m, scan_time_s=1.0 / sim.config.rate_hz, source="sim")
+    return Output(topics.ODOM, t.Odometry(stamp_ns=stamp_ns, seq=seq, pose=frame.odom_pose)), Output(topics.SCAN, scan)
 
 
 class SimSource(StepBase):
@@ -109,17 +118,14 @@ class SimSource(StepBase):
         self.produced += 1
         seq = frame.index + 1
         stamp = self.t0_ns + round(frame.t_s * 1e9)
-        lidar = self.sim.config.lidar
-        scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad,
-                                       lidar.angle_increment_rad, lidar.max_range_m,
-                                       scan_time_s=1.0 / self.cfg.rate_hz, source="sim")
+        odom, scan = frame_outputs(frame, stamp, self.sim)
         ids = frame.visible_corner_ids
         self.counts["scans"] += 1
         return (
-            Output(topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose)),
+            odom,
             Output(topics.TRUTH, t.GroundTruth(stamp_ns=stamp, seq=seq, pose=frame.true_pose, corner_ids=ids,
                                                corners_xy_m=self.corners_xy[ids], world=self.cfg.world)),
-            Output(topics.SCAN, scan),
+            scan,
         )
 
 

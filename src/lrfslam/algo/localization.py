@@ -326,7 +326,7 @@ class Localizer:
         xy = np.array([q.local_pose[:2] for q in scans])
         return float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) if len(scans) > 1 else 0.0
 
-    def query_points(self, local: np.ndarray) -> np.ndarray:
+    def _query_points(self, local: np.ndarray) -> np.ndarray:
         """The query's points in the robot frame at ``local`` (M, 2): every kept scan merged, thinned."""
         merged = np.vstack([from_frame(q.points_xy_m, relative(local, q.local_pose)) for q in self._query])
         pts = thin_points(merged, QUERY_CELL_M)
@@ -342,7 +342,7 @@ class Localizer:
         if self._path_m(self._query) < MIN_QUERY_TRAVEL_M:
             return
         self._next_search_m = self._travel_m + SEARCH_SPACING_M
-        query = self.query_points(local)
+        query = self._query_points(local)
         if query.shape[0] < 20:
             return
         self.searches += 1

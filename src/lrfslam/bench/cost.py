@@ -50,7 +50,8 @@ from lrfslam.msgs.v1 import slam_state_pb2 as slam_state_v1
 from lrfslam.runtime import checkpoints, npz_file
 from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.recording import read_recording
-from lrfslam.runtime.step import Message, Output
+from lrfslam.runtime.step import Message
+from lrfslam.services.sensor import frame_outputs
 from lrfslam.sim.simulator import SimConfig, Simulator
 
 #: Odometry covariance given to the scan-matching tracker (per scan; m², m², rad²).
@@ -91,16 +92,8 @@ def _configs():
 def sim_messages(n_scans: int, seed: int) -> list[Message]:
     """The sensor's messages for ``n_scans`` simulated frames: odometry then scan, stamped by data time."""
     sim = Simulator(SimConfig(seed=seed))
-    lidar = sim.config.lidar
-    out = []
-    for frame in (next(sim) for _ in range(n_scans)):
-        stamp, seq = round(frame.t_s * 1e9), frame.index + 1
-        scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad,
-                                       lidar.angle_increment_rad, lidar.max_range_m,
-                                       scan_time_s=1.0 / sim.config.rate_hz, source="sim")
-        out.append(Message.of(Output(topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose))))
-        out.append(Message.of(Output(topics.SCAN, scan)))
-    return out
+    return [Message.of(out) for frame in (next(sim) for _ in range(n_scans))
+            for out in frame_outputs(frame, round(frame.t_s * 1e9), sim)]
 
 
 def run_chain(messages: Sequence[Message], stage_names: Sequence[str], sets: dict[str, list[str]] | None = None,

@@ -33,8 +33,9 @@ from lrfslam.msgs import types as t
 from lrfslam.msgs.grid_replica import GridReplica
 from lrfslam.runtime.chain import Chain, Stage
 from lrfslam.runtime.saved_map import SavedMap
-from lrfslam.runtime.step import Message, Output
+from lrfslam.runtime.step import Message
 from lrfslam.services.mapper import LocalizeStep, MapperConfig
+from lrfslam.services.sensor import frame_outputs
 from lrfslam.sim.simulator import SimConfig, Simulator
 
 #: A start is driven this far at most (m), or this far past its first fix.
@@ -47,16 +48,14 @@ WRONG_RAD = 0.1
 WITHIN_M = 20.0
 
 
-def _frames_messages(sim: Simulator, frame) -> tuple[Message, Message]:
-    stamp, seq = round(frame.t_s * 1e9), frame.index + 1
-    lidar = sim.config.lidar
-    scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, lidar.angle_min_rad, lidar.angle_increment_rad,
-                                   lidar.max_range_m, scan_time_s=1.0 / sim.config.rate_hz, source="sim")
-    return (Message.of(Output(topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose))),
-            Message.of(Output(topics.SCAN, scan)))
+def _messages(sim: Simulator, frame) -> tuple[Message, Message]:
+    """The frame's odometry and scan messages, as the sensor publishes them, stamped by data time."""
+    odom, scan = frame_outputs(frame, round(frame.t_s * 1e9), sim)
+    return Message.of(odom), Message.of(scan)
 
 
-def _chain(mapper: Stage, robot: str) -> Chain:
+def chain_with(mapper: Stage, robot: str) -> Chain:
+    """denoise → features → slam → ``mapper``, in one process, as the pipeline runs them."""
     return Chain([*(services.stage(n) for n in ("denoise", "features", "slam")), mapper], robot=robot, wire=False)
 
 
@@ -105,10 +104,10 @@ def map_world(world: str, seed: int) -> SavedMap:
     sim = Simulator(SimConfig(world_name=world, seed=seed))
     steps = int(np.ceil(sim.trajectory.path.total_length_m / sim.config.speed_mps * sim.config.rate_hz))
     taker = MapTaker()
-    with _chain(services.stage("mapper"), "map_world") as chain:
+    with chain_with(services.stage("mapper"), "map_world") as chain:
         chain.step("slam").slam.start_at(sim.trajectory.pose(0))
         for frame in (next(sim) for _ in range(steps)):
-            odom, scan = _frames_messages(sim, frame)
+            odom, scan = _messages(sim, frame)
             taker.take([scan, *chain.push(odom), *chain.push(scan)])
         taker.take([it.msg for it in chain.finish_items()])
     return taker.saved()
@@ -128,7 +127,7 @@ class StartResult:
 def run_start(world: str, saved: SavedMap, seed: int, start_m: float) -> StartResult:
     """One run from ``start_m`` along the loop, localized on ``saved``; see the module docstring."""
     sim = Simulator(SimConfig(world_name=world, seed=seed, start_m=start_m))
-    with _chain(localize_stage(saved), f"start{seed}") as chain:
+    with chain_with(localize_stage(saved), f"start{seed}") as chain:
         step = chain.step("mapper")
         travel, fix_at, wrong, localized, n = 0.0, np.inf, 0, 0, 0
         errors, search_s, last_true = [], [], None
@@ -137,7 +136,7 @@ def run_start(world: str, saved: SavedMap, seed: int, start_m: float) -> StartRe
             if last_true is not None:
                 travel += float(np.hypot(*relative(last_true, frame.true_pose)[:2]))
             last_true = frame.true_pose
-            odom, scan = _frames_messages(sim, frame)
+            odom, scan = _messages(sim, frame)
             searches, started = step.localizer.searches, time.perf_counter()
             outs = chain.push(odom) + chain.push(scan)
             if step.localizer.searches != searches:

@@ -69,11 +69,11 @@ from lrfslam.evaluation.closure_audit import (
 from lrfslam.evaluation.map_trajectory import KeyframeHistory, final_poses
 from lrfslam.evaluation.truth import ate_rmse
 from lrfslam.msgs import topics
-from lrfslam.msgs import types as t
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.chain import Chain, Stage
-from lrfslam.runtime.step import Message, Output
+from lrfslam.runtime.step import Message
 from lrfslam.services import stage
+from lrfslam.services.sensor import frame_outputs
 from lrfslam.sim import OdometryNoise, SimConfig, SimFrame, Simulator
 
 FEATURE_SOURCES = ("truth", "extractor")
@@ -307,8 +307,7 @@ class _Pipeline:
         self.map_keyframes = KeyframeHistory()
         self.slam = self.chain.step("slam").slam
         self.slam.start_at(pose0)
-        self.lidar = sim.config.lidar
-        self.scan_time_s = 1.0 / sim.config.rate_hz
+        self.sim = sim
 
     def _take_map(self, outs: list[Message]) -> None:
         for m in outs:
@@ -334,13 +333,10 @@ class _Pipeline:
 
     def step(self, frame: SimFrame):
         """Feed one frame; returns (pose, pose_cov, features xy (K, 2), covs (K, 2, 2), report)."""
-        stamp, seq = round(frame.t_s * 1e9), frame.index + 1
+        stamp = round(frame.t_s * 1e9)
         self.stamps_ns.append(stamp)
-        scan = t.LaserScan.from_ranges(stamp, seq, frame.scan.ranges_m, self.lidar.angle_min_rad,
-                                       self.lidar.angle_increment_rad, self.lidar.max_range_m,
-                                       scan_time_s=self.scan_time_s, source="sim")
-        outs = self.chain.push(Message.of(Output(topics.ODOM, t.Odometry(stamp_ns=stamp, seq=seq, pose=frame.odom_pose))))
-        outs += self.chain.push(Message.of(Output(topics.SCAN, scan)))
+        odom, scan = frame_outputs(frame, stamp, self.sim)
+        outs = self.chain.push(Message.of(odom)) + self.chain.push(Message.of(scan))
         (state,) = (m.value for m in outs if m.topic is topics.SLAM_STATE)
         self._take_map(outs)
         last = self.slam.last_update

@@ -33,13 +33,12 @@ import numpy as np
 
 from lrfslam import services
 from lrfslam.algo.geometry import relative, wrap_angle
-from lrfslam.evaluation.localization_sim import MapTaker, localize_stage
-from lrfslam.evaluation.map_trajectory import KeyframeHistory, final_poses
+from lrfslam.evaluation.localization_sim import MapTaker, chain_with, localize_stage
+from lrfslam.evaluation.map_trajectory import FinalTrajectoryBuilder
 from lrfslam.evaluation.relations import load_relations, relation_errors, stamp_s
 from lrfslam.io.textfile import open_log
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime.chain import Chain
 from lrfslam.runtime.decoding import LogOnce, decode_message
 from lrfslam.runtime.recording import read_recording
 from lrfslam.tools.eval_logs import find_logs
@@ -48,7 +47,6 @@ from lrfslam.tools.importers import import_carmen
 #: A localized scan this far from the reference is a wrong fix (m, rad).
 WRONG_M = 1.0
 WRONG_RAD = 0.1
-STAGES = ("denoise", "features", "slam")
 
 
 def _inputs(path: Path) -> list:
@@ -64,7 +62,7 @@ def _run(messages: list, mapper, robot: str, taker: MapTaker | None = None, sear
     """Every output of denoise → features → slam → ``mapper`` over ``messages`` (and the stages' last);
     with ``search_s``, the wall time of each message that ran a localizer's search is added to it."""
     out = []
-    with Chain([*(services.stage(n) for n in STAGES), mapper], robot=robot, wire=False) as chain:
+    with chain_with(mapper, robot) as chain:
         localizer = getattr(chain.step("mapper"), "localizer", None)
         for m in messages:
             searches, begun = (localizer.searches if localizer else 0), time.perf_counter()
@@ -86,14 +84,10 @@ def _run(messages: list, mapper, robot: str, taker: MapTaker | None = None, sear
 
 def _final(outputs: list) -> tuple[np.ndarray, np.ndarray]:
     """The mapper's final trajectory from its outputs: stamps (T,) ns and poses (T, 3)."""
-    history, local = KeyframeHistory(), []
+    builder = FinalTrajectoryBuilder()
     for m in outputs:
-        if m.topic is topics.MAP_KEYFRAMES:
-            history.add(m.value)
-        elif m.topic is topics.MAP_POSE:
-            local.append((m.value.stamp_ns, m.value.local_pose))
-    stamps = np.array([s for s, _ in local], np.int64)
-    return stamps, final_poses(stamps, np.array([p for _, p in local]), history.keyframes())
+        builder.add(m.name, m.value)
+    return builder.result()
 
 
 def _aligned(stamps_ns: np.ndarray, poses: np.ndarray, saved) -> np.ndarray:
