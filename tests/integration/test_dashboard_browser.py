@@ -288,3 +288,73 @@ def test_up_with_monitor_serves_the_dashboard_and_quiet_prints_no_live_line(tmp_
     assert {r["service"] for r in snap["services"]} == set(services.NAMES)
     assert "lrfslam up: ran" in out and " scans " not in out.split("lrfslam up: ran")[0], out
     assert "restarts: monitor" not in out
+
+
+LOCALIZATION_FACTS = """JSON.stringify({
+  shown: !document.getElementById('localization-box').hidden,
+  text: document.getElementById('localization').textContent,
+  canvas: document.getElementById('map').getBoundingClientRect().toJSON()})"""
+
+
+def test_on_a_saved_map_the_page_says_not_localized_then_how_sure(tmp_path):
+    """The dashboard's header and canvas, in Chromium, as the mapper on a saved map reports the robot
+    not localized, then localized (its pose's covariance as a 1-sigma error)."""
+    from matplotlib import image
+
+    from lrfslam.msgs import topics
+    from lrfslam.msgs import types as t
+    from lrfslam.runtime.step import Message
+    from lrfslam.tools.dashboard import DashboardServer
+
+    chromium = find_chromium()
+    server = DashboardServer("127.0.0.1", 0, "lrfslam r1", period_s=0.05)
+
+    def send(topic, value):
+        server.on_message(Message(None, topic.codec.encode(value), 0, topic.schema, topic.name))
+
+    def map_pose(localization, cov=None):
+        return t.MapPose(stamp_ns=10**9, seq=1, scan_seq=1, pose=np.array([1.0, 2.0, 0.3]), map_from_slam=np.zeros(3),
+                         keyframes=5, local_pose=np.zeros(3), localization=localization, pose_cov=cov)
+
+    async def facts_when(debug_port, predicate):
+        targets = get_json(f"http://127.0.0.1:{debug_port}/json/list")
+        page = next(tg for tg in targets if tg["type"] == "page")
+        async with websockets.connect(page["webSocketDebuggerUrl"], max_size=None) as ws:
+            tools = DevTools(ws)
+            deadline = time.monotonic() + 30
+            while True:
+                try:
+                    facts = json.loads(await tools.evaluate(LOCALIZATION_FACTS))
+                except RuntimeError:   # the page is still loading
+                    facts = None
+                if facts is not None and predicate(facts):
+                    shot = await tools.call("Page.captureScreenshot", format="png")
+                    return facts, base64.b64decode(shot["data"])
+                if time.monotonic() > deadline:
+                    pytest.fail(f"the page never showed it: {facts}")
+                await asyncio.sleep(0.2)
+
+    try:
+        send(topics.SLAM_STATE, t.SlamState(stamp_ns=10**9, seq=1, scan_seq=1, pose=np.array([1.0, 2.0, 0.3]),
+                                            pose_cov=np.eye(3) * 1e-4))
+        send(topics.MAP_POSE, map_pose(t.NOT_LOCALIZED))
+        browser, debug_port = open_chromium(chromium, tmp_path / "chromium", f"http://127.0.0.1:{server.port}/")
+        try:
+            lost, png = asyncio.run(facts_when(debug_port, lambda f: f["shown"] and f["text"] != "–"))
+            cov = np.diag([0.03 ** 2, 0.04 ** 2, np.radians(0.5) ** 2])
+            send(topics.MAP_POSE, map_pose(t.LOCALIZED, cov))
+            found, png_found = asyncio.run(facts_when(debug_port, lambda f: f["text"].startswith("localized")))
+        finally:
+            browser.terminate()
+            browser.wait(15)
+    finally:
+        server.close()
+    assert lost["text"] == "NOT LOCALIZED"
+    assert found["text"] == "localized (σ 0.050 m, 0.50°)"
+
+    def red_pixels(shot: bytes, box: dict) -> int:
+        rgb = image.imread(io.BytesIO(shot))[..., :3]
+        crop = rgb[int(box["top"]) + 2:int(box["bottom"]) - 2, int(box["left"]) + 2:int(box["right"]) - 2]
+        return int(((crop[..., 0] > 0.6) & (crop[..., 1] < 0.3) & (crop[..., 2] < 0.3)).sum())
+    # Not localized: the canvas says so in red (and rings the robot); localized, no red on it.
+    assert red_pixels(png, lost["canvas"]) > 100 and red_pixels(png_found, found["canvas"]) == 0

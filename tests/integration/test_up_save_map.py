@@ -8,11 +8,14 @@ import sys
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 from lrfslam.algo.geometry import relative
 from lrfslam.msgs import topics
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.saved_map import load_map
+from lrfslam.viz import foxglove as fx
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]   # lrfslam up end to end: the slow step
 
@@ -66,3 +69,11 @@ def test_up_localizes_in_a_saved_map_from_elsewhere(tmp_path):
     errors = [np.hypot(*(p.pose[:2] - truth[p.stamp_ns][:2])) for p in localized if p.stamp_ns in truth]
     assert errors and max(errors) < 0.5 and np.median(errors) < 0.15, (np.median(errors), max(errors))
     assert all(p.pose_cov is not None for p in localized)
+    # Foxglove's view, recorded beside: "not localized" at the start, then "localized" with an ellipse.
+    said = []
+    for segment in sorted(recording.glob("*.mcap")):
+        with open(segment, "rb") as f:
+            for _, channel, _, scene in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                    topics=[fx.LOCALIZATION]):
+                said.append((scene.entities[0].texts[0].text, len(scene.entities[0].spheres)))
+    assert said[0] == ("not localized", 0) and ("localized", 1) in said, said[:5]

@@ -188,3 +188,25 @@ def test_the_server_closes_at_once_while_a_page_is_open_and_idle(caplog):
         with caplog.at_level(logging.WARNING, logger="lrfslam.tools.webserver"):
             server.close()
         assert not caplog.records
+
+
+def map_pose(stamp_s: float, x_m: float, localization: int, cov=None) -> t.MapPose:
+    return t.MapPose(stamp_ns=int(stamp_s * 1e9), seq=int(stamp_s * 10), scan_seq=int(stamp_s * 10),
+                     pose=np.array([x_m, 0.0, 0.0]), map_from_slam=np.zeros(3), keyframes=5, local_pose=np.zeros(3),
+                     localization=localization, pose_cov=cov)
+
+
+def test_on_a_saved_map_the_snapshot_says_whether_and_how_surely_the_robot_is_localized():
+    model = dash.DashboardModel(dash.DashboardConfig(path_step_m=0.0))
+    model.add("map/pose", map_pose(1.0, 0.0, t.MAPPING))
+    assert model.snapshot()["localization"] is None          # mapping: nothing to say
+    model.add("map/pose", map_pose(1.1, 1.0, t.NOT_LOCALIZED))
+    snap = json.loads(json.dumps(model.snapshot()))
+    assert snap["localization"] == {"localized": False, "sigma_m": None, "sigma_deg": None}
+    assert len(snap["map_trajectory"]) == 1                  # a pose not placed on the map is not drawn on it
+    cov = np.diag([0.03 ** 2, 0.04 ** 2, math.radians(0.5) ** 2])
+    model.add("map/pose", map_pose(1.2, 2.0, t.LOCALIZED, cov))
+    snap = json.loads(json.dumps(model.snapshot()))
+    assert snap["localization"]["localized"] and snap["localization"]["sigma_m"] == pytest.approx(0.05, abs=1e-4)
+    assert snap["localization"]["sigma_deg"] == pytest.approx(0.5, abs=1e-3)
+    assert [p[0] for p in snap["map_trajectory"]] == [0.0, 2.0]

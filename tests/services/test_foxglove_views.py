@@ -347,3 +347,32 @@ def test_the_mappers_correction_moves_the_slam_frame_and_the_robot():
     odom_at_10 = np.array([1.0, -0.2, 0.2])     # halfway between the two odometry samples
     robot, expected = compose(trs[("map", "odom")], odom_at_10), compose(correction, state.pose)
     assert robot[:2] == pytest.approx(expected[:2]) and same_angle(robot[2], expected[2])
+
+
+def test_on_a_saved_map_the_localization_scene_says_whether_and_how_surely():
+    views = fx.FoxgloveViews()
+    cov = np.diag([0.04, 0.01, 0.001])
+
+    def pose(stamp_s, localization):
+        return t.MapPose(stamp_ns=int(stamp_s * 1e9), seq=1, scan_seq=1, pose=np.array([2.0, 3.0, 0.5]),
+                         map_from_slam=np.zeros(3), keyframes=5, local_pose=np.zeros(3), localization=localization,
+                         pose_cov=cov if localization == t.LOCALIZED else None)
+
+    def scenes(stamp_s, localization):
+        return [decode(v) for v in views.convert("map/pose", pose(stamp_s, localization), int(stamp_s * 1e9))
+                if v.topic == fx.LOCALIZATION]
+
+    assert scenes(0.0, t.MAPPING) == []                       # mapping: no localization to show
+    (lost,) = scenes(1.0, t.NOT_LOCALIZED)
+    (entity,) = lost.entities
+    assert entity.frame_id == fx.MAP and entity.texts[0].text == "not localized" and not entity.spheres
+    assert entity.texts[0].color.r > 0.8 and entity.texts[0].color.g < 0.2
+    assert scenes(1.5, t.NOT_LOCALIZED) == []                 # unchanged: at most every path_period_s
+    (found,) = scenes(1.6, t.LOCALIZED)                       # changed: at once
+    (entity,) = found.entities
+    assert entity.texts[0].text == "localized"
+    major, minor, _ = fx.ellipse_axes(cov[:2, :2])            # the position's 95 % ellipse at the pose
+    (sphere,) = entity.spheres
+    assert (sphere.size.x, sphere.size.y) == pytest.approx((2 * major, 2 * minor))
+    assert xyt(sphere.pose)[:2] == pytest.approx([2.0, 3.0])
+    assert len(scenes(2.7, t.LOCALIZED)) == 1                 # and again a period later

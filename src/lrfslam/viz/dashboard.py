@@ -5,6 +5,7 @@ serves it): the scan of the newest SLAM state (every beam, and the beams the den
 its corners, placed at that state's pose; the EKF's landmarks with their 95 % ellipses; the EKF's
 trajectory, the mapper's loop-closed one and the simulator's ground truth; the mapper's live
 occupancy grid (its ``map/grid`` tiles put together, served as a picture, :meth:`DashboardModel.grid_png`);
+on a saved map, whether the robot is localized on it and how surely (the mapper's ``map/pose``);
 and a row per service from its health (level, message, rates, drops, gaps, errors) and its
 liveliness. Everything is drawn in the EKF's ``slam`` frame (x, y in m): the loop-closed trajectory
 and the grid are moved there by the mapper's ``map_from_slam``, the truth by the first EKF pose that has a true pose at its stamp (as
@@ -130,6 +131,7 @@ class DashboardModel:
         self._slam_from_world: np.ndarray | None = None
         self._map_from_slam = np.zeros(3)
         self._keyframes_until_ns = 0
+        self._map_pose: t.MapPose | None = None            # the mapper's newest
         self._keyframe_path = KeyframePath(self.cfg.max_path_poses // 4)
         self.grid = GridReplica()
         self.grid_version = 0              # bumped with every map/grid
@@ -173,6 +175,7 @@ class DashboardModel:
             self.truth_path.add(*value.pose[:2])
         elif name == topics.MAP_POSE.name:
             self._map_from_slam = np.asarray(value.map_from_slam, float)
+            self._map_pose = value
             # On a saved map, a scan not localized is not drawn on it (its pose is a guess).
             if value.stamp_ns > self._keyframes_until_ns and value.localization != t.NOT_LOCALIZED:
                 self.map_path.add(*value.pose[:2])
@@ -278,10 +281,25 @@ class DashboardModel:
                 "resolution": self.grid.resolution_m, "width": int(w), "height": int(h),
                 "slam_from_map": [round(float(v), 6) for v in inverse(self._map_from_slam)]}
 
+    def _localization(self) -> dict[str, Any] | None:
+        """On a saved map (``lrfslam up --map MAP --localize``): whether the newest scan is placed on
+        it, and how sure (the 1-sigma position error, m, and heading error, degrees, of the pose's
+        covariance); None while the mapper maps."""
+        mp = self._map_pose
+        if mp is None or mp.localization == t.MAPPING:
+            return None
+        located = mp.localization == t.LOCALIZED
+        out: dict[str, Any] = {"localized": located, "sigma_m": None, "sigma_deg": None}
+        cov = mp.pose_cov
+        if located and cov is not None and np.all(np.isfinite(cov)):
+            out["sigma_m"] = round(math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)), 4)
+            out["sigma_deg"] = round(math.degrees(math.sqrt(max(float(cov[2, 2]), 0.0))), 3)
+        return out
+
     def snapshot(self) -> dict[str, Any]:
         """Everything the page draws, JSON-able; positions in the ``slam`` frame, m."""
         snap: dict[str, Any] = {"version": self.version, "scans": self.scans, "states": self.states,
-                                "grid": self._grid_placement(),
+                                "grid": self._grid_placement(), "localization": self._localization(),
                                 "services": self.services(), "trajectory": _moved(np.zeros(3), self.slam_path.xy),
                                 "map_trajectory": _moved(inverse(self._map_from_slam), self.map_path.xy),
                                 "truth": [] if self._slam_from_world is None

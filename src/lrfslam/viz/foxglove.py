@@ -17,6 +17,7 @@ slam/state, slam/map       /foxglove/landmarks             foxglove.SceneUpdate 
 slam/state                 /foxglove/trajectory/slam       foxglove.PosesInFrame     slam
 map/pose, map/keyframes    /foxglove/trajectory/map        foxglove.PosesInFrame     map
 map/grid                   /foxglove/map                   foxglove.Grid             map
+map/pose (on a saved map)  /foxglove/localization          foxglove.SceneUpdate      map
 odom                       /foxglove/trajectory/odom       foxglove.PosesInFrame     odom
 truth                      /foxglove/trajectory/truth      foxglove.PosesInFrame     world
 odom, slam/state, map/pose /foxglove/tf                    foxglove.FrameTransforms  (tree below)
@@ -41,7 +42,10 @@ bounded (:class:`ViewConfig`). The map is the mapper's tiles put together (``msg
 as one ``foxglove.Grid`` (Foxglove's 3D panel draws the newest message of a channel), one int8
 field ``occupancy``: 100 occupied, 0 free, -1 unknown, as ``nav_msgs/OccupancyGrid``; it goes out
 after a change at most every ``map_period_s`` of data time, and a large map less often (a second
-per ``map_cells_per_s`` cells). A service's health is logged when its level or message changes.
+per ``map_cells_per_s`` cells). On a saved map (``lrfslam up --map MAP --localize``) the
+localization view says at the robot whether it is localized, with its position's 95 % ellipse,
+or "not localized" in red, when that changes and at most every ``path_period_s`` of data time
+otherwise. A service's health is logged when its level or message changes.
 """
 
 from __future__ import annotations
@@ -76,6 +80,7 @@ TRAJECTORY_ODOM = P + "trajectory/odom"
 TRAJECTORY_TRUTH = P + "trajectory/truth"
 TF = P + "tf"
 GRID = P + "map"
+LOCALIZATION = P + "localization"
 LOG = topics.FOXGLOVE_LOG
 
 #: Every view channel and the foxglove-sdk message class it carries.
@@ -83,6 +88,7 @@ CHANNELS: dict[str, type] = {
     SCAN: fm.LaserScan, SCAN_FILTERED: fm.LaserScan, FEATURES: fm.SceneUpdate, LANDMARKS: fm.SceneUpdate,
     TRAJECTORY_SLAM: fm.PosesInFrame, TRAJECTORY_MAP: fm.PosesInFrame, TRAJECTORY_ODOM: fm.PosesInFrame,
     TRAJECTORY_TRUTH: fm.PosesInFrame, TF: fm.FrameTransforms, GRID: fm.Grid, LOG: fm.Log,
+    LOCALIZATION: fm.SceneUpdate,
 }
 
 WORLD, MAP, SLAM, ODOM, BASE, LASER = "world", "map", "slam", "odom", "base_link", "laser"
@@ -97,6 +103,7 @@ JUMP_EDGE_RGBA = (0.1, 0.5, 1.0, 1.0)
 LANDMARK_RGBA = (0.85, 0.1, 0.1, 1.0)
 TENTATIVE_RGBA = (1.0, 0.45, 0.75, 1.0)
 POSE_RGBA = (0.2, 0.8, 0.2, 1.0)
+NOT_LOCALIZED_RGBA = (0.85, 0.1, 0.1, 1.0)
 ELLIPSE_ALPHA = 0.35
 MARKER_M = 0.06          # diameter of the dot at a feature or landmark
 ELLIPSE_THICKNESS_M = 0.005
@@ -280,6 +287,21 @@ def landmarks_scene(state: t.SlamState, landmarks: t.Landmarks) -> fm.SceneUpdat
     return replace_all(state.stamp_ns, entities)
 
 
+def localization_scene(mp: t.MapPose) -> fm.SceneUpdate:
+    """On a saved map: at the robot's pose in ``map``, its position's 95 % ellipse and "localized", or
+    "not localized" in red (the pose is then the dead-reckoned guess)."""
+    ts = timestamp(mp.stamp_ns)
+    x, y, _ = mp.pose
+    if mp.localization == t.LOCALIZED:
+        spheres = [ellipse(x, y, mp.pose_cov[:2, :2], POSE_RGBA)] if mp.pose_cov is not None else []
+        entity = fm.SceneEntity(timestamp=ts, frame_id=MAP, id="localization", spheres=spheres,
+                                texts=[label(x, y, "localized", POSE_RGBA)])
+    else:
+        entity = fm.SceneEntity(timestamp=ts, frame_id=MAP, id="localization",
+                                texts=[label(x, y, "not localized", NOT_LOCALIZED_RGBA)])
+    return replace_all(mp.stamp_ns, [entity])
+
+
 def occupancy_grid(stamp_ns: int, image: GridImage) -> fm.Grid:
     """``foxglove.Grid`` of the map in frame ``map``: one int8 field ``occupancy`` per cell (100, 0, -1)."""
     w = image.cells.shape[1]
@@ -374,6 +396,7 @@ class FoxgloveViews:
         self._grid = GridReplica()
         self._grid_due_ns: int | None = None
         self._health: dict[str, tuple[int, str]] = {}
+        self._localization: tuple[int, int] | None = None   # (status, data stamp) last shown
         self._handlers: dict[str, Callable[[Any, int], list[View]]] = {
             topics.SCAN.name: self._scan, topics.SCAN_FILTERED.name: self._filtered,
             topics.FEATURES.name: self._features, topics.SLAM_STATE.name: self._slam, topics.SLAM_MAP.name: self._map_of,
@@ -473,6 +496,12 @@ class FoxgloveViews:
     def _map_pose(self, mp: t.MapPose, at: int) -> list[View]:
         self._map_from_slam = mp.map_from_slam
         views = [View(TF, fm.FrameTransforms(transforms=[transform(mp.stamp_ns, MAP, SLAM, mp.map_from_slam)]), at)]
+        if mp.localization != t.MAPPING:
+            last = self._localization
+            if last is None or last[0] != mp.localization or \
+                    not 0 <= mp.stamp_ns - last[1] < self.cfg.path_period_s * 1e9:
+                self._localization = (mp.localization, mp.stamp_ns)
+                views.append(View(LOCALIZATION, localization_scene(mp), at))
         if mp.localization == t.NOT_LOCALIZED:   # on a saved map, not placed on it: no path point
             return views
         return views + self._path(TRAJECTORY_MAP, mp.stamp_ns, mp.pose, at)
