@@ -14,6 +14,7 @@ from lrfslam.algo.geometry import (
     compose,
     from_frame,
     relative,
+    rotate_covariance,
     thin_points,
 )
 from lrfslam.algo.loop_closure.keyframes import (
@@ -34,6 +35,8 @@ from lrfslam.algo.loop_closure.params import (
     ODOM_TRANS_SIGMA_M,
     ODOMETRY_KEYFRAMES,
     OPTIMISE_CHI2,
+    SAVED_EDGE_SIGMA_M,
+    SAVED_EDGE_SIGMA_RAD,
     SCAN_MATCH,
     LoopClosureParams,
 )
@@ -124,6 +127,8 @@ class LoopClosingMapper:
         pose = np.asarray(local_pose, dtype=float)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             raise InputError("local_pose must be (3,) and finite")
+        if self._keyframes and self._keyframes[-1].ordinal < self._search.run_start:
+            raise InputError("a mapper seeded with a saved map takes its first scan by join()")
         p = self.params
         stamp_ns = int(stamp_ns)
         online = None if online_pose is None else np.asarray(online_pose, dtype=float)
@@ -152,6 +157,87 @@ class LoopClosingMapper:
             self._scan_rel.append(rel)
             self._stamps.append(stamp_ns)
         return compose(self.graph.poses[k], rel)
+
+    @classmethod
+    def seeded(cls, params: LoopClosureParams | None, map_poses, keyframe_points, stamps_ns) -> LoopClosingMapper:
+        """A mapper that goes on from a saved map (``lrfslam up --map MAP``): its K keyframes in the graph.
+
+        The saved map holds its keyframes' optimised poses, not the closures that shaped them. So
+        each saved keyframe is tied to the one before as an odometry edge is (the drift model,
+        ``odom_*``), at their saved relative pose, and to the first (the gauge) by a loose edge
+        (``SAVED_EDGE_SIGMA_*``) at its saved pose: at rest where it was saved, as flexible
+        locally as the map was built, held in place over the building where a chain's flex would
+        add up. A new run's closures move the saved keyframes near them as they would have moved
+        the first run's.
+        They are closure candidates like any old keyframe; the run's first scan is placed on them
+        by :meth:`join`, every later one by :meth:`add_scan`. Keeps no per-scan history.
+
+        Parameters
+        ----------
+        params : LoopClosureParams or None
+        map_poses : array_like, shape (K, 3)
+            The keyframes' poses in the map frame (m, m, rad), in the order they were made.
+        keyframe_points : sequence of K arrays, shape (N_k, 2)
+            Each keyframe's scan points in its robot frame (m).
+        stamps_ns : array_like of int, shape (K,)
+            The stamps of the scans that made them.
+        """
+        poses = np.asarray(map_poses, dtype=float).reshape(-1, 3)
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        if poses.shape[0] == 0 or len(keyframe_points) != poses.shape[0] or stamps.shape != (poses.shape[0],) \
+                or not np.all(np.isfinite(poses)):
+            raise InputError("a saved map needs K finite poses, K point sets and K stamps, K >= 1")
+        mapper = cls(params, keep_scans=False)
+        held = np.diag([SAVED_EDGE_SIGMA_M ** -2] * 2 + [SAVED_EDGE_SIGMA_RAD ** -2])
+        travel = 0.0
+        for k, pose in enumerate(poses):
+            mapper.graph.add_node(pose)
+            if k:
+                step = relative(poses[k - 1], pose)
+                dist = float(np.hypot(step[0], step[1]))
+                mapper.graph.add_edge(k - 1, k, step, np.linalg.inv(mapper._odometry_cov(dist, abs(step[2]))))
+                mapper.graph.add_edge(0, k, relative(poses[0], pose), held)
+                travel += dist
+            mapper._keyframes.append(Keyframe(pose.copy(), mapper._keyframe_points(keyframe_points[k]), travel, False,
+                                              -1, int(stamps[k]), k))
+        mapper._made = mapper._search.run_start = poses.shape[0]
+        return mapper
+
+    def join(self, stamp_ns: int, local_pose, points_xy_m, map_pose, map_cov, online_pose=None) -> np.ndarray:
+        """The run's first scan of a :meth:`seeded` mapper, found on the saved map (a localizer's fix);
+        returns its pose (3,), ``map_pose``.
+
+        It makes a keyframe at ``map_pose``, tied to the nearest saved keyframe by an edge of
+        covariance ``map_cov`` (3, 3; in the map frame, the saved keyframe held fixed); its travel
+        starts ``min_travel_m`` past the saved map's, so every saved keyframe is a candidate from
+        the next keyframe on. ``local_pose``, ``points_xy_m``, ``online_pose``: as :meth:`add_scan`'s.
+
+        Raises
+        ------
+        InputError
+            The mapper is not a seeded one waiting for its run, or an input is malformed.
+        """
+        if not self._keyframes or self._keyframes[-1].ordinal >= self._search.run_start:
+            raise InputError("join() takes the first scan of a mapper seeded with a saved map")
+        local = np.asarray(local_pose, dtype=float)
+        at = np.asarray(map_pose, dtype=float)
+        cov = np.asarray(map_cov, dtype=float)
+        if local.shape != (3,) or at.shape != (3,) or cov.shape != (3, 3) or not (
+                np.all(np.isfinite(local)) and np.all(np.isfinite(at)) and np.all(np.isfinite(cov))):
+            raise InputError("join needs a finite local pose (3,), map pose (3,) and covariance (3, 3)")
+        poses = self.graph.poses
+        k = int(np.argmin(np.hypot(poses[:, 0] - at[0], poses[:, 1] - at[1])))
+        node = self.graph.add_node(at)
+        self.graph.add_edge(k, node, relative(poses[k], at), np.linalg.inv(rotate_covariance(cov, -poses[k, 2])))
+        self._made += 1
+        online = None if online_pose is None else np.asarray(online_pose, dtype=float)
+        self._keyframes.append(Keyframe(local.copy(), self._keyframe_points(points_xy_m),
+                                        self._keyframes[-1].travel_m + self.params.min_travel_m, False,
+                                        self._scans_fed, int(stamp_ns), self._made - 1, online_pose=online))
+        self._last_local_pose = local
+        self._reference = np.zeros(3)
+        self._scans_fed += 1
+        return at.copy()
 
     def solve(self) -> None:
         """Optimise the graph for every closure not solved for yet (the keyframe poses are then final)."""
@@ -251,11 +337,7 @@ class LoopClosingMapper:
 
     def _add_keyframe(self, local_pose: np.ndarray, points_xy_m, moved: np.ndarray | None, stamp_ns: int,
                       online_pose: np.ndarray | None) -> None:
-        p = self.params
-        pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < p.max_range_m]
-        pts = thin_points(pts, KEYFRAME_CELL_M)
+        pts = self._keyframe_points(points_xy_m)
         self._made += 1
         if moved is None:
             self.graph.add_node(local_pose)
@@ -275,6 +357,13 @@ class LoopClosingMapper:
                                          step is moved, self._scans_fed, stamp_ns, self._made - 1,
                                          online_pose=online_pose))
         self._trim(len(self._keyframes) - 1 - self._recent_keyframes)
+
+    def _keyframe_points(self, points_xy_m) -> np.ndarray:
+        """A keyframe's points (N, 2) as it keeps them: finite, within ``max_range_m``, thinned."""
+        pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) < self.params.max_range_m]
+        return thin_points(pts, KEYFRAME_CELL_M)
 
     @property
     def _recent_keyframes(self) -> int:
@@ -321,8 +410,10 @@ class LoopClosingMapper:
         """The ``ODOMETRY_KEYFRAMES`` keyframes up to ``last`` merged in ``last``'s frame by their graph poses."""
         poses = self.graph.poses
         first = max(0, last - ODOMETRY_KEYFRAMES + 1)
+        same = self._search.same_side
         pts = np.vstack([from_frame(self._keyframes[i].points_xy_m, relative(poses[last], poses[i]))
-                         for i in range(first, last + 1)])
+                         for i in range(first, last + 1)
+                         if same(self._keyframes[i].ordinal, self._keyframes[last].ordinal)])
         return ReferenceScan.build(thin_points(pts, KEYFRAME_CELL_M))
 
     def _odometry_cov(self, dist_m: float, turn_rad: float) -> np.ndarray:

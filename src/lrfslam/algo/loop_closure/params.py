@@ -53,6 +53,11 @@ CONFIRM_RAD = 0.05
 #: of the whole graph.
 OPTIMISE_CHI2 = 9.0
 MAX_PENDING_CLOSURES = 10
+#: A saved map's keyframes (:meth:`LoopClosingMapper.seeded`) are held at their saved poses, in the
+#: first one's frame, to within this (m, rad): what a saved map, closed by its own run, is sure of
+#: over the building; locally the drift model's odometry edges hold them to each other.
+SAVED_EDGE_SIGMA_M = 0.05
+SAVED_EDGE_SIGMA_RAD = 0.01
 #: The new keyframe's scan is matched against this many last keyframes, merged.
 ODOMETRY_KEYFRAMES = 3
 #: An odometry edge is the local motion between the keyframes unless it differs from the keyframes'

@@ -147,6 +147,10 @@ class ClosureSearch:
         #: keyframe -> (last neighbour in it, grid, line reference), least recently used first
         self.submaps: OrderedDict[int, tuple[int, LikelihoodGrid, ReferenceScan]] = OrderedDict()
         self.tentative: Closure | None = None   # a closure from a wide window awaiting confirmation
+        #: Keyframes made before this ordinal are a saved map's (:meth:`LoopClosingMapper.seeded`): a
+        #: query is made of the run's own keyframes, a submap of one side's, never of both (the
+        #: saved map's last keyframe and the run's first are neighbours in order, not in space).
+        self.run_start = 0
         self.last_wide_search_m = -np.inf   # travel at the last wide search
         # Of the closures that passed verification: how many, and their NIS summed (a running
         # total: a long run's closures are not kept).
@@ -225,6 +229,10 @@ class ClosureSearch:
                 self.tentative = closure
         return found
 
+    def same_side(self, a: int, b: int) -> bool:
+        """Whether the keyframes made ``a``-th and ``b``-th (ordinals) are both the saved map's or both the run's."""
+        return (a < self.run_start) == (b < self.run_start)
+
     def _agree(self, graph: PoseGraph, first: Closure, second: Closure) -> bool:
         """Do two closures put the second one's keyframe at the same place (``confirm_*``)?
 
@@ -264,7 +272,8 @@ class ClosureSearch:
         """The last ``query_keyframes`` keyframes' points in keyframe ``n``'s frame (graph poses), thinned."""
         first = max(0, n - self.params.query_keyframes + 1)
         poses = graph.poses
-        parts = [from_frame(keyframes[i].points_xy_m, relative(poses[n], poses[i])) for i in range(first, n + 1)]
+        parts = [from_frame(keyframes[i].points_xy_m, relative(poses[n], poses[i])) for i in range(first, n + 1)
+                 if self.same_side(keyframes[i].ordinal, keyframes[n].ordinal)]
         return thin_points(np.vstack(parts), QUERY_CELL_M)
 
     def _submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int,
@@ -315,7 +324,7 @@ class ClosureSearch:
         start = int(np.searchsorted(ordinals, first))
         end = int(np.searchsorted(ordinals, last, side="right"))
         pts = np.vstack([from_frame(keyframes[i].points_xy_m, relative(poses[k], poses[i]))
-                         for i in range(start, end)])
+                         for i in range(start, end) if self.same_side(keyframes[i].ordinal, keyframes[k].ordinal)])
         pts = thin_points(pts, KEYFRAME_CELL_M)
         return LikelihoodGrid(pts, p.correlative), ReferenceScan.build(pts)
 

@@ -65,6 +65,7 @@ def snapshot(mapper: LoopClosingMapper) -> dict[str, np.ndarray]:
         "pending_closures": np.int64(mapper._pending),
         "pending_strong": np.bool_(mapper._pending_strong),
         "last_wide_search_m": np.float64(mapper._search.last_wide_search_m),
+        "run_start": np.int64(mapper._search.run_start),
         # keyframe pairs (2,), measurement (3,), covariance (9,), innovation (3,); empty if none
         "tentative_closure": np.zeros(0) if tentative is None else np.concatenate(
             (np.array(tentative[:2], dtype=float), tentative[2], np.ravel(tentative[3]), tentative[4])),
@@ -142,6 +143,8 @@ def restore(cls: type[LoopClosingMapper], params: LoopClosureParams | None, arra
         mapper._pending = int(arrays["pending_closures"])
         mapper._pending_strong = bool(arrays["pending_strong"])
         mapper._search.last_wide_search_m = float(arrays["last_wide_search_m"])
+        # A snapshot from before saved maps were mapped on from has every keyframe its run's.
+        mapper._search.run_start = int(arrays["run_start"]) if "run_start" in arrays else 0
         tentative = np.array(arrays["tentative_closure"], dtype=float)
         if tentative.size:
             mapper._search.tentative = (int(tentative[0]), int(tentative[1]), tentative[2:5],
