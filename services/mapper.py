@@ -22,6 +22,10 @@ states' motions; where that chain breaks (a state number skipped: states lost, t
 stage restarted) the filter's own pose change bridges the gap, taken as the motion across it: the
 closures that follow correct what the filter got wrong meanwhile.
 
+On a saved map (``map``) the mapper maps on from it (:class:`MapperStep`: found on the map first,
+then joined to its graph; docs/maps.md "Mapping on from a saved map"), or with ``localize`` only
+localizes in it (:class:`LocalizeStep`).
+
 The live occupancy grid (``lrfslam.algo.keyframe_grid``) is the graph's keyframes' raw scans at
 their optimised poses, traced as ``lrfslam export`` traces a recording's; keyframes an optimisation
 moved are laid again, one per scan. It travels as the tiles whose cells changed, so a message
@@ -64,8 +68,9 @@ GRID_PERIOD_NS = 1_000_000_000
 class MapperConfig:
     """The mapper stage's configuration; ``SETTINGS`` are the names an operator sets (docs/settings.md).
 
-    ``map``: a saved map's folder (``lrfslam map save``); ``localize``: find and track the robot on
-    it instead of mapping (``lrfslam up --map MAP --localize``; docs/maps.md).
+    ``map``: a saved map's folder (``lrfslam map save``) to map on from (``lrfslam up --map MAP``);
+    with ``localize``, find and track the robot on it instead, the map unchanged (``lrfslam up
+    --map MAP --localize``; docs/maps.md).
     """
 
     loop_closure: LoopClosureParams = field(default_factory=LoopClosureParams)
@@ -92,8 +97,6 @@ class MapperConfig:
     def __post_init__(self) -> None:
         if self.localize and not self.map:
             raise ConfigError("mapper: localize needs map, a saved map's folder (lrfslam map save)")
-        if self.map and not self.localize:
-            raise ConfigError("mapper: mapping on from a saved map is not built yet; with map, set localize=true")
 
 
 class LocalTrajectory:
@@ -132,12 +135,44 @@ class LocalTrajectory:
         return local, reference
 
 
+def load_saved(path: str) -> SavedMap:
+    """The saved map at ``path``; :class:`ConfigError` (one line) where it cannot be read."""
+    try:
+        return load_map(path)
+    except MapFormatError as exc:
+        raise ConfigError(f"mapper: map {path}: {exc}") from None
+
+
+def localizer_on(saved: SavedMap) -> Localizer:
+    """A :class:`Localizer` on the saved map's keyframes and walls."""
+    return Localizer(LocalizationMap(saved.map_pose, [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])],
+                                     Walls(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)))
+
+
 class MapperStep(StepBase):
-    def __init__(self, cfg: MapperConfig, ctx: RunContext) -> None:
+    """The mapper: from an empty map, or with ``map`` from a saved one (mapping on).
+
+    On a saved map the graph starts as the saved keyframes
+    (:meth:`LoopClosingMapper.seeded`) and the grid as their scans; the robot is first found on
+    the map as in localization (:class:`~lrfslam.algo.localization.Localizer`; ``map/pose`` says
+    "not localized" meanwhile, and those scans make no keyframe), and at the fix the run joins the
+    graph (:meth:`LoopClosingMapper.join`); from then on it maps as from an empty map, and closes
+    its revisits into the saved keyframes.
+    """
+
+    def __init__(self, cfg: MapperConfig, ctx: RunContext, saved: SavedMap | None = None) -> None:
         super().__init__()
         self.cfg = cfg
         kernels.prepare()
-        self.mapper = LoopClosingMapper(cfg.loop_closure, keep_scans=False)
+        if cfg.map and saved is None:
+            saved = load_saved(cfg.map)
+        self.saved = saved
+        self.mapper = LoopClosingMapper(cfg.loop_closure, keep_scans=False) if saved is None else \
+            LoopClosingMapper.seeded(cfg.loop_closure, saved.map_pose,
+                                     [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])],
+                                     saved.stamp_ns)
+        #: Until the robot is found on the saved map (None: mapping from an empty map, or joined).
+        self.finder = localizer_on(saved) if saved is not None else None
         # A slam state waits for its scan as features do in the slam stage (no odometry here).
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))
@@ -151,6 +186,14 @@ class MapperStep(StepBase):
         self._grid_due_ns: int | None = None
         self._grid_sent: dict[tuple[int, int], bytes] = {}   # tile -> its cells as last published
         self._grid_resolution_changes = 0
+        if saved is not None:
+            try:
+                for k, (stamp, pose) in enumerate(zip(saved.stamp_ns.tolist(), saved.map_pose, strict=True)):
+                    self.grid.add_scan(stamp, *saved.keyframe_scan(k))
+                    self.grid.add_keyframe(stamp, pose)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ConfigError(f"mapper: map {cfg.map}: no laser layout in its manifest ({exc!r})") from None
+            self._grid_resolution_changes = self.grid.grid.resolution_changes
 
     def on_message(self, msg: Message):
         v = msg.value
@@ -165,7 +208,7 @@ class MapperStep(StepBase):
     def finish(self):
         outs = [out for a in self.align.ready(final=True) for out in self._place(a.features, a.scan_xy_m)]
         if self.mapper.keyframe_count:
-            self.mapper.solve()   # every closure still pending
+            self.mapper.finish()   # every closure still pending solved for, every revisit folded
             outs.append(self._keyframes(self._last_stamp))
             self.grid.work(-1)
             outs += self._grid_changes(self._last_stamp, final=True)
@@ -217,10 +260,36 @@ class MapperStep(StepBase):
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
         local, reference = self.local.add(state)
+        if self.finder is not None and self.mapper.waiting_for_join:
+            return self._find(state, local, points)
         made = self.mapper.keyframe_count
         pose = self.mapper.add_scan(state.stamp_ns, local, points, reference, online_pose=state.pose)
         if self.mapper.keyframe_count != made:   # this scan made a keyframe: its pose is the keyframe's
             self.grid.add_keyframe(state.stamp_ns, pose)
+        return self._placed(state, pose, local)
+
+    def _find(self, state: t.SlamState, local: np.ndarray, points: np.ndarray) -> list[Output]:
+        """On a saved map before the fix: the scan to the localizer; at the fix the run joins the graph."""
+        found = self.finder.add_scan(local, points)
+        self.counts["global_searches"] = self.finder.searches
+        if found.status is not Status.LOCALIZED:
+            self.counts["not_localized"] += 1
+            self.counts["scans"] += 1
+            self._last_stamp = state.stamp_ns
+            self.seq += 1
+            outs = [Output(topics.MAP_POSE, t.MapPose(
+                stamp_ns=state.stamp_ns, seq=self.seq, scan_seq=state.scan_seq, pose=found.pose,
+                map_from_slam=compose(found.pose, relative(state.pose, np.zeros(3))),
+                keyframes=self.mapper.keyframe_count, local_pose=local, localization=t.NOT_LOCALIZED))]
+            return outs + self._grid_changes(state.stamp_ns)
+        log.info("found on the saved map after %d global searches: mapping on from it", self.finder.searches)
+        pose = self.mapper.join(state.stamp_ns, local, points, found.pose, found.cov, online_pose=state.pose)
+        self.grid.add_keyframe(state.stamp_ns, pose)
+        self.finder = None   # (a restarted mapper knows it joined from its graph)
+        return self._placed(state, pose, local)
+
+    def _placed(self, state: t.SlamState, pose: np.ndarray, local: np.ndarray) -> list[Output]:
+        """``map/pose`` of a scan the graph placed at ``pose``, the keyframes after an optimisation, the grid."""
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats
         verified, nis_sum = self.mapper.closure_nis
@@ -302,7 +371,12 @@ class MapperStep(StepBase):
 
     def health(self) -> tuple[int, str]:
         s = self.mapper.stats
-        return t.HEALTH_OK, f"{self.mapper.keyframe_count} keyframes, {s.accepted - s.removed} closures"
+        if self.saved is None:
+            return t.HEALTH_OK, f"{self.mapper.keyframe_count} keyframes, {s.accepted - s.removed} closures"
+        if self.mapper.waiting_for_join:
+            return t.HEALTH_OK, f"not localized: searching the saved map ({self.counts['global_searches']} global searches)"
+        return t.HEALTH_OK, (f"mapping on the saved map: {self.mapper.keyframe_count - self.saved.map_pose.shape[0]} "
+                             f"keyframes made, {s.accepted - s.removed} closures")
 
 
 class LocalizeStep(StepBase):
@@ -317,15 +391,9 @@ class LocalizeStep(StepBase):
     def __init__(self, cfg: MapperConfig, ctx: RunContext, saved: SavedMap | None = None) -> None:
         super().__init__()
         kernels.prepare()
-        if saved is None:
-            try:
-                saved = load_map(cfg.map)
-            except MapFormatError as exc:
-                raise ConfigError(f"mapper: map {cfg.map}: {exc}") from None
-        self.saved = saved
-        self.localizer = Localizer(LocalizationMap(
-            saved.map_pose, [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])],
-            Walls(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)))
+        self.saved = saved if saved is not None else load_saved(cfg.map)
+        self.localizer = localizer_on(self.saved)
+        saved = self.saved
         self.tiles, self.tile_cells = tiles_of(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))

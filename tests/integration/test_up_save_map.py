@@ -13,6 +13,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from lrfslam.algo.geometry import relative
 from lrfslam.msgs import topics
+from lrfslam.msgs import types as t
 from lrfslam.runtime.recording import read_recording
 from lrfslam.runtime.saved_map import load_map
 from lrfslam.viz import foxglove as fx
@@ -77,3 +78,45 @@ def test_up_localizes_in_a_saved_map_from_elsewhere(tmp_path):
                     topics=[fx.LOCALIZATION]):
                 said.append((scene.entities[0].texts[0].text, len(scene.entities[0].spheres)))
     assert said[0] == ("not localized", 0) and ("localized", 1) in said, said[:5]
+
+
+def test_up_maps_on_from_a_saved_map_and_saves_it_grown(tmp_path):
+    """Map the hallway with ``up --save-map``, then ``up --map`` (no ``--localize``) from 40 m along with
+    other noise and ``--save-map`` again: the run is found on the map, then maps on it where the
+    simulator's truth is (in the saved map's frame); the map saved holds every saved keyframe, a few
+    new ones, and says what it was grown from."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    base = [sys.executable, "-m", "lrfslam.cli", "up", "--speedup", "4", "--port", str(port), "--quiet"]
+    res = subprocess.run([*base, "--duration", "30", "--robot", "m1", "--save-map", "day0"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=180, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    res = subprocess.run([*base, "--duration", "30", "--robot", "m2", "--map", "day0", "--save-map", "day1",
+                          "--set", "sensor.start_m=40", "--set", "sensor.seed=9"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=180, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "map: saved to day1/" in res.stdout
+    (mapping,) = (tmp_path / "recordings").glob("*_m1")
+    first = next(read_recording(mapping, [topics.TRUTH.name]))
+    map_origin = topics.TRUTH.codec.decode(first.data, first.schema).pose
+    (recording,) = (tmp_path / "recordings").glob("*_m2")
+    truth = {}
+    for m in read_recording(recording, [topics.TRUTH.name]):
+        v = topics.TRUTH.codec.decode(m.data, m.schema)
+        truth[v.stamp_ns] = relative(map_origin, v.pose)   # in the map's frame
+    poses = [topics.MAP_POSE.codec.decode(m.data, m.schema) for m in read_recording(recording, [topics.MAP_POSE.name])]
+    states = [p.localization for p in poses]
+    assert t.MAPPING in states, states[-5:]
+    found = states.index(t.MAPPING)
+    assert set(states[:found]) <= {t.NOT_LOCALIZED} and set(states[found:]) == {t.MAPPING}
+    errors = [np.hypot(*(p.pose[:2] - truth[p.stamp_ns][:2])) for p in poses[found:] if p.stamp_ns in truth]
+    assert len(errors) > 200 and max(errors) < 0.5 and np.median(errors) < 0.15, (np.median(errors), max(errors))
+    day0, day1 = load_map(tmp_path / "day0"), load_map(tmp_path / "day1")
+    assert set(day0.stamp_ns.tolist()) <= set(day1.stamp_ns.tolist())
+    assert day0.stamp_ns.size < day1.stamp_ns.size < 1.5 * day0.stamp_ns.size
+    assert day1.manifest["based_on"][0]["recording"] == mapping.name
+    assert day1.landmark_ids.size >= day0.landmark_ids.size
+    info = subprocess.run([sys.executable, "-m", "lrfslam.cli", "map", "info", "day1"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60, check=True).stdout
+    assert f"based on:  {mapping.name}" in info

@@ -27,7 +27,6 @@ import numpy as np
 
 from lrfslam import services
 from lrfslam.algo.geometry import polar_to_xy, relative
-from lrfslam.evaluation.map_trajectory import KeyframeHistory
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.grid_replica import GridReplica
@@ -60,12 +59,15 @@ def chain_with(mapper: Stage, robot: str) -> Chain:
 
 
 class MapTaker:
-    """What a mapping run leaves that ``map save`` keeps: each scan's valid points, the keyframes,
-    the live grid; :meth:`saved` makes the saved map (no landmarks: the localizer does not read them)."""
+    """What a mapping run leaves that ``map save`` keeps: each scan's valid points, the graph's
+    keyframes at the end, the live grid, the laser's layout; :meth:`saved` makes the saved map (no
+    landmarks: the localizer does not read them)."""
 
     def __init__(self) -> None:
-        self.history, self.grid = KeyframeHistory(), GridReplica()
+        self.graph: t.MapKeyframes | None = None
+        self.grid = GridReplica()
         self.scans: dict[int, np.ndarray] = {}
+        self.laser: dict = {}
 
     def take(self, messages) -> None:
         """Keep what of ``messages`` (the chain's, inputs and outputs) a saved map is made of."""
@@ -74,17 +76,20 @@ class MapTaker:
                 v = m.value
                 ok = v.status == t.BEAM_VALID
                 self.scans[v.stamp_ns] = polar_to_xy(v.ranges_m[ok], v.angles_rad[ok])
+                self.laser = {"beams": int(v.ranges_m.size), "angle_min_rad": v.angle_min_rad,
+                              "angle_increment_rad": v.angle_increment_rad, "range_max_m": v.range_max_m}
             elif m.topic is topics.MAP_KEYFRAMES:
-                self.history.add(m.value)
+                self.graph = m.value
             elif m.topic is topics.MAP_GRID:
                 self.grid.apply(m.value)
 
     def saved(self) -> SavedMap:
-        kf = self.history.keyframes()
+        kf = self.graph
         blocks = [self.scans[int(s)] for s in kf.scan_stamp_ns]
         image = self.grid.image()
         none = np.zeros(0, np.int64)
-        return SavedMap(manifest={}, stamp_ns=kf.scan_stamp_ns, map_pose=kf.map_pose, local_pose=kf.local_pose,
+        return SavedMap(manifest={"laser": self.laser}, stamp_ns=kf.scan_stamp_ns, map_pose=kf.map_pose,
+                        local_pose=kf.local_pose,
                         local_edge=kf.local_edge, edge_from=none, edge_to=none, edge_motion=np.zeros((0, 3)),
                         points_xy_m=np.vstack(blocks), point_start=np.cumsum([0] + [b.shape[0] for b in blocks]),
                         landmark_ids=none, landmark_xy_m=np.zeros((0, 2)), landmark_cov_m2=np.zeros((0, 2, 2)),

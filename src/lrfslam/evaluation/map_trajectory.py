@@ -120,7 +120,8 @@ class FinalTrajectoryBuilder:
         elif topic == topics.SLAM_STATE.name:
             self._local["slam"][0].append(value.stamp_ns)
             self._local["slam"][1].append(value.pose)
-        elif topic == topics.MAP_POSE.name and value.local_pose is not None:
+        elif topic == topics.MAP_POSE.name and value.local_pose is not None \
+                and value.localization != t.NOT_LOCALIZED:   # (not placed on a saved map: no final pose)
             self._local["map"][0].append(value.stamp_ns)
             self._local["map"][1].append(value.local_pose)
 

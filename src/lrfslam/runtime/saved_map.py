@@ -125,6 +125,18 @@ class SavedMap:
         """Keyframe ``k``'s scan points in its robot frame, (N, 2) metres."""
         return self.points_xy_m[self.point_start[k]:self.point_start[k + 1]]
 
+    def keyframe_scan(self, k: int) -> tuple[np.ndarray, float, float]:
+        """Keyframe ``k``'s scan as the manifest's laser took it: ranges (B,) float32 (m; NaN where the
+        scan had no valid return, whose beams the map does not keep), first angle and step (rad)."""
+        laser = self.manifest["laser"]
+        a0, da, beams = float(laser["angle_min_rad"]), float(laser["angle_increment_rad"]), int(laser["beams"])
+        pts = self.keyframe_points(k)
+        ranges = np.full(beams, np.nan, dtype=np.float32)
+        beam = np.rint((np.arctan2(pts[:, 1], pts[:, 0]) - a0) / da).astype(np.int64)
+        ok = (beam >= 0) & (beam < beams)
+        ranges[beam[ok]] = np.hypot(pts[ok, 0], pts[ok, 1])
+        return ranges, a0, da
+
     def counts(self) -> dict[str, int]:
         """The manifest's ``counts`` of these arrays: keyframes, odometry edges, scan points, landmarks."""
         return {"keyframes": int(self.stamp_ns.size), "odometry_edges": int(self.edge_from.size),

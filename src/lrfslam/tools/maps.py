@@ -47,6 +47,8 @@ from lrfslam.tools import recording_map
 #: The frame the grid, the keyframes' map poses and the landmarks are in, and the robot's
 #: (the laser's pose on the robot is the identity: the scans' points are the robot's).
 MAP_FRAME, ROBOT_FRAME = "map", "base_link"
+#: A run's landmark within this of one of the saved map's it mapped on from is that one (m).
+SAME_LANDMARK_M = 0.5
 
 
 def check_target(out: Path, force: bool = False) -> None:
@@ -64,9 +66,16 @@ def check_target(out: Path, force: bool = False) -> None:
 
 
 def build(recording: RecordingSource, resolution_m: float | None = None,
-          max_range_m: float = GridParams.max_range_m) -> tuple[SavedMap, OccupancyGrid, list[str]]:
+          max_range_m: float = GridParams.max_range_m, base: SavedMap | None = None
+          ) -> tuple[SavedMap, OccupancyGrid, list[str]]:
     """The saved map of ``recording`` (its grid not yet as read back: :func:`recording_map.trinary` of it),
     the grid to write, and what the user should be told (:func:`recording_map.notes`, :func:`recording_map.resolution_note`).
+
+    The keyframes are the mapper's graph at the end (its last ``map/keyframes``): revisits it folded
+    into the places they revisited are not kept, so a map grows with the building, not the hours.
+    ``base``: the saved map the run mapped on from (``lrfslam up --map MAP``); its keyframes, still
+    in the graph, bring their scans from it, and its landmarks are kept, with the run's new ones
+    (those more than :data:`SAME_LANDMARK_M` from every one of the base's).
 
     Raises
     ------
@@ -76,11 +85,12 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
     RecordingError
         The recording cannot be read, or has no ``slam/state``.
     """
+    base_scans = {} if base is None else {int(s): base.keyframe_scan(k) for k, s in enumerate(base.stamp_ns.tolist())}
     try:
-        data, sc = recording_map.map_of(recording, resolution_m, max_range_m)
+        data, sc = recording_map.map_of(recording, resolution_m, max_range_m, scans=base_scans)
     except InputError as exc:
         raise MapError(f"{describe_source(recording)}: {exc}") from None
-    kf = data["keyframes"]
+    kf = data["graph"]
     if kf is None:
         raise MapError(f"{describe_source(recording)} has no {topics.MAP_KEYFRAMES.name} (no mapper output): "
                        "nothing to save; run the mapper over it (lrfslam pipeline --replay IN --out OUT)")
@@ -99,7 +109,19 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
     edge_to = np.flatnonzero(kf.local_edge[1:]) + 1
     motion = np.asarray(relative(kf.local_pose[edge_to - 1].T, kf.local_pose[edge_to].T)).T.reshape(-1, 3)
     lms = data["landmarks"]
-    stamps = [data["states"][0][0], data["states"][-1][0], *data["scans"]]
+    lm_ids, lm_xy, lm_cov, lm_kind = lms.ids, sc.landmark_xy, sc.landmark_cov, lms.kind
+    lm_sightings, lm_confirmed = lms.sightings, lms.confirmed
+    if base is not None and base.landmark_ids.size:
+        near = np.hypot(*(lm_xy[:, None, :] - base.landmark_xy_m[None, :, :]).transpose(2, 0, 1)).min(axis=1) \
+            if lm_xy.shape[0] else np.zeros(0)
+        new = near > SAME_LANDMARK_M
+        lm_ids = np.concatenate((base.landmark_ids, lm_ids[new] + int(base.landmark_ids.max()) + 1))
+        lm_xy = np.vstack((base.landmark_xy_m, lm_xy[new]))
+        lm_cov = np.concatenate((base.landmark_cov_m2, lm_cov[new].reshape(-1, 2, 2)))
+        lm_kind = np.concatenate((base.landmark_kind, lm_kind[new]))
+        lm_sightings = np.concatenate((base.landmark_sightings, lm_sightings[new]))
+        lm_confirmed = np.concatenate((base.landmark_confirmed, lm_confirmed[new]))
+    stamps = [data["states"][0][0], data["states"][-1][0], *(s for s in data["scans"] if s not in base_scans)]
     h, w = sc.grid.shape
     manifest = {
         "software": {"name": "lrfslam", "version": metadata.version("lrfslam")},
@@ -113,6 +135,7 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
         "scan_points": f"the valid beams of each keyframe's {topics.SCAN.name} message, as the mapper takes them "
                        "(before its range cut and thinning)",
         "keyframes_without_scan": int(without_scan),
+        **({} if base is None else {"based_on": [base.manifest["source"], *base.manifest.get("based_on", [])]}),
         "grid": {"resolution_m": sc.grid.resolution_m, "origin_xy_m": [float(v) for v in sc.grid.origin_xy_m],
                  "cells": [w, h], "occupied_thresh": OCCUPIED_THRESH, "free_thresh": FREE_THRESH,
                  "max_range_m": max_range_m, "image": PGM, "yaml": YAML},
@@ -122,8 +145,8 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
         local_edge=kf.local_edge, edge_from=edge_to - 1, edge_to=edge_to, edge_motion=motion,
         points_xy_m=np.vstack(blocks) if blocks else np.zeros((0, 2)),
         point_start=np.concatenate(([0], np.cumsum([b.shape[0] for b in blocks]))).astype(np.int64),
-        landmark_ids=lms.ids, landmark_xy_m=sc.landmark_xy, landmark_cov_m2=sc.landmark_cov, landmark_kind=lms.kind,
-        landmark_sightings=lms.sightings, landmark_confirmed=lms.confirmed,
+        landmark_ids=lm_ids, landmark_xy_m=lm_xy, landmark_cov_m2=lm_cov, landmark_kind=lm_kind,
+        landmark_sightings=lm_sightings, landmark_confirmed=lm_confirmed,
         grid_cells=recording_map.trinary(sc.grid).astype(np.int8), grid_resolution_m=sc.grid.resolution_m,
         grid_origin_xy_m=np.asarray(sc.grid.origin_xy_m, dtype=float))
     note = recording_map.resolution_note(sc, resolution_m)
@@ -131,8 +154,9 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
 
 
 def save_map(recording: RecordingSource, out: Path, force: bool = False, resolution_m: float | None = None,
-             max_range_m: float = GridParams.max_range_m) -> tuple[SavedMap, list[str]]:
-    """Save ``recording``'s map into the folder ``out``, all or nothing; the map as written, and notes.
+             max_range_m: float = GridParams.max_range_m, base: SavedMap | None = None) -> tuple[SavedMap, list[str]]:
+    """Save ``recording``'s map into the folder ``out``, all or nothing; the map as written, and notes
+    (``base``: :func:`build`'s).
 
     Raises
     ------
@@ -143,7 +167,7 @@ def save_map(recording: RecordingSource, out: Path, force: bool = False, resolut
     """
     out = Path(out).resolve()   # a name to put the sibling folders beside, even for "."
     check_target(out, force)
-    saved, grid, notes = build(recording, resolution_m, max_range_m)
+    saved, grid, notes = build(recording, resolution_m, max_range_m, base)
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(f".{out.name}.{os.getpid()}.partial")
     old = out.with_name(f".{out.name}.{os.getpid()}.old")
@@ -196,6 +220,7 @@ def describe(path: Path, saved: SavedMap) -> str:
         f"{saved.points_xy_m.shape[0]} scan points"
         + (f", {m['keyframes_without_scan']} keyframes without their scan" if m.get("keyframes_without_scan") else ""),
         f"landmarks: {saved.landmark_ids.size} ({int(saved.landmark_confirmed.sum())} confirmed)",
+        *(f"based on:  {b.get('recording', '?')}" for b in m.get("based_on", [])),
         (f"grid:      {w} x {h} cells at {res:g} m = {w * res:.2f} x {h * res:.2f} m; "
         f"extent x {x0:.2f} to {x0 + w * res:.2f} m, y {y0:.2f} to {y0 + h * res:.2f} m; "
         f"{int(np.count_nonzero(saved.grid_cells == 100))} occupied, {int(np.count_nonzero(saved.grid_cells == 0))} "
@@ -219,6 +244,8 @@ def main(argv: list[str] | None = None) -> int:
                       help="grid cell size in metres, as lrfslam export's (default: its default)")
     save.add_argument("--max-range", type=float, default=GridParams.max_range_m, metavar="M",
                       help=f"as lrfslam export's --max-range (default {GridParams.max_range_m})")
+    save.add_argument("--base", type=Path, metavar="MAP",
+                      help="the saved map the run mapped on from (lrfslam up --map MAP): its keyframes' scans")
     info = sub.add_parser("info", help="describe a saved map", description="Describe a saved map.")
     info.add_argument("map", type=Path, metavar="MAP", help="a saved map's folder")
     args = parser.parse_args(argv)
@@ -228,7 +255,8 @@ def main(argv: list[str] | None = None) -> int:
             print(describe(args.map, load_map(args.map)))
             return 0
         recording = args.recording[0] if len(args.recording) == 1 else args.recording
-        saved, notes = save_map(recording, args.out, args.force, args.resolution, args.max_range)
+        base = load_map(args.base) if args.base else None
+        saved, notes = save_map(recording, args.out, args.force, args.resolution, args.max_range, base)
     except MapError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1

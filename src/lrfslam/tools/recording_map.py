@@ -200,16 +200,20 @@ def scene(path: RecordingSource, data: dict, grid_params: GridParams | None, fit
 
 
 def map_of(path: RecordingSource, resolution_m: float | None = None, max_range_m: float = GridParams.max_range_m,
-           grid: bool = True) -> tuple[dict, Scene]:
+           grid: bool = True, scans: dict | None = None) -> tuple[dict, Scene]:
     """:func:`collect` and :func:`scene` as ``lrfslam export`` (and ``lrfslam map save``) build the map.
 
     ``resolution_m`` None: :class:`GridParams`' default, or the finest of its doublings a map
     too large for it fits (:func:`resolution_note` says so); ``max_range_m``: returns up to it mark walls
     and it caps the free space a beam marks, metres; ``grid`` False: no scans read, no grid.
+    ``scans``: more scans by stamp, as :func:`collect` keeps them (a saved map's keyframes', for a run
+    that mapped on from it); the recording's own come first.
     """
     params = GridParams(resolution_m=GridParams.resolution_m if resolution_m is None else resolution_m,
                         max_range_m=max_range_m, free_range_m=max_range_m) if grid else None
     data = collect(path, scans=grid)
+    if scans and grid:
+        data["scans"] = {**scans, **data["scans"]}
     return data, scene(path, data, params, fit=resolution_m is None)
 
 

@@ -61,6 +61,7 @@ from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig, closing, parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
 from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
+from lrfslam.runtime.saved_map import SavedMap
 from lrfslam.tools import maps
 from lrfslam.tools.exposure import check_listen
 from lrfslam.tools.info import segment_lines
@@ -337,15 +338,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="when the run ends, save its map into the folder MAP as lrfslam map save does "
                              "(docs/maps.md); MAP must not exist or be empty")
     parser.add_argument("--map", type=Path, metavar="MAP",
-                        help="with --localize: the saved map (lrfslam map save) the mapper localizes in")
+                        help="a saved map (lrfslam map save): map on from it — the robot is found on it, then "
+                             "new places are added and revisits close into it (with --save-map, the map grown); "
+                             "with --localize, only localize in it")
     parser.add_argument("--localize", action="store_true",
                         help="find the robot on --map by a global search and track it there, the map unchanged "
                              "(docs/maps.md); map/pose says whether each scan is localized")
     args = parser.parse_args(argv)
-    if args.localize != (args.map is not None):
-        parser.error("--map and --localize go together (mapping on from a saved map is not built yet)")
-    if args.localize and (args.save_map or "mapper" in args.skip):
-        parser.error("--localize runs the mapper on --map and changes no map: not with --save-map or --skip mapper")
+    if args.localize and args.map is None:
+        parser.error("--localize needs --map, the saved map to localize in")
+    if args.localize and args.save_map:
+        parser.error("--localize changes no map: not with --save-map (without --localize, --map maps on from it)")
+    if args.map is not None and "mapper" in args.skip:
+        parser.error("--map is the mapper's: not with --skip mapper")
     if not args.status_period > 0:
         parser.error(f"--status-period must be > 0 s, got {args.status_period}")
     if args.ros2:
@@ -378,13 +383,14 @@ def main(argv: list[str] | None = None) -> int:
     sets["recorder"] += [f"directory={recording.parent}", f"name={recording.name}"]
     if "sensor" in sets:
         sets["sensor"] += [f"speedup={args.speedup}", f"seed={args.seed}"]
-    if args.localize:
+    base = None
+    if args.map is not None:
         try:
-            maps.load_map(args.map)   # refused before anything starts, as the mapper would refuse it
+            base = maps.load_map(args.map)   # refused before anything starts, as the mapper would refuse it
         except MapError as exc:
             print(f"lrfslam up: error: {exc}", file=sys.stderr)
             return 1
-        sets["mapper"] += [f"map={args.map.resolve()}", "localize=true"]
+        sets["mapper"] += [f"map={args.map.resolve()}", *(["localize=true"] if args.localize else [])]
     if args.speedup != 1 or "sensor" not in sets:
         # Simulated stamps (or a recording's, played in) leave the wall clock: no stage reports
         # their age (docs/monitoring.md). Through the environment every process up starts shares
@@ -518,14 +524,15 @@ def main(argv: list[str] | None = None) -> int:
     if router:
         router.stop(5)
     print(summary(observer, children, recording, time.monotonic() - started, router, viewers))
-    saved = save_map(recording, args.save_map) if args.save_map else True
+    saved = save_map(recording, args.save_map, base) if args.save_map else True
     return 1 if any(c.gave_up for c in supervised) or not saved else 0
 
 
-def save_map(recording: Path, out: Path) -> bool:
-    """``--save-map``: the run's recording (its recorder stopped) saved as ``lrfslam map save`` does; one line either way."""
+def save_map(recording: Path, out: Path, base: SavedMap | None) -> bool:
+    """``--save-map``: the run's recording (its recorder stopped) saved as ``lrfslam map save`` does
+    (``base``: the map it mapped on from, ``--map``); one line either way."""
     try:
-        saved, notes = maps.save_map(recording, out)
+        saved, notes = maps.save_map(recording, out, base=base)
     except (MapError, RecordingError) as exc:
         print(f"lrfslam up: error: the map was not saved: {exc}", file=sys.stderr)
         return False

@@ -104,6 +104,11 @@ class LoopClosingMapper:
         """Keyframes in the graph (made, less the retired)."""
         return len(self._keyframes)
 
+    @property
+    def waiting_for_join(self) -> bool:
+        """Seeded with a saved map (:meth:`seeded`) and its run's first scan not placed yet (:meth:`join`)."""
+        return bool(self._keyframes) and self._keyframes[-1].ordinal < self._search.run_start
+
     def add_scan(self, stamp_ns: int, local_pose, points_xy_m, reference_step=None, online_pose=None) -> np.ndarray:
         """Take one scan; returns its corrected pose (3,), as known now.
 
@@ -127,7 +132,7 @@ class LoopClosingMapper:
         pose = np.asarray(local_pose, dtype=float)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             raise InputError("local_pose must be (3,) and finite")
-        if self._keyframes and self._keyframes[-1].ordinal < self._search.run_start:
+        if self.waiting_for_join:
             raise InputError("a mapper seeded with a saved map takes its first scan by join()")
         p = self.params
         stamp_ns = int(stamp_ns)
@@ -217,7 +222,7 @@ class LoopClosingMapper:
         InputError
             The mapper is not a seeded one waiting for its run, or an input is malformed.
         """
-        if not self._keyframes or self._keyframes[-1].ordinal >= self._search.run_start:
+        if not self.waiting_for_join:
             raise InputError("join() takes the first scan of a mapper seeded with a saved map")
         local = np.asarray(local_pose, dtype=float)
         at = np.asarray(map_pose, dtype=float)
@@ -243,6 +248,13 @@ class LoopClosingMapper:
         """Optimise the graph for every closure not solved for yet (the keyframe poses are then final)."""
         if self._pending:
             self._optimise()
+
+    def finish(self) -> None:
+        """The run ended: optimise for every closure not solved for yet, then fold every revisit
+        still queued (``fold_revisits``), the recent ones too — no later keyframe needs them as its
+        neighbours — so what stays in the graph is the place, not the last minutes of revisiting it."""
+        self.solve()
+        self._fold_settled(final=True)
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Stamps (ns, (T,)) and poses ((T, 3)) of every scan fed, from the graph with every closure solved for.
@@ -478,13 +490,14 @@ class LoopClosingMapper:
 
     # -- folding revisits -----------------------------------------------------------------------
 
-    def _fold_settled(self) -> None:
-        """Fold every queued revisit keyframe that is no longer recent (``fold_revisits``).
+    def _fold_settled(self, final: bool = False) -> None:
+        """Fold every queued revisit keyframe that is no longer recent (``fold_revisits``; ``final``:
+        every one).
 
         Run right after an optimisation: every closure in the graph has been through one and
         kept its weight, and the poses are the optimum the folded edges are linearised at.
         """
-        last = len(self._keyframes) - max(self._recent_keyframes, self.params.fold_after_keyframes)
+        last = len(self._keyframes) - (0 if final else max(self._recent_keyframes, self.params.fold_after_keyframes))
         if not self._fold_queue or self._fold_queue[0] >= last:
             return
         weights = self.graph.loop_weights()
