@@ -243,6 +243,24 @@ def test_up_refuses_a_taken_map_folder_before_starting_anything(tmp_path, capsys
         up.main(["--save-map", str(tmp_path / "new"), "--skip", "mapper"])
 
 
+def test_up_on_a_saved_map_refuses_what_cannot_work_before_starting_anything(tmp_path, capsys):
+    rec = str(tmp_path / "rec")
+    # A map that cannot be read: one line, exit 1, nothing started (as with --localize).
+    assert up.main(["--map", str(tmp_path / "none"), "--recordings", rec]) == 1
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1 and not (tmp_path / "rec").exists()
+    for argv in (["--localize"], ["--map", "m", "--localize", "--save-map", "n"], ["--map", "m", "--skip", "mapper"]):
+        with pytest.raises(SystemExit):
+            up.main([*argv, "--recordings", rec])
+    assert not (tmp_path / "rec").exists()
+
+
+def test_map_save_with_a_base_that_cannot_be_read_is_one_line(saved, tmp_path, capsys):
+    run, _, _ = saved
+    assert maps.main(["save", str(run), "-o", str(tmp_path / "new"), "--base", str(tmp_path / "none")]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "none" in err and not (tmp_path / "new").exists()
+
+
 @st.composite
 def maps_in_memory(draw) -> tuple[SavedMap, OccupancyGrid]:
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
