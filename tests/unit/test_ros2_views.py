@@ -86,6 +86,20 @@ def test_the_mappers_pose_takes_over_with_the_ekfs_covariance_turned():
     np.testing.assert_allclose(v.landmarks_in_map().cov_m2[0], np.diag([0.04, 0.01]), atol=1e-12)
 
 
+def test_on_a_saved_map_a_pose_not_localized_is_not_published_in_map():
+    v = views.RosViews("/r")
+    v.on_message("odom", t.Odometry(stamp_ns=100, seq=1, pose=(1.0, 0.0, 0.0)))
+    v.on_message("odom", t.Odometry(stamp_ns=200, seq=2, pose=(1.1, 0.0, 0.0)))
+
+    def map_pose(stamp_ns, localization):
+        return t.MapPose(stamp_ns=stamp_ns, seq=1, scan_seq=1, pose=(0.0, 1.0, 0.0), map_from_slam=(0.0, 1.0, 0.0),
+                         localization=localization, pose_cov=np.eye(3) * 1e-3 if localization == t.LOCALIZED else None)
+    assert v.on_message("map/pose", map_pose(100, t.NOT_LOCALIZED)) == []
+    pubs = {p.topic.name: p.message for p in v.on_message("map/pose", map_pose(200, t.LOCALIZED))}
+    assert set(pubs) == {"pose", "/tf"}
+    assert pubs["pose"].pose.covariance.reshape(6, 6)[0, 0] == pytest.approx(1e-3)
+
+
 def test_no_map_to_odom_without_odometry():
     v = views.RosViews("/r")
     state = t.SlamState(stamp_ns=5, seq=1, scan_seq=1, pose=(0, 0, 0), pose_cov=np.eye(3))

@@ -120,6 +120,8 @@ class RosViews:
             return []
         if name == topics.MAP_POSE.name:
             self.mapper_seen = True
+            if value.localization == t.NOT_LOCALIZED:
+                return []   # on a saved map, not placed on it: no pose in map, no map -> odom (as AMCL before it converges)
             self._map_from_slam = value.map_from_slam
             cov = value.pose_cov   # localizing on a saved map: the localizer's own
             if cov is None and (cov := self._covs.get(value.stamp_ns)) is not None:
