@@ -255,6 +255,8 @@ class LoopClosingMapper:
         neighbours — so what stays in the graph is the place, not the last minutes of revisiting it."""
         self.solve()
         self._fold_settled(final=True)
+        if self._search.run_start:
+            self._retire_redundant()
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Stamps (ns, (T,)) and poses ((T, 3)) of every scan fed, from the graph with every closure solved for.
@@ -510,6 +512,37 @@ class LoopClosingMapper:
                 anchor = max(into, key=lambda e: weights[e])
                 self._fold(n, anchor, weights)
                 folded.append((n, anchor))
+        if folded:
+            self._retire(folded)
+
+    def _retire_redundant(self) -> None:
+        """Mapping on from a saved map, at the end of the run: fold each of the run's keyframes that
+        lies within ``2 × keyframe_trans_m`` of a saved keyframe and whose scan lies on that saved
+        keyframe's map there (mean likelihood ≥ ``min_score`` at the graph's relative pose) into it.
+
+        Such a keyframe revisits a saved place whose closures were refused (a corridor seen end-on
+        does not constrain a match; a person in view) and adds nothing the saved map does not
+        hold; one whose scan disagrees with the map (a moved cupboard, a closed door) is kept.
+        Folded at the graph's relative pose with the graph's covariance of it, it leaves every
+        pose where the last optimisation put it."""
+        kfs, graph, p = self._keyframes, self.graph, self.params
+        saved = np.array([i for i, kf in enumerate(kfs) if kf.ordinal < self._search.run_start], dtype=np.int64)
+        folded = []
+        for n in range(len(kfs)):
+            if kfs[n].ordinal < self._search.run_start or not kfs[n].points_xy_m.shape[0]:
+                continue
+            poses = graph.poses
+            dist = np.hypot(poses[saved, 0] - poses[n, 0], poses[saved, 1] - poses[n, 1])
+            k = int(saved[np.argmin(dist)])
+            if dist.min() > 2.0 * p.keyframe_trans_m:
+                continue
+            rel = relative(poses[k], poses[n])
+            grid, _ = self._search.submap(kfs, graph, k, p.min_window_m)
+            if grid.score(kfs[n].points_xy_m, rel) < p.min_score:
+                continue
+            edge = graph.add_edge(k, n, rel, np.linalg.inv(graph.relative_covariance(k, n)), robust=True)
+            self._fold(n, edge, graph.loop_weights())
+            folded.append((n, edge))
         if folded:
             self._retire(folded)
 

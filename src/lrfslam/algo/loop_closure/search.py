@@ -276,7 +276,7 @@ class ClosureSearch:
                  if self.same_side(keyframes[i].ordinal, keyframes[n].ordinal)]
         return thin_points(np.vstack(parts), QUERY_CELL_M)
 
-    def _submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int,
+    def submap(self, keyframes: list[Keyframe], graph: PoseGraph, k: int,
                 half_m: float) -> tuple[LikelihoodGrid, ReferenceScan]:
         """The likelihood grid and line reference of keyframe ``k``'s neighbourhood, in its frame.
 
@@ -338,7 +338,7 @@ class ClosureSearch:
         """
         p = self.params
         count = self.counts
-        grid, reference = self._submap(keyframes, graph, k, half_m)
+        grid, reference = self.submap(keyframes, graph, k, half_m)
         count["searched"] += 1
         found = search(grid, query, centre, half_m, half_rad, p.min_score)
         if found.score < p.min_score:
