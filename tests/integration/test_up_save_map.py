@@ -21,6 +21,21 @@ from lrfslam.viz import foxglove as fx
 pytestmark = [pytest.mark.integration, pytest.mark.slow]   # lrfslam up end to end: the slow step
 
 
+def run_on_saved_map(tmp_path, mapping_robot: str, robot: str) -> tuple[list, dict]:
+    """The ``map/pose`` messages of robot ``robot``'s run, and the truth of its scans in the saved map's
+    frame: the mapping run's (``mapping_robot``) slam frame, whose origin is where that run started."""
+    (mapping,) = (tmp_path / "recordings").glob(f"*_{mapping_robot}")
+    first = next(read_recording(mapping, [topics.TRUTH.name]))
+    map_origin = topics.TRUTH.codec.decode(first.data, first.schema).pose
+    (recording,) = (tmp_path / "recordings").glob(f"*_{robot}")
+    truth = {}
+    for m in read_recording(recording, [topics.TRUTH.name]):
+        v = topics.TRUTH.codec.decode(m.data, m.schema)
+        truth[v.stamp_ns] = relative(map_origin, v.pose)
+    poses = [topics.MAP_POSE.codec.decode(m.data, m.schema) for m in read_recording(recording, [topics.MAP_POSE.name])]
+    return poses, truth
+
+
 def test_up_saves_the_runs_map(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -56,15 +71,8 @@ def test_up_localizes_in_a_saved_map_from_elsewhere(tmp_path):
                           "--set", "sensor.start_m=20", "--set", "sensor.seed=7"],
                          cwd=tmp_path, capture_output=True, text=True, timeout=180, check=False)
     assert res.returncode == 0, res.stderr[-3000:]
-    (mapping,) = (tmp_path / "recordings").glob("*_m1")
-    first = next(read_recording(mapping, [topics.TRUTH.name]))
-    map_origin = topics.TRUTH.codec.decode(first.data, first.schema).pose
+    poses, truth = run_on_saved_map(tmp_path, "m1", "l1")
     (recording,) = (tmp_path / "recordings").glob("*_l1")
-    truth = {}
-    for m in read_recording(recording, [topics.TRUTH.name]):
-        v = topics.TRUTH.codec.decode(m.data, m.schema)
-        truth[v.stamp_ns] = relative(map_origin, v.pose)   # in the map's frame
-    poses = [topics.MAP_POSE.codec.decode(m.data, m.schema) for m in read_recording(recording, [topics.MAP_POSE.name])]
     localized = [p for p in poses if p.localization == 1]
     assert len(poses) > 400 and len(localized) > len(poses) / 2, (len(poses), len(localized))
     errors = [np.hypot(*(p.pose[:2] - truth[p.stamp_ns][:2])) for p in localized if p.stamp_ns in truth]
@@ -97,15 +105,8 @@ def test_up_maps_on_from_a_saved_map_and_saves_it_grown(tmp_path):
                          cwd=tmp_path, capture_output=True, text=True, timeout=180, check=False)
     assert res.returncode == 0, res.stderr[-3000:]
     assert "map: saved to day1/" in res.stdout
+    poses, truth = run_on_saved_map(tmp_path, "m1", "m2")
     (mapping,) = (tmp_path / "recordings").glob("*_m1")
-    first = next(read_recording(mapping, [topics.TRUTH.name]))
-    map_origin = topics.TRUTH.codec.decode(first.data, first.schema).pose
-    (recording,) = (tmp_path / "recordings").glob("*_m2")
-    truth = {}
-    for m in read_recording(recording, [topics.TRUTH.name]):
-        v = topics.TRUTH.codec.decode(m.data, m.schema)
-        truth[v.stamp_ns] = relative(map_origin, v.pose)   # in the map's frame
-    poses = [topics.MAP_POSE.codec.decode(m.data, m.schema) for m in read_recording(recording, [topics.MAP_POSE.name])]
     states = [p.localization for p in poses]
     assert t.MAPPING in states, states[-5:]
     found = states.index(t.MAPPING)

@@ -7,9 +7,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from lrfslam.services.sensor import frame_outputs
 
+from lrfslam import services
+from lrfslam.evaluation.mapping_on import DAY_NS, on
 from lrfslam.evaluation.mapping_on import days as run_days
+from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
+from lrfslam.runtime.chain import Chain
+from lrfslam.runtime.step import Message
+from lrfslam.sim.simulator import SimConfig, Simulator
 
 pytestmark = pytest.mark.slow   # three days of the hallway through the whole chain: ~30 s
 
@@ -66,3 +73,35 @@ def test_before_the_fix_the_grid_published_is_the_saved_maps(days):
             c = np.clip(at[:, 0] + dc, 0, image.cells.shape[1] - 1)
             walls |= inside & (image.cells[r, c] == 100)
     assert walls.mean() > 0.95, walls.mean()
+
+
+def test_a_mapper_restarted_while_mapping_on_continues_exactly(days, tmp_path):
+    """Stopped after the fix and started again on its checkpoint, the mapper mapping on from a saved
+    map gives every output the uninterrupted one gives (the saved map, the join and the run's
+    graph are all in the checkpoint)."""
+    saved = days[0].saved
+    sim = Simulator(SimConfig(seed=2, start_m=20.0))
+    inputs = []
+    stages = [services.stage(n) for n in ("denoise", "features", "slam")]
+    with Chain(stages, robot="inputs", wire=False) as chain:   # the mapper's inputs: raw scans, slam states
+        for _ in range(900):
+            frame = next(sim)
+            odom, scan = (Message.of(o) for o in frame_outputs(frame, DAY_NS + round(frame.t_s * 1e9), sim))
+            inputs += [scan, *(m for m in chain.push(odom) + chain.push(scan) if m.topic is topics.SLAM_STATE)]
+
+    def run(parts, checkpoint_dir=None):
+        out = []
+        for part in parts:
+            with Chain([on(saved)], checkpoint_dir=checkpoint_dir, wire=False) as mapper:
+                out += [o for m in part for o in mapper.push(m)]
+                restored = mapper.step("mapper").counts.get("restored", 0)
+        return out, restored
+
+    whole, _ = run([inputs])
+    cut = len(inputs) // 2
+    states = [o.value.localization for o in whole if o.topic is topics.MAP_POSE]
+    assert t.MAPPING in states[: cut // 2]   # the cut falls after the fix
+    again, restored = run([inputs[:cut], inputs[cut:]], checkpoint_dir=tmp_path)
+    assert restored == 1
+    assert [(o.topic.name, o.topic.codec.encode(o.value)) for o in again] == \
+        [(o.topic.name, o.topic.codec.encode(o.value)) for o in whole]

@@ -51,7 +51,12 @@ def hallway_frames():
     cfg = SimConfig(speed_mps=1.0, rate_hz=5.0, seed=3,
                     odometry=OdometryNoise(trans_sigma_per_sqrt_m=0.02, rot_sigma_per_sqrt_rad=0.03, rot_sigma_per_sqrt_m=0.02))
     lap_s = 62.0  # the loop is about 62 m long
-    frames = list(zip(Simulator(cfg), range(int(2 * lap_s * cfg.rate_hz / cfg.speed_mps)), strict=False))
+    return sim_frames(cfg, int(2 * lap_s * cfg.rate_hz / cfg.speed_mps))
+
+
+def sim_frames(cfg: SimConfig, n: int) -> tuple[list, np.ndarray]:
+    """``n`` frames of the simulator: per scan (stamp ns, odometry pose, points), and the true poses (n, 3)."""
+    frames = list(zip(Simulator(cfg), range(n), strict=False))
     return ([(int(f.t_s * 1e9), f.odom_pose, points(f.scan.ranges_m, f.scan.angles_rad)) for f, _ in frames],
             np.array([f.true_pose for f, _ in frames]))
 

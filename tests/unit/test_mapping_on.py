@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_loop_closure import sim_frames
 
 from lrfslam.algo.geometry import compose, relative
 from lrfslam.algo.loop_closure import LoopClosingMapper
 from lrfslam.errors import InputError
-from lrfslam.sim.simulator import SimConfig, Simulator
+from lrfslam.sim.simulator import SimConfig
 
 LAP_M = 62.0          # the hallway loop's length (m)
 RATE_HZ = 5.0
@@ -21,21 +22,13 @@ FIX_COV = np.diag([0.05 ** 2, 0.05 ** 2, 0.01 ** 2])
 MAP_ERROR_M = 0.3
 
 
-def points(ranges_m: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
-    ok = np.isfinite(ranges_m)
-    return np.column_stack((ranges_m[ok] * np.cos(angles_rad[ok]), ranges_m[ok] * np.sin(angles_rad[ok])))
-
-
 @pytest.fixture(scope="module")
 def drive():
     """Two and a half laps of the hallway loop at 1 m/s: per scan (stamp ns, drifting odometry, points), truth (T, 3).
 
     The simulator's odometry stands in for the local trajectory (the service feeds the EKF's
     scan-matched motions, which drift less)."""
-    cfg = SimConfig(speed_mps=1.0, rate_hz=RATE_HZ, seed=5)
-    frames = list(zip(Simulator(cfg), range(int(2.5 * LAP_M * RATE_HZ)), strict=False))
-    return ([(int(f.t_s * 1e9), f.odom_pose, points(f.scan.ranges_m, f.scan.angles_rad)) for f, _ in frames],
-            np.array([f.true_pose for f, _ in frames]))
+    return sim_frames(SimConfig(speed_mps=1.0, rate_hz=RATE_HZ, seed=5), int(2.5 * LAP_M * RATE_HZ))
 
 
 @pytest.fixture(scope="module")
