@@ -48,7 +48,7 @@ from lrfslam.algo.localization import LocalizationMap, Localizer, Status, Walls
 from lrfslam.algo.loop_closure import LoopClosingMapper, LoopClosureParams
 from lrfslam.algo.stream_alignment import AlignmentParams, StreamAligner
 from lrfslam.algo.tiled_grid import tiles_of
-from lrfslam.errors import ConfigError, MapFormatError
+from lrfslam.errors import ConfigError, InputError, MapFormatError
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.saved_map import SavedMap, load_map
@@ -143,10 +143,25 @@ def load_saved(path: str) -> SavedMap:
         raise ConfigError(f"mapper: map {path}: {exc}") from None
 
 
-def localizer_on(saved: SavedMap) -> Localizer:
-    """A :class:`Localizer` on the saved map's keyframes and walls."""
-    return Localizer(LocalizationMap(saved.map_pose, [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])],
+def localizer_on(saved: SavedMap, points: list[np.ndarray]) -> Localizer:
+    """A :class:`Localizer` on the saved map's keyframes (``points``: each one's, robot frame) and walls."""
+    return Localizer(LocalizationMap(saved.map_pose, points,
                                      Walls(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)))
+
+
+def keyframe_point_sets(saved: SavedMap) -> list[np.ndarray]:
+    """Each saved keyframe's scan points (N_k, 2), robot frame, m."""
+    return [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])]
+
+
+def count_localizer(counts, localizer: Localizer) -> None:
+    """The localizer's own counters as the stage's (``lrfslam status``)."""
+    counts["global_searches"] = localizer.searches
+    counts["fixes"] = localizer.fixes
+    counts["fixes_lost"] = localizer.lost
+    counts["matches_gated"] = localizer.gated
+    for why, n in localizer.refused.items():
+        counts[f"searches_{why}"] = n
 
 
 class MapperStep(StepBase):
@@ -167,12 +182,13 @@ class MapperStep(StepBase):
         if cfg.map and saved is None:
             saved = load_saved(cfg.map)
         self.saved = saved
-        self.mapper = LoopClosingMapper(cfg.loop_closure, keep_scans=False) if saved is None else \
-            LoopClosingMapper.seeded(cfg.loop_closure, saved.map_pose,
-                                     [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])],
-                                     saved.stamp_ns)
-        #: Until the robot is found on the saved map (None: mapping from an empty map, or joined).
-        self.finder = localizer_on(saved) if saved is not None else None
+        self.mapper = LoopClosingMapper(cfg.loop_closure, keep_scans=False)
+        #: Finds the robot on the saved map until the run joins it (None: from an empty map, or joined).
+        self.finder: Localizer | None = None
+        if saved is not None:
+            points = keyframe_point_sets(saved)
+            self.mapper = LoopClosingMapper.seeded(cfg.loop_closure, saved.map_pose, points, saved.stamp_ns)
+            self.finder = localizer_on(saved, points)
         # A slam state waits for its scan as features do in the slam stage (no odometry here).
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))
@@ -260,7 +276,7 @@ class MapperStep(StepBase):
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
         local, reference = self.local.add(state)
-        if self.finder is not None and self.mapper.waiting_for_join:
+        if self.mapper.waiting_for_join:
             return self._find(state, local, points)
         made = self.mapper.keyframe_count
         pose = self.mapper.add_scan(state.stamp_ns, local, points, reference, online_pose=state.pose)
@@ -271,7 +287,7 @@ class MapperStep(StepBase):
     def _find(self, state: t.SlamState, local: np.ndarray, points: np.ndarray) -> list[Output]:
         """On a saved map before the fix: the scan to the localizer; at the fix the run joins the graph."""
         found = self.finder.add_scan(local, points)
-        self.counts["global_searches"] = self.finder.searches
+        count_localizer(self.counts, self.finder)
         if found.status is not Status.LOCALIZED:
             self.counts["not_localized"] += 1
             self.counts["scans"] += 1
@@ -285,7 +301,7 @@ class MapperStep(StepBase):
         log.info("found on the saved map after %d global searches: mapping on from it", self.finder.searches)
         pose = self.mapper.join(state.stamp_ns, local, points, found.pose, found.cov, online_pose=state.pose)
         self.grid.add_keyframe(state.stamp_ns, pose)
-        self.finder = None   # (a restarted mapper knows it joined from its graph)
+        self.finder = None
         return self._placed(state, pose, local)
 
     def _placed(self, state: t.SlamState, pose: np.ndarray, local: np.ndarray) -> list[Output]:
@@ -349,7 +365,11 @@ class MapperStep(StepBase):
         last_slam_pose = np.array(arrays["service_last_slam_pose"], dtype=float).reshape(3)
         counters = [int(arrays[k]) for k in ("service_seq", "service_keyframes_seq", "service_last_stamp_ns",
                                              "service_last_state_seq")]
+        if mapper.waiting_for_join and self.finder is None:
+            raise InputError("a checkpoint of a mapper mapping on from a saved map, and this one has no map")
         self.mapper = mapper
+        if not mapper.waiting_for_join:
+            self.finder = None   # (it had joined the saved map)
         self.seq, self.keyframes_seq, self._last_stamp, self.local.last_state_seq = counters
         self.local.pose = None if np.any(np.isnan(local)) else local
         self.local.last_slam_pose = last_slam_pose
@@ -391,9 +411,8 @@ class LocalizeStep(StepBase):
     def __init__(self, cfg: MapperConfig, ctx: RunContext, saved: SavedMap | None = None) -> None:
         super().__init__()
         kernels.prepare()
-        self.saved = saved if saved is not None else load_saved(cfg.map)
-        self.localizer = localizer_on(self.saved)
-        saved = self.saved
+        saved = self.saved = saved if saved is not None else load_saved(cfg.map)
+        self.localizer = localizer_on(saved, keyframe_point_sets(saved))
         self.tiles, self.tile_cells = tiles_of(saved.grid_cells, saved.grid_resolution_m, saved.grid_origin_xy_m)
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))
@@ -427,12 +446,7 @@ class LocalizeStep(StepBase):
             self._status = placed.status
         self.counts["scans"] += 1
         self.counts["localized" if placed.status is Status.LOCALIZED else "not_localized"] += 1
-        self.counts["global_searches"] = self.localizer.searches
-        self.counts["fixes"] = self.localizer.fixes
-        self.counts["fixes_lost"] = self.localizer.lost
-        self.counts["matches_gated"] = self.localizer.gated
-        for why, n in self.localizer.refused.items():
-            self.counts[f"searches_{why}"] = n
+        count_localizer(self.counts, self.localizer)
         self._last_stamp = state.stamp_ns
         self.seq += 1
         outs = [Output(topics.MAP_POSE, t.MapPose(

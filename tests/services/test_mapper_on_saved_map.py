@@ -7,15 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from lrfslam.services.sensor import frame_outputs
 
 from lrfslam import services
+from lrfslam.evaluation.localization_sim import frame_messages
 from lrfslam.evaluation.mapping_on import DAY_NS, on
 from lrfslam.evaluation.mapping_on import days as run_days
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.runtime.chain import Chain
-from lrfslam.runtime.step import Message
 from lrfslam.sim.simulator import SimConfig, Simulator
 
 pytestmark = pytest.mark.slow   # three days of the hallway through the whole chain: ~30 s
@@ -86,7 +85,7 @@ def test_a_mapper_restarted_while_mapping_on_continues_exactly(days, tmp_path):
     with Chain(stages, robot="inputs", wire=False) as chain:   # the mapper's inputs: raw scans, slam states
         for _ in range(900):
             frame = next(sim)
-            odom, scan = (Message.of(o) for o in frame_outputs(frame, DAY_NS + round(frame.t_s * 1e9), sim))
+            odom, scan = frame_messages(sim, frame, DAY_NS)
             inputs += [scan, *(m for m in chain.push(odom) + chain.push(scan) if m.topic is topics.SLAM_STATE)]
 
     def run(parts, checkpoint_dir=None):
@@ -105,3 +104,14 @@ def test_a_mapper_restarted_while_mapping_on_continues_exactly(days, tmp_path):
     assert restored == 1
     assert [(o.topic.name, o.topic.codec.encode(o.value)) for o in again] == \
         [(o.topic.name, o.topic.codec.encode(o.value)) for o in whole]
+
+
+def test_a_checkpoint_taken_while_searching_a_saved_map_is_refused_by_a_mapper_without_one(days):
+    from lrfslam.services.mapper import MapperConfig, MapperStep
+
+    from lrfslam.errors import InputError
+
+    searching = MapperStep(MapperConfig(map="(in memory)"), None, days[0].saved)
+    assert searching.mapper.waiting_for_join
+    with pytest.raises(InputError, match="no map"):
+        MapperStep(MapperConfig(), None).restore(searching.snapshot())

@@ -47,9 +47,10 @@ WRONG_RAD = 0.1
 WITHIN_M = 20.0
 
 
-def _messages(sim: Simulator, frame) -> tuple[Message, Message]:
-    """The frame's odometry and scan messages, as the sensor publishes them, stamped by data time."""
-    odom, scan = frame_outputs(frame, round(frame.t_s * 1e9), sim)
+def frame_messages(sim: Simulator, frame, offset_ns: int = 0) -> tuple[Message, Message]:
+    """The frame's odometry and scan messages, as the sensor publishes them, stamped by data time
+    (plus ``offset_ns``: another day's run)."""
+    odom, scan = frame_outputs(frame, offset_ns + round(frame.t_s * 1e9), sim)
     return Message.of(odom), Message.of(scan)
 
 
@@ -112,7 +113,7 @@ def map_world(world: str, seed: int) -> SavedMap:
     with chain_with(services.stage("mapper"), "map_world") as chain:
         chain.step("slam").slam.start_at(sim.trajectory.pose(0))
         for frame in (next(sim) for _ in range(steps)):
-            odom, scan = _messages(sim, frame)
+            odom, scan = frame_messages(sim, frame)
             taker.take([scan, *chain.push(odom), *chain.push(scan)])
         taker.take([it.msg for it in chain.finish_items()])
     return taker.saved()
@@ -141,7 +142,7 @@ def run_start(world: str, saved: SavedMap, seed: int, start_m: float) -> StartRe
             if last_true is not None:
                 travel += float(np.hypot(*relative(last_true, frame.true_pose)[:2]))
             last_true = frame.true_pose
-            odom, scan = _messages(sim, frame)
+            odom, scan = frame_messages(sim, frame)
             searches, started = step.localizer.searches, time.perf_counter()
             outs = chain.push(odom) + chain.push(scan)
             if step.localizer.searches != searches:

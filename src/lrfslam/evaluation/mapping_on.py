@@ -20,15 +20,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lrfslam import services
-from lrfslam.evaluation.localization_sim import MapTaker, chain_with
+from lrfslam.evaluation.localization_sim import MapTaker, chain_with, frame_messages
 from lrfslam.msgs import topics
 from lrfslam.msgs import types as t
 from lrfslam.msgs.grid_replica import GridReplica
 from lrfslam.runtime.chain import Stage
 from lrfslam.runtime.saved_map import SavedMap
-from lrfslam.runtime.step import Message
 from lrfslam.services.mapper import MapperConfig, MapperStep
-from lrfslam.services.sensor import frame_outputs
 from lrfslam.sim.simulator import SimConfig, Simulator
 
 #: Each day's stamps start this much after the day before's (ns): the saved keyframes are older.
@@ -67,7 +65,7 @@ def drive(day: int, metres: float, world: str = "hallway_loop", saved: SavedMap 
         step = chain.step("mapper")
         for _ in range(int(metres / sim.config.speed_mps * sim.config.rate_hz)):
             frame = next(sim)
-            odom, scan = (Message.of(o) for o in frame_outputs(frame, day * DAY_NS + round(frame.t_s * 1e9), sim))
+            odom, scan = frame_messages(sim, frame, day * DAY_NS)
             outs = chain.push(odom) + chain.push(scan)
             taker.take([scan, *outs])
             poses += [(m.value, frame.true_pose) for m in outs if m.topic is topics.MAP_POSE]

@@ -109,18 +109,9 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
     edge_to = np.flatnonzero(kf.local_edge[1:]) + 1
     motion = np.asarray(relative(kf.local_pose[edge_to - 1].T, kf.local_pose[edge_to].T)).T.reshape(-1, 3)
     lms = data["landmarks"]
-    lm_ids, lm_xy, lm_cov, lm_kind = lms.ids, sc.landmark_xy, sc.landmark_cov, lms.kind
-    lm_sightings, lm_confirmed = lms.sightings, lms.confirmed
-    if base is not None and base.landmark_ids.size:
-        near = np.hypot(*(lm_xy[:, None, :] - base.landmark_xy_m[None, :, :]).transpose(2, 0, 1)).min(axis=1) \
-            if lm_xy.shape[0] else np.zeros(0)
-        new = near > SAME_LANDMARK_M
-        lm_ids = np.concatenate((base.landmark_ids, lm_ids[new] + int(base.landmark_ids.max()) + 1))
-        lm_xy = np.vstack((base.landmark_xy_m, lm_xy[new]))
-        lm_cov = np.concatenate((base.landmark_cov_m2, lm_cov[new].reshape(-1, 2, 2)))
-        lm_kind = np.concatenate((base.landmark_kind, lm_kind[new]))
-        lm_sightings = np.concatenate((base.landmark_sightings, lm_sightings[new]))
-        lm_confirmed = np.concatenate((base.landmark_confirmed, lm_confirmed[new]))
+    landmarks = (lms.ids, sc.landmark_xy, sc.landmark_cov, lms.kind, lms.sightings, lms.confirmed)
+    if base is not None:
+        landmarks = _with_base_landmarks(base, *landmarks)
     stamps = [data["states"][0][0], data["states"][-1][0], *(s for s in data["scans"] if s not in base_scans)]
     h, w = sc.grid.shape
     manifest = {
@@ -145,12 +136,27 @@ def build(recording: RecordingSource, resolution_m: float | None = None,
         local_edge=kf.local_edge, edge_from=edge_to - 1, edge_to=edge_to, edge_motion=motion,
         points_xy_m=np.vstack(blocks) if blocks else np.zeros((0, 2)),
         point_start=np.concatenate(([0], np.cumsum([b.shape[0] for b in blocks]))).astype(np.int64),
-        landmark_ids=lm_ids, landmark_xy_m=lm_xy, landmark_cov_m2=lm_cov, landmark_kind=lm_kind,
-        landmark_sightings=lm_sightings, landmark_confirmed=lm_confirmed,
+        **dict(zip(("landmark_ids", "landmark_xy_m", "landmark_cov_m2", "landmark_kind", "landmark_sightings",
+                    "landmark_confirmed"), landmarks, strict=True)),
         grid_cells=recording_map.trinary(sc.grid).astype(np.int8), grid_resolution_m=sc.grid.resolution_m,
         grid_origin_xy_m=np.asarray(sc.grid.origin_xy_m, dtype=float))
     note = recording_map.resolution_note(sc, resolution_m)
     return saved, sc.grid, [*recording_map.notes(data, sc), *([note] if note else [])]
+
+
+def _with_base_landmarks(base: SavedMap, ids, xy, cov, kind, sightings, confirmed) -> tuple[np.ndarray, ...]:
+    """The base map's landmarks, then the run's (L, …, as the :class:`SavedMap` fields) farther than
+    :data:`SAME_LANDMARK_M` from every one of them, their ids after the base's."""
+    if not base.landmark_ids.size:
+        return ids, xy, cov, kind, sightings, confirmed
+    dist = np.linalg.norm(xy[:, None, :] - base.landmark_xy_m[None, :, :], axis=2)
+    new = dist.min(axis=1) > SAME_LANDMARK_M if xy.shape[0] else np.zeros(0, bool)
+    return (np.concatenate((base.landmark_ids, ids[new] + int(base.landmark_ids.max()) + 1)),
+            np.vstack((base.landmark_xy_m, xy[new])),
+            np.concatenate((base.landmark_cov_m2, cov[new].reshape(-1, 2, 2))),
+            np.concatenate((base.landmark_kind, kind[new])),
+            np.concatenate((base.landmark_sightings, sightings[new])),
+            np.concatenate((base.landmark_confirmed, confirmed[new])))
 
 
 def save_map(recording: RecordingSource, out: Path, force: bool = False, resolution_m: float | None = None,

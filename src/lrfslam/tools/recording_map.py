@@ -42,9 +42,8 @@ from lrfslam.runtime.recording import RecordingSource, describe_source, read_rec
 PGM_OCCUPIED, PGM_FREE, PGM_UNKNOWN = 0, 254, 205
 def collect(path: RecordingSource, scans: bool = True) -> dict:
     """Trajectory, odometry, truth, scans, the last SLAM state, the mapper's final trajectory
-    (``"final"``), every keyframe its graph ever had (``"keyframes"``, a ``MapKeyframes``) and
-    its graph at the end (``"graph"``, the last ``map/keyframes``; all three None without
-    ``map/keyframes``) of a recording (file, folder or files), in one pass.
+    (``"final"``) and its graph at the end (``"graph"``, the last ``map/keyframes``; both None
+    without ``map/keyframes``) of a recording (file, folder or files), in one pass.
 
     ``"landmarks"`` is the landmark map rebuilt from ``slam/map`` and the states' changes (at
     the last state). Undecodable messages are skipped and counted (``"undecodable"``). ``"seen_ns"`` maps each
@@ -94,8 +93,7 @@ def collect(path: RecordingSource, scans: bool = True) -> dict:
         raise RecordingError(f"{describe_source(path)} has no decodable {topics.SLAM_STATE.name} messages")
     return {"states": states, "odom": odom, "truth": truth, "last": last, "landmarks": landmarks.landmarks,
             "undecodable": undecodable,
-            "scans": scan_of, "scans_read": scans, "seen_ns": seen_ns, "final": final.result(),
-            "keyframes": final.keyframes(), "graph": graph}
+            "scans": scan_of, "scans_read": scans, "seen_ns": seen_ns, "final": final.result(), "graph": graph}
 
 
 def _grown(ids: np.ndarray, sightings: np.ndarray, old_ids: np.ndarray, old_sightings: np.ndarray) -> np.ndarray:
