@@ -11,6 +11,7 @@ from lrfslam.algo.correlative_match import (
     ANGLE_STEP_RAD,
     CorrelativeParams,
     LikelihoodGrid,
+    PositionMask,
     search,
 )
 from lrfslam.algo.geometry import from_frame, to_frame
@@ -51,8 +52,8 @@ def test_finds_the_true_pose_from_far_off():
     assert result.second_score < result.score
 
 
-def brute_force(grid: LikelihoodGrid, pts, centre, half_width_m, half_angle_rad):
-    """Every leaf of the search, scored one by one (the reference the bound must reproduce)."""
+def brute_force(grid: LikelihoodGrid, pts, centre, half_width_m, half_angle_rad, where: PositionMask | None = None):
+    """Every leaf of the search (that ``where`` admits), scored one by one (the reference the bound must reproduce)."""
     p = grid.params
     step = ANGLE_STEP_RAD
     n_ang = int(np.ceil(half_angle_rad / step))
@@ -65,6 +66,8 @@ def brute_force(grid: LikelihoodGrid, pts, centre, half_width_m, half_angle_rad)
         rows = np.floor((moved[:, 1] - grid.origin_xy_m[1]) / p.cell_m).astype(int)
         for i in range(-n_xy, n_xy + 1):
             for j in range(-n_xy, n_xy + 1):
+                if where is not None and not where.admits(0, centre[:2], np.array([[0, i, j]]))[0]:
+                    continue
                 r = np.clip(rows + j, 0, grid.grid.shape[0] - 1)
                 c = np.clip(cols + i, 0, grid.grid.shape[1] - 1)
                 best = max(best, float(grid.grid[r, c].mean()))
@@ -82,6 +85,35 @@ def test_bound_is_exact(x, y, th, seed):
     result = search(grid, pts, centre, half_width_m=0.6, half_angle_rad=0.08, min_score=0.0)
     assert result.exact
     assert result.score == pytest.approx(brute_force(grid, pts, centre, 0.6, 0.08), abs=1e-6)
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.floats(1.0, 7.0), st.floats(0.5, 5.0), st.floats(-np.pi, np.pi), st.integers(0, 2**31))
+def test_a_position_mask_keeps_the_search_exact_over_what_it_admits(x, y, th, seed):
+    """Positions admitted in a few random patches (the truth among them or not): the search's best
+    equals the best admitted leaf, and lies on an admitted position."""
+    rng = np.random.default_rng(seed)
+    grid = LikelihoodGrid(ROOM, CorrelativeParams(cell_m=0.1, levels=4))
+    pts = seen_from((x, y, th), rng, n=40)
+    centre = np.array([x, y, th]) + rng.uniform(-0.4, 0.4, 3) * (1, 1, 0.2)
+    where = PositionMask(grid, centre[:2] + rng.uniform(-0.8, 0.8, (3, 2)), margin_m=0.1)
+    result = search(grid, pts, centre, half_width_m=0.8, half_angle_rad=0.06, min_score=0.0, where=where)
+    assert result.exact
+    assert result.score == pytest.approx(brute_force(grid, pts, centre, 0.8, 0.06, where), abs=1e-6)
+    offset = np.round((result.pose[:2] - centre[:2]) / 0.1).astype(np.int64)
+    assert where.admits(0, centre[:2], np.array([[0, *offset]]))[0]
+
+
+def test_a_mask_admitting_everywhere_changes_nothing():
+    rng = np.random.default_rng(3)
+    grid = LikelihoodGrid(ROOM, CorrelativeParams(levels=5))
+    truth = np.array([3.0, 1.5, 0.3])
+    pts = seen_from(truth, rng)
+    everywhere = PositionMask(grid, np.mgrid[-2:10:0.1, -2:8:0.1].reshape(2, -1).T, margin_m=0.0)
+    plain = search(grid, pts, truth + (1.2, -0.9, -0.25), 2.0, 0.4, 0.3, second_ratio=0.5)
+    masked = search(grid, pts, truth + (1.2, -0.9, -0.25), 2.0, 0.4, 0.3, second_ratio=0.5, where=everywhere)
+    assert masked.score == plain.score and masked.second_score == plain.second_score
+    np.testing.assert_array_equal(masked.pose, plain.pose)
 
 
 def test_two_identical_rooms_give_two_equal_peaks():

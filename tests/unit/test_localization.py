@@ -37,11 +37,16 @@ def wall_map(world: str) -> LocalizationMap:
         r = raycast(segments, pose, angles, lidar.max_range_m)
         ok = np.isfinite(r)
         points.append(polar_to_xy(r[ok], angles[ok]))
-    # Occupied cells: where the keyframes' returns fall (the walls they saw, as a mapping run's grid).
+    # As a mapping run's grid: free where the keyframes' beams passed, occupied where they ended.
     every = np.vstack([compose_points(p, pose) for p, pose in zip(points, poses, strict=True)])
     origin = every.min(axis=0) - 1.0
     idx = np.floor((every - origin) / CELL_M).astype(int)
     cells = np.full(tuple(idx.max(axis=0)[::-1] + 2), -1, np.int8)
+    along = np.arange(0.0, 1.0, 0.02)[:, None, None]
+    for p, pose in zip(points, poses, strict=True):
+        passed = (along * compose_points(p, pose)[None] + (1 - along) * pose[:2]).reshape(-1, 2)
+        free = np.floor((passed - origin) / CELL_M).astype(int)
+        cells[free[:, 1], free[:, 0]] = 0
     cells[idx[:, 1], idx[:, 0]] = 100
     return LocalizationMap(poses, points, Walls(cells, CELL_M, origin))
 

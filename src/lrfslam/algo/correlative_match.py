@@ -34,6 +34,12 @@ Design choices
   window the size of a building one descent can end far below the best leaf, and a low bound cuts
   little at the coarse levels, where the pooled bounds are near 1 there: the best of descents from
   the ``greedy_starts`` best roots is then usually the best leaf or near it.
+* **Where the pose may lie.** A caller that knows where the points' origin can be (a robot
+  stands in free space: the localizer's global search) passes a :class:`PositionMask`; a block
+  none of whose positions it admits is cut at every level, before it is scored. The search is
+  exact over the admitted positions: over a building-sized window most blocks of a few metres
+  hold no free cell, and their pooled bounds, near 1 beside any wall, would otherwise all be
+  branched.
 * **Second peak.** The best leaf more than ``peak_separation_m`` away (or a
   rotation step away by more than ``peak_separation_rad``) from the winner is
   reported too, so a caller can refuse an ambiguous match (a repeated corridor).
@@ -50,7 +56,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
+from scipy.ndimage import distance_transform_edt, maximum_filter
 
 from lrfslam.algo import correlative_kernel as kernel
 from lrfslam.algo.checks import require_finite
@@ -151,6 +157,57 @@ class LikelihoodGrid:
         return np.clip(idx[:, 0], 0, w - 1), np.clip(idx[:, 1], 0, h - 1)
 
 
+class PositionMask:
+    """Where a searched pose's translation may lie, on a :class:`LikelihoodGrid`'s cells, pooled by level.
+
+    Parameters
+    ----------
+    grid : LikelihoodGrid
+        The grid the search runs on (its cells, origin and levels).
+    xy_m : array_like, shape (M, 2)
+        Admitted positions (m, the map frame), e.g. the centres of a map's free cells.
+    margin_m : float
+        Every position within this distance (m, a square's half side) of one of them is admitted
+        too: the cells of another grid, a robot's footprint.
+    """
+
+    def __init__(self, grid: LikelihoodGrid, xy_m, margin_m: float) -> None:
+        pts = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        cell = grid.params.cell_m
+        h, w = grid.grid.shape
+        mask = np.zeros((h, w), dtype=bool)
+        col, row = np.floor((pts - grid.origin_xy_m) / cell).astype(np.int64).T
+        inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        mask[row[inside], col[inside]] = True
+        # One cell more than the margin: a searched position's cell is found by flooring, as here.
+        reach = int(np.ceil(margin_m / cell)) + 1
+        mask = maximum_filter(mask, size=2 * reach + 1, mode="constant", cval=False)
+        self.origin_xy_m = grid.origin_xy_m
+        self.cell_m = cell
+        self.pooled = [mask]
+        for level in range(1, grid.params.levels):
+            prev, half = self.pooled[-1], 1 << (level - 1)
+            nxt = prev.copy()
+            nxt[:-half, :] |= prev[half:, :]
+            nxt[:, :-half] |= nxt[:, half:].copy()
+            self.pooled.append(nxt)
+
+    def admits(self, level: int, centre_xy_m: np.ndarray, cand: np.ndarray) -> np.ndarray:
+        """Whether each candidate block (K, 3: angle index, x and y offsets in cells from
+        ``centre_xy_m``; side ``2^level`` cells) holds an admitted position, (K,) bool."""
+        base = np.floor((np.asarray(centre_xy_m, dtype=float) - self.origin_xy_m) / self.cell_m).astype(np.int64)
+        col, row = base[0] + cand[:, 1], base[1] + cand[:, 2]
+        grid, size = self.pooled[level], 1 << level
+        h, w = grid.shape
+        # A block that starts below the grid but reaches into it: the pooled cell at the grid's edge
+        # covers all of the block that lies on the grid (and more, which only admits more).
+        inside = (col + size > 0) & (col < w) & (row + size > 0) & (row < h)
+        out = np.zeros(cand.shape[0], dtype=bool)
+        out[inside] = grid[np.maximum(row[inside], 0), np.maximum(col[inside], 0)]
+        return out
+
+
 @dataclass(frozen=True, eq=False)
 class SearchResult:
     """What :func:`search` found.
@@ -182,7 +239,7 @@ class SearchResult:
 
 def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_angle_rad: float,
            min_score: float, max_frontier: int = MAX_FRONTIER, greedy_starts: int = 1,
-           second_ratio: float = 0.0) -> SearchResult:
+           second_ratio: float = 0.0, where: PositionMask | None = None) -> SearchResult:
     """Best pose of the points within ``centre ± (half_width_m, half_width_m, half_angle_rad)``.
 
     Parameters
@@ -203,6 +260,8 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     second_ratio : float
         Only a second peak scoring at least this share of the best is of interest: it is searched
         for with that bound (far cheaper over a large window), and reported as none if below.
+    where : PositionMask, optional
+        Only translations it admits are searched, for the best and the second peak alike.
 
     Returns
     -------
@@ -284,7 +343,9 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         return np.array([centre[0] + cand[1] * p.cell_m, centre[1] + cand[2] * p.cell_m, angles[cand[0]]])
 
     def everywhere(cand: np.ndarray, size: int) -> np.ndarray:
-        return np.ones(cand.shape[0], dtype=bool)
+        if where is None:
+            return np.ones(cand.shape[0], dtype=bool)
+        return where.admits(size.bit_length() - 1, centre[:2], cand)
 
     bound = max(min_score, greedy(everywhere))
     found, found_scores, n, ok = descend(bound, everywhere)
@@ -309,7 +370,7 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         # Angle steps apart, the short way round: a window of a whole turn holds a heading twice.
         turned = np.abs(cand[:, 0] - best[0])
         turned = np.minimum(turned, np.abs(full_turn - turned))
-        return (np.hypot(dx, dy) >= sep_cells) | (turned >= sep_angles)
+        return ((np.hypot(dx, dy) >= sep_cells) | (turned >= sep_angles)) & everywhere(cand, size)
 
     # The second peak: the best leaf separated from the winner.
     second_bound = max(min_score, second_ratio * best_score, greedy(separated))

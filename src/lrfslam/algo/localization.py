@@ -8,7 +8,9 @@ that drifts slowly but is right to centimetres over metres; the localizer finds 
   trajectory into the robot's current frame, are searched for over the whole map, every
   :data:`SEARCH_SPACING_M` of travel once they span :data:`MIN_QUERY_TRAVEL_M`: branch and bound over every position and heading
   (:func:`lrfslam.algo.correlative_match.search`, the mapper's closure search, here with a window
-  the size of the map). A merged stretch tells look-alike places apart where one scan cannot: a
+  the size of the map), the robot's position only in the map's free space (within
+  :data:`FREE_MARGIN_M` of a free cell): a robot stands there, not in a wall or beyond what the map
+  saw, and most of a building-sized window is one or the other. A merged stretch tells look-alike places apart where one scan cannot: a
   room seen from its door looks like the next room, the corridor that led there does not.
 * **Verifying.** A search's answer is a *candidate* when it scores at least :data:`MIN_SCORE`,
   point-to-line matching against the map's keyframes near it converges, and its beams do not pass
@@ -140,8 +142,12 @@ TRACK_GATE_CHI2 = 16.27
 LOST_WINDOW_RAD = 0.2
 
 
-#: An occupied cell of a saved map's grid (nav_msgs/OccupancyGrid's value).
+#: An occupied and a free cell of a saved map's grid (nav_msgs/OccupancyGrid's values).
 OCCUPIED = 100
+FREE = 0
+#: A search places the robot only within this distance (m) of a free cell of the map: it stands in
+#: the building's free space (where a person or a moved chair stood while mapping, too).
+FREE_MARGIN_M = 0.5
 
 
 class Status(enum.IntEnum):
@@ -187,7 +193,14 @@ class Walls:
 
     def occupied_xy_m(self) -> np.ndarray:
         """Centres of the occupied cells (M, 2), m."""
-        rows, cols = np.nonzero(self.cells == OCCUPIED)
+        return self._centres(self.cells == OCCUPIED)
+
+    def free_xy_m(self) -> np.ndarray:
+        """Centres of the free cells (M, 2), m."""
+        return self._centres(self.cells == FREE)
+
+    def _centres(self, which: np.ndarray) -> np.ndarray:
+        rows, cols = np.nonzero(which)
         return self.origin_xy_m + (np.column_stack((cols, rows)) + 0.5) * self.resolution_m
 
     def occupied_at(self, xy_m: np.ndarray) -> np.ndarray:
@@ -248,6 +261,9 @@ class LocalizationMap:
         extent = float(np.max(np.ptp(every, axis=0)))
         levels = int(min(12, max(1, np.ceil(np.log2(max(TOP_BLOCK_M, extent / 8.0) / GRID_CELL_M)) + 1)))
         self.grid = cm.LikelihoodGrid(every, cm.CorrelativeParams(cell_m=GRID_CELL_M, levels=levels))
+        #: Where a search may place the robot: the map's free space (anywhere, in a grid with no free cell).
+        free = walls.free_xy_m()
+        self.free = cm.PositionMask(self.grid, free, FREE_MARGIN_M) if free.shape[0] else None
         lo, hi = every.min(axis=0), every.max(axis=0)
         self.centre = np.array([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, 0.0])
         self.half_width_m = float(np.max(hi - lo)) / 2.0 + 1.0
@@ -347,7 +363,7 @@ class Localizer:
             return
         self.searches += 1
         found = cm.search(self.map.grid, query, centre, half_width_m, half_angle_rad, MIN_SCORE, MAX_FRONTIER,
-                          GREEDY_STARTS, MAX_SECOND_RATIO)
+                          GREEDY_STARTS, MAX_SECOND_RATIO, where=self.map.free)
         if not found.exact:
             self.refused["inexact"] += 1
             return
