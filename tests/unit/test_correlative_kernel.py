@@ -31,6 +31,25 @@ def test_the_kernel_scores_as_the_numpy_form(seed, height, width, angles, points
     assert np.all(cut[want >= bound + 1e-12] == got[want >= bound + 1e-12])
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), points=st.integers(1, 100), candidates=st.integers(0, 100))
+def test_a_uint8_level_scores_its_values_over_255(seed, points, candidates):
+    """A pooled level kept as uint8 (value / 255): the same means as the NumPy form, cut by a bound
+    as a float32 grid is."""
+    rng = np.random.default_rng(seed)
+    grid = rng.integers(0, 256, (20, 30)).astype(np.uint8)
+    rows, cols = rng.integers(-5, 25, (2, points)), rng.integers(-5, 35, (2, points))
+    cand = np.column_stack((rng.integers(0, 2, candidates), rng.integers(-8, 8, candidates),
+                            rng.integers(-8, 8, candidates)))
+    want = oracle(grid.astype(np.float64) / 255.0, rows, cols, cand)
+    got = kernel.scores(grid, rows, cols, cand)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+    bound = float(rng.uniform(0, 1))
+    cut = kernel.scores(grid, rows, cols, cand, bound)
+    assert np.all((cut == got) | ((cut == -1.0) & (want < bound + 1e-12)))
+    assert np.all(cut[want >= bound + 1e-12] == got[want >= bound + 1e-12])
+
+
 def test_a_point_off_the_grid_scores_the_edge_cell():
     grid = np.zeros((3, 4), np.float32)
     grid[2, 3] = 1.0          # the top-right cell

@@ -14,27 +14,46 @@ matcher's kernels are.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 @njit(cache=True)
-def _scores(flat, width, height, rows, cols, cand, bound):
-    k_count, n = cand.shape[0], rows.shape[1]
-    out = np.empty(k_count)
-    need = bound * n   # a candidate whose sum cannot reach this is cut (grid values are <= 1)
-    for k in range(k_count):
-        a, di, dj = cand[k, 0], cand[k, 1], cand[k, 2]
-        total = 0.0
-        cut = False
-        for i in range(n):
-            r = min(max(rows[a, i] + dj, 0), height - 1)
-            q = min(max(cols[a, i] + di, 0), width - 1)
-            total += flat[r * width + q]
-            if (i & 15) == 15 and total + (n - 1 - i) < need:
-                cut = True
-                break
-        out[k] = -1.0 if cut else total / n
+def _score_one(flat, width, height, rows, cols, cand, bound, full, out, k):
+    """``out[k]``: candidate ``k``'s mean, or -1 once it cannot reach ``bound``."""
+    n = rows.shape[1]
+    need = bound * n * full   # a candidate whose sum cannot reach this is cut (grid values are <= full)
+    a, di, dj = cand[k, 0], cand[k, 1], cand[k, 2]
+    total = 0.0
+    for i in range(n):
+        r = min(max(rows[a, i] + dj, 0), height - 1)
+        q = min(max(cols[a, i] + di, 0), width - 1)
+        total += flat[r * width + q]
+        if (i & 15) == 15 and total + full * (n - 1 - i) < need:
+            out[k] = -1.0
+            return
+    out[k] = total / (n * full)
+
+
+@njit(cache=True)
+def _scores(flat, width, height, rows, cols, cand, bound, full):
+    out = np.empty(cand.shape[0])
+    for k in range(cand.shape[0]):
+        _score_one(flat, width, height, rows, cols, cand, bound, full, out, k)
     return out
+
+
+@njit(cache=True, parallel=True)
+def _scores_parallel(flat, width, height, rows, cols, cand, bound, full):
+    out = np.empty(cand.shape[0])
+    for k in prange(cand.shape[0]):
+        _score_one(flat, width, height, rows, cols, cand, bound, full, out, k)
+    return out
+
+
+#: Candidates from which a call is spread over the CPU's cores (each candidate is still summed
+#: in one thread, in point order: the same scores on any number of threads). Below it, waking
+#: the threads would cost more than they save.
+PARALLEL_FROM = 20_000
 
 
 def scores(grid_level: np.ndarray, rows: np.ndarray, cols: np.ndarray, cand: np.ndarray,
@@ -44,7 +63,8 @@ def scores(grid_level: np.ndarray, rows: np.ndarray, cols: np.ndarray, cand: np.
     Parameters
     ----------
     grid_level : ndarray, shape (H, W)
-        A (pooled) likelihood grid, row = y.
+        A (pooled) likelihood grid, row = y: float32 in [0, 1], or uint8 in 0–255 standing for
+        the value / 255 (a pooled level's bounds, a quarter of the memory to gather from).
     rows, cols : ndarray of int64, shape (A, N)
         Cells of the N points rotated by each of A angles, with the window's centre translation.
     cand : ndarray of int64, shape (K, 3)
@@ -62,11 +82,15 @@ def scores(grid_level: np.ndarray, rows: np.ndarray, cols: np.ndarray, cand: np.
         -1 for a candidate cut by ``bound``.
     """
     height, width = grid_level.shape
-    return _scores(grid_level.ravel(), width, height, rows, cols, np.ascontiguousarray(cand, dtype=np.int64),
-                   float(bound))
+    full = 255.0 if grid_level.dtype == np.uint8 else 1.0
+    kernel = _scores_parallel if cand.shape[0] >= PARALLEL_FROM else _scores
+    return kernel(grid_level.ravel(), width, height, rows, cols, np.ascontiguousarray(cand, dtype=np.int64),
+                  float(bound), full)
 
 
 def warm_up() -> None:
     """Compile the kernel now (or load it from numba's cache), on a tiny grid."""
     idx = np.zeros((1, 2), np.int64)
-    scores(np.zeros((2, 2), np.float32), idx, idx, np.zeros((1, 3), np.int64))
+    for dtype in (np.float32, np.uint8):
+        for count in (1, PARALLEL_FROM):
+            scores(np.zeros((2, 2), dtype), idx, idx, np.zeros((count, 3), np.int64))

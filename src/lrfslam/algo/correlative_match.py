@@ -11,7 +11,7 @@ Symbols (inside this module only):
   cell (r, c) to the nearest map point (σ = ``hit_sigma_m``), in [0, 1];
   row = y, column = x, cell side ``cell_m``;
 * ``P_h[r, c] = max G[r : r + 2^h, c : c + 2^h]``: the max-pooled grid of level
-  ``h`` (``P_0 = G``);
+  ``h`` (``P_0 = G``), kept for ``h ≥ 1`` in steps of 1/255 rounded up (uint8: still a bound);
 * a candidate ``(a, i, j)``: rotation index ``a``, x and y offsets in cells; the
   score of a leaf (level 0) is the mean of ``G`` over the rotated and shifted
   points; at level ``h`` the mean of ``P_h`` is an upper bound of every leaf
@@ -43,7 +43,9 @@ Design choices
 * **Second peak.** The best leaf more than ``peak_separation_m`` away (or a
   rotation step away by more than ``peak_separation_rad``) from the winner is
   reported too, so a caller can refuse an ambiguous match (a repeated corridor).
-  It is searched with the same bound, so it too is exact (or capped).
+  It is searched with the same bound, so it too is exact (or capped). A caller interested in it
+  only above a share of the best (``second_ratio``) gets both from one descent, to that share of
+  the first bound: every leaf a second descent would have found is among its leaves.
 
 References
 ----------
@@ -131,13 +133,17 @@ class LikelihoodGrid:
         grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = 0.0
         # float32 halves the memory the search gathers from; scores are means of <= 1 numbers.
         grid = grid.astype(np.float32)
-        self.pooled = [grid]
+        pooled = [grid]
         for h in range(1, params.levels):
-            prev, half = self.pooled[-1], 1 << (h - 1)
+            prev, half = pooled[-1], 1 << (h - 1)
             nxt = prev.copy()
             nxt[:-half, :] = np.maximum(nxt[:-half, :], prev[half:, :])
             nxt[:, :-half] = np.maximum(nxt[:, :-half], nxt[:, half:].copy())
-            self.pooled.append(nxt)
+            pooled.append(nxt)
+        # The pooled levels only bound: in 1/255 steps, rounded up (still bounds), they take a quarter
+        # of the memory, and the search's gathers from them miss the cache less.
+        # (A float32 times 255 is exact in float64.)
+        self.pooled = [grid] + [np.ceil(level.astype(np.float64) * 255.0).astype(np.uint8) for level in pooled[1:]]
 
     @property
     def grid(self) -> np.ndarray:
@@ -347,11 +353,14 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
             return np.ones(cand.shape[0], dtype=bool)
         return where.admits(size.bit_length() - 1, centre[:2], cand)
 
-    bound = max(min_score, greedy(everywhere))
+    first = greedy(everywhere)
+    # With a second peak of interest only above second_ratio of the best, one descent to that share
+    # of the first bound finds both: every leaf the second descent would, and the best.
+    bound = max(min_score, second_ratio * first if second_ratio > 0 else first)
     found, found_scores, n, ok = descend(bound, everywhere)
     leaves += n
     exact &= ok
-    if found.shape[0] == 0:
+    if found_scores.size == 0 or found_scores.max() < max(min_score, first):
         nan = np.full(3, np.nan)
         return SearchResult(centre.copy(), 0.0, 0.0, nan, exact, leaves)
     # Ties go to the first in candidate order (angle, then x, then y): deterministic.
@@ -373,10 +382,14 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         return ((np.hypot(dx, dy) >= sep_cells) | (turned >= sep_angles)) & everywhere(cand, size)
 
     # The second peak: the best leaf separated from the winner.
-    second_bound = max(min_score, second_ratio * best_score, greedy(separated))
-    others, other_scores, n, ok = descend(second_bound, separated)
-    leaves += n
-    exact &= ok
+    if second_ratio > 0:
+        second_bound = max(min_score, second_ratio * best_score)
+        keep = separated(found, 1) & (found_scores >= second_bound)
+        others, other_scores = found[keep], found_scores[keep]
+    else:
+        others, other_scores, n, ok = descend(max(min_score, greedy(separated)), separated)
+        leaves += n
+        exact &= ok
     if others.shape[0] == 0:
         return SearchResult(best_pose, best_score, 0.0, np.full(3, np.nan), exact, leaves)
     k = int(np.argmax(other_scores))
