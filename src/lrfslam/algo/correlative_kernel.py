@@ -13,8 +13,14 @@ matcher's kernels are.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit, prange
+
+# Numba's own scheduler for the parallel loop: its threads sleep between calls, where GNU OpenMP's
+# (numba's first choice where libgomp is found) spin for a while after each, on a machine whose
+# every core the other stages need.
+numba.config.THREADING_LAYER = "workqueue"
 
 
 @njit(cache=True)
@@ -91,6 +97,7 @@ def scores(grid_level: np.ndarray, rows: np.ndarray, cols: np.ndarray, cand: np.
 def warm_up() -> None:
     """Compile the kernel now (or load it from numba's cache), on a tiny grid."""
     idx = np.zeros((1, 2), np.int64)
+    cand = np.zeros((1, 3), np.int64)
     for dtype in (np.float32, np.uint8):
-        for count in (1, PARALLEL_FROM):
-            scores(np.zeros((2, 2), dtype), idx, idx, np.zeros((count, 3), np.int64))
+        for kernel in (_scores, _scores_parallel):
+            kernel(np.zeros(4, dtype), 2, 2, idx, idx, cand, 0.0, 1.0)

@@ -18,6 +18,7 @@ centimetres). The position error of the localized scans is the accuracy.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -178,7 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     starts = rng.uniform(0.0, length, args.starts)
     seeds = [args.seed + 1000 + i for i in range(args.starts)]
-    with ProcessPoolExecutor(args.jobs) as pool:
+    # Spawned, not forked: this process has run the compiled kernels, whose threads a fork cannot copy.
+    with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         results = list(pool.map(run_start, [args.world] * args.starts, [saved] * args.starts, seeds, starts))
     fix = np.array([r.fix_travel_m for r in results])
     within = int(np.sum(fix <= WITHIN_M))

@@ -46,6 +46,7 @@ Run ``python -m lrfslam.evaluation.slam_mc --help``.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -528,7 +529,8 @@ def run_many(cfg: McConfig, jobs: int = 1) -> list[RunResult]:
     """All ``cfg.n_runs`` runs, in ``jobs`` worker processes; results in run order."""
     if jobs <= 1:
         return [run_once(cfg, i) for i in range(cfg.n_runs)]
-    with ProcessPoolExecutor(jobs) as pool:
+    # Spawned, not forked: a compiled kernel's threads, once started, cannot be copied by a fork.
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         return list(pool.map(run_once, [cfg] * cfg.n_runs, range(cfg.n_runs)))
 
 
