@@ -101,6 +101,19 @@ class CorrelativeParams:
             raise ConfigError("correlative matching needs 1 <= levels <= 12")
 
 
+def max_pooled(level0: np.ndarray, levels: int) -> list[np.ndarray]:
+    """``P_0 = level0`` (H, W) and ``P_h[r, c] = max level0[r : r + 2^h, c : c + 2^h]`` for
+    ``h < levels``, each (H, W), of ``level0``'s dtype (booleans: any)."""
+    pooled = [level0]
+    for h in range(1, levels):
+        prev, half = pooled[-1], 1 << (h - 1)
+        nxt = prev.copy()
+        nxt[:-half, :] = np.maximum(nxt[:-half, :], prev[half:, :])
+        nxt[:, :-half] = np.maximum(nxt[:, :-half], nxt[:, half:].copy())
+        pooled.append(nxt)
+    return pooled
+
+
 class LikelihoodGrid:
     """The likelihood grid of map points and its pooled levels (immutable after construction).
 
@@ -133,13 +146,7 @@ class LikelihoodGrid:
         grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = 0.0
         # float32 halves the memory the search gathers from; scores are means of <= 1 numbers.
         grid = grid.astype(np.float32)
-        pooled = [grid]
-        for h in range(1, params.levels):
-            prev, half = pooled[-1], 1 << (h - 1)
-            nxt = prev.copy()
-            nxt[:-half, :] = np.maximum(nxt[:-half, :], prev[half:, :])
-            nxt[:, :-half] = np.maximum(nxt[:, :-half], nxt[:, half:].copy())
-            pooled.append(nxt)
+        pooled = max_pooled(grid, params.levels)
         # The pooled levels only bound: in 1/255 steps, rounded up (still bounds), they take a quarter
         # of the memory, and the search's gathers from them miss the cache less.
         # (A float32 times 255 is exact in float64.)
@@ -191,13 +198,7 @@ class PositionMask:
         mask = maximum_filter(mask, size=2 * reach + 1, mode="constant", cval=False)
         self.origin_xy_m = grid.origin_xy_m
         self.cell_m = cell
-        self.pooled = [mask]
-        for level in range(1, grid.params.levels):
-            prev, half = self.pooled[-1], 1 << (level - 1)
-            nxt = prev.copy()
-            nxt[:-half, :] |= prev[half:, :]
-            nxt[:, :-half] |= nxt[:, half:].copy()
-            self.pooled.append(nxt)
+        self.pooled = max_pooled(mask, grid.params.levels)   # of booleans: any admitted in the block
 
     def admits(self, level: int, centre_xy_m: np.ndarray, cand: np.ndarray) -> np.ndarray:
         """Whether each candidate block (K, 3: angle index, x and y offsets in cells from

@@ -344,11 +344,7 @@ class Localizer:
 
     def _query_points(self, local: np.ndarray) -> np.ndarray:
         """The query's points in the robot frame at ``local`` (M, 2): every kept scan merged, thinned."""
-        merged = np.vstack([from_frame(q.points_xy_m, relative(local, q.local_pose)) for q in self._query])
-        pts = thin_points(merged, QUERY_CELL_M)
-        if pts.shape[0] > MAX_QUERY_POINTS:
-            pts = pts[np.linspace(0, pts.shape[0] - 1, MAX_QUERY_POINTS).astype(int)]
-        return pts
+        return query_of(np.vstack([from_frame(q.points_xy_m, relative(local, q.local_pose)) for q in self._query]))
 
     def _search(self, local: np.ndarray, centre: np.ndarray, half_width_m: float, half_angle_rad: float) -> None:
         """Search the query in the window ``centre`` (3,) ± (``half_width_m``, ``half_angle_rad``) of
@@ -491,6 +487,15 @@ class Localizer:
         self._cov = (np.eye(3) - gain) @ self._cov
         self._cov = 0.5 * (self._cov + self._cov.T)
         return True
+
+
+def query_of(merged_xy_m: np.ndarray) -> np.ndarray:
+    """A global search's query from scans merged in the robot's frame (N, 2): thinned to one point
+    per :data:`QUERY_CELL_M` square, then evenly to at most :data:`MAX_QUERY_POINTS` (M, 2), m."""
+    pts = thin_points(merged_xy_m, QUERY_CELL_M)
+    if pts.shape[0] > MAX_QUERY_POINTS:
+        pts = pts[np.linspace(0, pts.shape[0] - 1, MAX_QUERY_POINTS).astype(int)]
+    return pts
 
 
 def _lever(pose: np.ndarray, transform: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ import numpy as np
 
 from lrfslam.algo import correlative_match as cm
 from lrfslam.algo import localization as loc
-from lrfslam.algo.geometry import from_frame, relative, thin_points
+from lrfslam.algo.geometry import from_frame, relative
 from lrfslam.runtime.saved_map import load_map
 
 
@@ -35,11 +35,7 @@ def query_before(poses: np.ndarray, points: list[np.ndarray], k: int) -> np.ndar
         travel += float(np.hypot(*(poses[first, :2] - poses[first - 1, :2])))
         first -= 1
     merged = np.vstack([from_frame(points[i], relative(poses[k], poses[i])) for i in range(first, k + 1)])
-    merged = merged[np.hypot(merged[:, 0], merged[:, 1]) <= loc.QUERY_TRAVEL_M + loc.MAX_RANGE_M]
-    query = thin_points(merged, loc.QUERY_CELL_M)
-    if query.shape[0] > loc.MAX_QUERY_POINTS:
-        query = query[np.linspace(0, query.shape[0] - 1, loc.MAX_QUERY_POINTS).astype(int)]
-    return query
+    return loc.query_of(merged[np.hypot(merged[:, 0], merged[:, 1]) <= loc.QUERY_TRAVEL_M + loc.MAX_RANGE_M])
 
 
 def main() -> int:
