@@ -301,6 +301,29 @@ def test_a_bad_payload_is_a_decode_error_and_other_topics_have_no_views():
     assert views.from_payload("some/other", "x.Y", b"\x00", 1) == []
 
 
+@pytest.mark.parametrize("period_s", [0.05, 0.0])
+def test_scans_of_a_fast_sensor_are_viewed_at_most_every_scan_period_undecoded_between(period_s):
+    views = fx.FoxgloveViews(fx.ViewConfig(scan_period_s=period_s))
+    period_ns = round(1e9 / 75)   # an LMS200 at 500 kBd
+    shown = []
+    for i in range(150):
+        stamp = 5_000_000_000 + i * period_ns
+        data = codec.LASER_SCAN.encode(t.LaserScan.from_ranges(stamp, i + 1, np.full(181, 2.0), -np.pi / 2,
+                                                               np.radians(1)))
+        if views.from_payload("scan", topics.SCAN.schema, data, stamp):
+            shown.append(stamp)
+        elif period_s:   # between two views a payload is not even decoded
+            assert views.from_payload("scan", topics.SCAN.schema, b"\xff\xfe garbage", stamp) == []
+    gaps = np.diff(shown)
+    if period_s:
+        assert gaps.min() >= period_s * 1e9 and gaps.max() < period_s * 1e9 + period_ns and len(shown) == 38
+    else:
+        assert len(shown) == 150
+    # data time going back (a restarted sensor) starts afresh
+    back = codec.LASER_SCAN.encode(t.LaserScan.from_ranges(1, 1, np.full(181, 2.0), -np.pi / 2, np.radians(1)))
+    assert views.from_payload("scan", topics.SCAN.schema, back, 1)
+
+
 def test_every_channel_is_under_the_prefix_with_a_foxglove_schema():
     assert all(topics.is_foxglove(c) for c in fx.CHANNELS)
     assert set(_SCHEMAS) == {"foxglove.LaserScan", "foxglove.SceneUpdate", "foxglove.PosesInFrame",

@@ -18,7 +18,7 @@ from lrfslam.tools import info
 
 
 def raw(i: int, data: bytes | None = None, schema: str = topics.SCAN.schema) -> Message:
-    scan = t.LaserScan.from_ranges(1_000_000 + i, i, np.linspace(0.5, 8.0, 181), -np.pi / 2, np.radians(1))
+    scan = t.LaserScan.from_ranges(1_000_000 + i * 100_000_000, i, np.linspace(0.5, 8.0, 181), -np.pi / 2, np.radians(1))
     return Message(None, data if data is not None else codec.LASER_SCAN.encode(scan), scan.stamp_ns, schema, "scan", i)
 
 
@@ -47,9 +47,9 @@ def test_views_go_beside_the_payloads_at_their_times(tmp_path):
                for s, c, m, d in reader.iter_decoded_messages(topics=["/foxglove/scan", "/foxglove/log"])]
     assert read_metadata(path)["lrfslam.times"] == {"log_time": "receive", "publish_time": "stamp"}
     scans = [g for g in got if g[0] == "/foxglove/scan"]
-    assert [g[3] for g in scans] == [1_000_000 + i for i in range(5)]
+    assert [g[3] for g in scans] == [1_000_000 + i * 100_000_000 for i in range(5)]
     raw_scans = [m for m in read_recording(tmp_path / "r") if m.topic == "scan"][:5]
-    assert [m.stamp_ns for m in raw_scans] == [1_000_000 + i for i in range(5)]
+    assert [m.stamp_ns for m in raw_scans] == [1_000_000 + i * 100_000_000 for i in range(5)]
     # a view at the receive time of its source, which the recorder took from its wall clock
     assert [g[5] for g in scans] == [m.receive_ns for m in raw_scans] == [m.log_time_ns for m in raw_scans]
     assert all(started <= m.receive_ns <= ended for m in raw_scans)

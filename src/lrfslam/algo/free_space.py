@@ -22,11 +22,13 @@ that side; the tracker checks both ways (:class:`~lrfslam.algo.scan_match.ScanTr
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from lrfslam.algo import free_space_kernel as kernel
 from lrfslam.errors import InputError
 
 #: Most bins on each side a point's range is compared with (a near point's lateral margin).
@@ -95,7 +97,8 @@ def seen_through(spaces: Sequence[FreeSpace], points_xy_m, margin_m: float, marg
     """Which points (N, 2; the common frame, m) any of ``spaces`` contains, bool (N,).
 
     The same as OR-ing :meth:`FreeSpace.contains` over ``spaces`` (K of them, one bin width), in
-    one pass over a (K, N) array: the tracker asks its ten last reference scans about every scan.
+    one compiled pass (:mod:`lrfslam.algo.free_space_kernel`): the tracker asks its ten last
+    reference scans about every scan.
     """
     pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
     if not spaces:
@@ -104,30 +107,10 @@ def seen_through(spaces: Sequence[FreeSpace], points_xy_m, margin_m: float, marg
     if any(space.bin_rad != bin_rad for space in spaces):
         raise InputError("free spaces of different bin widths cannot be asked together")
     nearest = np.stack([space.nearest_m for space in spaces])  # (K, B)
-    n_bins = nearest.shape[1]
-    origin = np.stack([space.pose[:2] for space in spaces])[:, None, :]  # (K, 1, 2)
-    # Each heading's cosine and sine one at a time, as a single scan's would be taken: a
-    # vectorised cosine may differ in the last bit, and a point on a margin's edge with it.
-    c = np.array([np.cos(space.pose[2]) for space in spaces])[:, None]
-    s = np.array([np.sin(space.pose[2]) for space in spaces])[:, None]
-    d = pts[None, :, :] - origin  # (K, N, 2)
-    x, y = c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]  # (K, N) each, in the scans' frames
-    r = np.hypot(x, y)
-    k = _bins(x, y, bin_rad, n_bins)
-    # One bin more than the margin: a point anywhere in its bin has a whole bin of beams each side.
-    tolerance = np.maximum(np.ceil((lateral_m / np.maximum(r, 1e-9) + bearing_rad) / bin_rad), 1)
-    spread = np.minimum(tolerance + 1, MAX_SPREAD_BINS)
-    beyond = r + margin_m + margin_per_m * r
-    # Most points end where their own bin's beam did: only the rest need their neighbours.
-    inside = nearest[np.arange(len(spaces))[:, None], k] > beyond  # NaN (outside the field of view) compares False
-    row, col = np.nonzero(inside)
-    if row.size:
-        spread, beyond = spread[row, col][:, None], beyond[row, col][:, None]  # (A, 1) each
-        widest = int(spread.max())
-        offsets = np.arange(-widest, widest + 1)
-        window = nearest[row[:, None], (k[row, col][:, None] + offsets) % n_bins]  # (A, offsets)
-        inside[row, col] = np.all((np.abs(offsets) > spread) | (window > beyond), axis=1)
-    return inside.any(axis=0)
+    origins = np.stack([space.pose[:2] for space in spaces])  # (K, 2)
+    cos_sin = np.array([(math.cos(space.pose[2]), math.sin(space.pose[2])) for space in spaces])  # (K, 2)
+    return kernel.seen_through(nearest, origins, cos_sin, pts, bin_rad, margin_m, margin_per_m, lateral_m,
+                               bearing_rad, MAX_SPREAD_BINS)
 
 
 def _bins(x: np.ndarray, y: np.ndarray, bin_rad: float, n_bins: int) -> np.ndarray:

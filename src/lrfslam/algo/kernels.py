@@ -8,11 +8,13 @@ behind the compiler, and an image build runs it once so no container compiles.
 
 from __future__ import annotations
 
-from lrfslam.algo import correlative_kernel, grid_kernel, scan_match_kernel
+from lrfslam.algo import correlative_kernel, free_space_kernel, grid_kernel, scan_match_kernel
 
 
 def prepare() -> None:
-    """Compile (or load from numba's cache) the scan matcher's, the correlative search's and the live grid's kernels."""
+    """Compile (or load from numba's cache) the scan matcher's, the free-space check's, the correlative
+    search's and the live grid's kernels."""
     scan_match_kernel.warm_up()
+    free_space_kernel.warm_up()
     correlative_kernel.warm_up()
     grid_kernel.warm_up()

@@ -36,7 +36,9 @@ truth, tied to ``map`` by the first EKF pose that has a true pose at its stamp.
 
 Each view carries its source's data stamp (a health status's is the wall clock); a
 recording writes it as the view's ``publish_time`` and gives the view its source's
-``log_time`` (lrfslam/runtime/recording.py). Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
+``log_time`` (lrfslam/runtime/recording.py). Scans, their kept points and features are viewed at
+most every ``scan_period_s`` of data time (20 Hz), so a 75 Hz sensor's recorder does not decode
+every one of them only to draw it. Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
 at most every ``path_period_s`` of data time, a long one less often, so that their cost stays
 bounded (:class:`ViewConfig`). The map is the mapper's tiles put together (``msgs/grid_replica.py``)
 as one ``foxglove.Grid`` (Foxglove's 3D panel draws the newest message of a channel), one int8
@@ -129,9 +131,13 @@ class ViewConfig:
     landmark_period_s: float = 0.5   # landmarks at most this often; 0: with every slam/state
     map_period_s: float = 5.0        # the map at most this often (slam_toolbox's map_update_interval) ...
     map_cells_per_s: float = 200_000.0   # ... and a map of n cells at most every n / this s (200 kB/s)
+    #: A scan, its kept points and its features at most this often, each (20 Hz: smooth to the
+    #: eye, where an LMS200 sends 75 scans/s); the skipped ones are not even decoded. 0: every one.
+    scan_period_s: float = 0.05
 
     def __post_init__(self) -> None:
-        if min(self.path_period_s, self.path_step_m, self.path_turn_rad, self.landmark_period_s) < 0 \
+        if min(self.path_period_s, self.path_step_m, self.path_turn_rad, self.landmark_period_s,
+               self.scan_period_s) < 0 \
                 or not self.path_poses_per_s > 0 or self.path_max_poses < 2:
             raise ConfigError(f"view periods and steps must be ≥ 0 and path_poses_per_s > 0: {self}")
 
@@ -397,6 +403,8 @@ class FoxgloveViews:
         self._grid_due_ns: int | None = None
         self._health: dict[str, tuple[int, str]] = {}
         self._localization: tuple[int, int] | None = None   # (status, data stamp) last shown
+        self._scan_sent_ns: dict[str, int | None] = dict.fromkeys(   # per-scan topic -> data stamp last viewed
+            (topics.SCAN.name, topics.SCAN_FILTERED.name, topics.FEATURES.name))
         self._handlers: dict[str, Callable[[Any, int], list[View]]] = {
             topics.SCAN.name: self._scan, topics.SCAN_FILTERED.name: self._filtered,
             topics.FEATURES.name: self._features, topics.SLAM_STATE.name: self._slam, topics.SLAM_MAP.name: self._map_of,
@@ -409,6 +417,12 @@ class FoxgloveViews:
         """Whether messages on lrfslam topic ``name`` have views."""
         return name in self._handlers or topics.is_health(name)
 
+    def _due(self, name: str, stamp_ns: int) -> bool:
+        """Whether a message on ``name`` at ``stamp_ns`` gets its views: always, except on the
+        per-scan topics, at most every ``scan_period_s`` of data time (a step back starts afresh)."""
+        sent = self._scan_sent_ns.get(name)
+        return sent is None or not 0 <= stamp_ns - sent < self.cfg.scan_period_s * 1e9
+
     def from_payload(self, name: str, schema: str, data: bytes, stamp_ns: int) -> list[View]:
         """The views of one recorded or received payload on lrfslam topic ``name``; [] if it has none.
 
@@ -417,12 +431,16 @@ class FoxgloveViews:
         DecodeError
             The payload does not decode with ``schema`` (:class:`SchemaVersionError`: an unknown schema).
         """
-        if not self.viewed(name):
+        if not self.viewed(name) or not self._due(name, stamp_ns):
             return []
         return self.convert(name, topics.by_name(name).codec.decode(data, schema), stamp_ns)
 
     def convert(self, name: str, value: Any, stamp_ns: int) -> list[View]:
         """The views of decoded message ``value`` on lrfslam topic ``name``, at its data stamp ``stamp_ns``."""
+        if not self._due(name, stamp_ns):
+            return []
+        if name in self._scan_sent_ns:
+            self._scan_sent_ns[name] = stamp_ns
         if topics.is_health(name):
             return self._status(value, stamp_ns)
         handler = self._handlers.get(name)
