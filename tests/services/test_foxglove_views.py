@@ -302,10 +302,10 @@ def test_a_bad_payload_is_a_decode_error_and_other_topics_have_no_views():
 
 
 @pytest.mark.parametrize("period_s", [0.05, 0.0])
-def test_scans_of_a_fast_sensor_are_viewed_at_most_every_scan_period_undecoded_between(period_s):
-    views = fx.FoxgloveViews(fx.ViewConfig(scan_period_s=period_s))
+def test_a_fast_sensors_scans_and_transforms_are_viewed_at_most_every_frame_period(period_s):
+    views = fx.FoxgloveViews(fx.ViewConfig(frame_period_s=period_s))
     period_ns = round(1e9 / 75)   # an LMS200 at 500 kBd
-    shown = []
+    shown, transforms = [], 0
     for i in range(150):
         stamp = 5_000_000_000 + i * period_ns
         data = codec.LASER_SCAN.encode(t.LaserScan.from_ranges(stamp, i + 1, np.full(181, 2.0), -np.pi / 2,
@@ -314,11 +314,14 @@ def test_scans_of_a_fast_sensor_are_viewed_at_most_every_scan_period_undecoded_b
             shown.append(stamp)
         elif period_s:   # between two views a payload is not even decoded
             assert views.from_payload("scan", topics.SCAN.schema, b"\xff\xfe garbage", stamp) == []
+        odom = codec.ODOMETRY.encode(t.Odometry(stamp_ns=stamp, seq=i + 1, pose=np.array([0.01 * i, 0.0, 0.0])))
+        transforms += sum(v.topic == fx.TF for v in views.from_payload("odom", topics.ODOM.schema, odom, stamp))
     gaps = np.diff(shown)
     if period_s:
         assert gaps.min() >= period_s * 1e9 and gaps.max() < period_s * 1e9 + period_ns and len(shown) == 38
     else:
         assert len(shown) == 150
+    assert transforms == len(shown)
     # data time going back (a restarted sensor) starts afresh
     back = codec.LASER_SCAN.encode(t.LaserScan.from_ranges(1, 1, np.full(181, 2.0), -np.pi / 2, np.radians(1)))
     assert views.from_payload("scan", topics.SCAN.schema, back, 1)

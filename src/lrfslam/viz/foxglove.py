@@ -37,8 +37,8 @@ truth, tied to ``map`` by the first EKF pose that has a true pose at its stamp.
 Each view carries its source's data stamp (a health status's is the wall clock); a
 recording writes it as the view's ``publish_time`` and gives the view its source's
 ``log_time`` (lrfslam/runtime/recording.py). Scans, their kept points and features are viewed at
-most every ``scan_period_s`` of data time (20 Hz), so a 75 Hz sensor's recorder does not decode
-every one of them only to draw it. Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
+most every ``frame_period_s`` of data time (20 Hz), and so are the transforms of odometry, slam
+states and map poses, so a 75 Hz sensor's recorder does not decode every scan only to draw it. Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
 at most every ``path_period_s`` of data time, a long one less often, so that their cost stays
 bounded (:class:`ViewConfig`). The map is the mapper's tiles put together (``msgs/grid_replica.py``)
 as one ``foxglove.Grid`` (Foxglove's 3D panel draws the newest message of a channel), one int8
@@ -115,6 +115,8 @@ LOG_LEVELS = {t.HEALTH_OK: fm.LogLevel.Info, t.HEALTH_WARN: fm.LogLevel.Warning,
               t.HEALTH_ERROR: fm.LogLevel.Error, t.HEALTH_STALE: fm.LogLevel.Warning}
 
 _ODOMETRY_KEPT = 256     # odometry samples held to find the one at an EKF stamp
+#: Topics whose only views are drawn with every scan: between two, their messages are not decoded.
+_UNDECODED_BETWEEN = (topics.SCAN.name, topics.SCAN_FILTERED.name, topics.FEATURES.name)
 
 
 @dataclass(frozen=True)
@@ -131,13 +133,15 @@ class ViewConfig:
     landmark_period_s: float = 0.5   # landmarks at most this often; 0: with every slam/state
     map_period_s: float = 5.0        # the map at most this often (slam_toolbox's map_update_interval) ...
     map_cells_per_s: float = 200_000.0   # ... and a map of n cells at most every n / this s (200 kB/s)
-    #: A scan, its kept points and its features at most this often, each (20 Hz: smooth to the
-    #: eye, where an LMS200 sends 75 scans/s); the skipped ones are not even decoded. 0: every one.
-    scan_period_s: float = 0.05
+    #: A view drawn with every scan (the scan, its kept points, its features, the transforms of its
+    #: odometry, slam state and map pose) at most this often, each (20 Hz: smooth to the eye, where
+    #: an LMS200 sends 75 scans/s); skipped scans, kept points and features are not even decoded.
+    #: 0: every one.
+    frame_period_s: float = 0.05
 
     def __post_init__(self) -> None:
         if min(self.path_period_s, self.path_step_m, self.path_turn_rad, self.landmark_period_s,
-               self.scan_period_s) < 0 \
+               self.frame_period_s) < 0 \
                 or not self.path_poses_per_s > 0 or self.path_max_poses < 2:
             raise ConfigError(f"view periods and steps must be ≥ 0 and path_poses_per_s > 0: {self}")
 
@@ -403,8 +407,9 @@ class FoxgloveViews:
         self._grid_due_ns: int | None = None
         self._health: dict[str, tuple[int, str]] = {}
         self._localization: tuple[int, int] | None = None   # (status, data stamp) last shown
-        self._scan_sent_ns: dict[str, int | None] = dict.fromkeys(   # per-scan topic -> data stamp last viewed
-            (topics.SCAN.name, topics.SCAN_FILTERED.name, topics.FEATURES.name))
+        # topic drawn with every scan -> data stamp of its last view
+        self._frame_sent_ns: dict[str, int | None] = dict.fromkeys(
+            (*_UNDECODED_BETWEEN, topics.ODOM.name, topics.SLAM_STATE.name, topics.MAP_POSE.name))
         self._handlers: dict[str, Callable[[Any, int], list[View]]] = {
             topics.SCAN.name: self._scan, topics.SCAN_FILTERED.name: self._filtered,
             topics.FEATURES.name: self._features, topics.SLAM_STATE.name: self._slam, topics.SLAM_MAP.name: self._map_of,
@@ -418,10 +423,17 @@ class FoxgloveViews:
         return name in self._handlers or topics.is_health(name)
 
     def _due(self, name: str, stamp_ns: int) -> bool:
-        """Whether a message on ``name`` at ``stamp_ns`` gets its views: always, except on the
-        per-scan topics, at most every ``scan_period_s`` of data time (a step back starts afresh)."""
-        sent = self._scan_sent_ns.get(name)
-        return sent is None or not 0 <= stamp_ns - sent < self.cfg.scan_period_s * 1e9
+        """Whether a view drawn with every scan is due for a message on ``name`` at ``stamp_ns``: at
+        most every ``frame_period_s`` of data time (a step back starts afresh); other topics' always."""
+        sent = self._frame_sent_ns.get(name)
+        return sent is None or not 0 <= stamp_ns - sent < self.cfg.frame_period_s * 1e9
+
+    def _frame_due(self, name: str, stamp_ns: int) -> bool:
+        """:meth:`_due`, and if so, counted as sent."""
+        if not self._due(name, stamp_ns):
+            return False
+        self._frame_sent_ns[name] = stamp_ns
+        return True
 
     def from_payload(self, name: str, schema: str, data: bytes, stamp_ns: int) -> list[View]:
         """The views of one recorded or received payload on lrfslam topic ``name``; [] if it has none.
@@ -431,16 +443,14 @@ class FoxgloveViews:
         DecodeError
             The payload does not decode with ``schema`` (:class:`SchemaVersionError`: an unknown schema).
         """
-        if not self.viewed(name) or not self._due(name, stamp_ns):
+        if not self.viewed(name) or (name in _UNDECODED_BETWEEN and not self._due(name, stamp_ns)):
             return []
         return self.convert(name, topics.by_name(name).codec.decode(data, schema), stamp_ns)
 
     def convert(self, name: str, value: Any, stamp_ns: int) -> list[View]:
         """The views of decoded message ``value`` on lrfslam topic ``name``, at its data stamp ``stamp_ns``."""
-        if not self._due(name, stamp_ns):
+        if name in _UNDECODED_BETWEEN and not self._frame_due(name, stamp_ns):
             return []
-        if name in self._scan_sent_ns:
-            self._scan_sent_ns[name] = stamp_ns
         if topics.is_health(name):
             return self._status(value, stamp_ns)
         handler = self._handlers.get(name)
@@ -460,7 +470,8 @@ class FoxgloveViews:
     def _odometry(self, odom: t.Odometry, at: int) -> list[View]:
         self._odom.append((odom.stamp_ns, odom.pose))
         views = [View(TF, fm.FrameTransforms(transforms=[
-            transform(odom.stamp_ns, ODOM, BASE, odom.pose), transform(odom.stamp_ns, BASE, LASER, np.zeros(3))]), at)]
+            transform(odom.stamp_ns, ODOM, BASE, odom.pose), transform(odom.stamp_ns, BASE, LASER, np.zeros(3))]), at)
+                 ] if self._frame_due(topics.ODOM.name, odom.stamp_ns) else []
         return views + self._path(TRAJECTORY_ODOM, odom.stamp_ns, odom.pose, at)
 
     def _ground_truth(self, truth: t.GroundTruth, at: int) -> list[View]:
@@ -475,20 +486,22 @@ class FoxgloveViews:
         self._map.apply_state(state)
         stamp = state.stamp_ns
         map_pose = compose(self._map_from_slam, state.pose)
-        tfs = [transform(stamp, MAP, SLAM, self._map_from_slam)]
-        if self._odom:
-            odom = self._odometry_at(stamp)
-            tfs.append(transform(stamp, MAP, ODOM, compose(map_pose, inverse(odom))))
-        else:  # no odometry: the EKF's pose places the robot
-            tfs += [transform(stamp, MAP, ODOM, self._map_from_slam), transform(stamp, ODOM, BASE, state.pose),
-                    transform(stamp, BASE, LASER, np.zeros(3))]
         if self._world_from_map is None:
             true = next((p for s, p in self._truth if s == stamp), None)
             if true is not None:
                 self._world_from_map = compose(true, inverse(map_pose))
-        if self._world_from_map is not None:
-            tfs.append(transform(stamp, WORLD, MAP, self._world_from_map))
-        views = [View(TF, fm.FrameTransforms(transforms=tfs), at)]
+        views = []
+        if self._frame_due(topics.SLAM_STATE.name, stamp):
+            tfs = [transform(stamp, MAP, SLAM, self._map_from_slam)]
+            if self._odom:
+                odom = self._odometry_at(stamp)
+                tfs.append(transform(stamp, MAP, ODOM, compose(map_pose, inverse(odom))))
+            else:  # no odometry: the EKF's pose places the robot
+                tfs += [transform(stamp, MAP, ODOM, self._map_from_slam), transform(stamp, ODOM, BASE, state.pose),
+                        transform(stamp, BASE, LASER, np.zeros(3))]
+            if self._world_from_map is not None:
+                tfs.append(transform(stamp, WORLD, MAP, self._world_from_map))
+            views.append(View(TF, fm.FrameTransforms(transforms=tfs), at))
         sent = self._landmarks_sent_ns
         if sent is None or not 0 <= stamp - sent < self.cfg.landmark_period_s * 1e9:
             self._landmarks_sent_ns = stamp
@@ -513,7 +526,8 @@ class FoxgloveViews:
 
     def _map_pose(self, mp: t.MapPose, at: int) -> list[View]:
         self._map_from_slam = mp.map_from_slam
-        views = [View(TF, fm.FrameTransforms(transforms=[transform(mp.stamp_ns, MAP, SLAM, mp.map_from_slam)]), at)]
+        views = [View(TF, fm.FrameTransforms(transforms=[transform(mp.stamp_ns, MAP, SLAM, mp.map_from_slam)]), at)
+                 ] if self._frame_due(topics.MAP_POSE.name, mp.stamp_ns) else []
         if mp.localization != t.MAPPING:
             last = self._localization
             if last is None or last[0] != mp.localization or \
