@@ -8,7 +8,12 @@ behind the compiler, and an image build runs it once so no container compiles.
 
 from __future__ import annotations
 
-from lrfslam.algo import correlative_kernel, free_space_kernel, grid_kernel, scan_match_kernel
+from lrfslam.algo import (
+    correlative_kernel,
+    free_space_kernel,
+    grid_kernel,
+    scan_match_kernel,
+)
 
 
 def prepare() -> None:
