@@ -38,7 +38,8 @@ Each view carries its source's data stamp (a health status's is the wall clock);
 recording writes it as the view's ``publish_time`` and gives the view its source's
 ``log_time`` (lrfslam/runtime/recording.py). Scans, their kept points and features are viewed at
 most every ``frame_period_s`` of data time (20 Hz), and so are the transforms of odometry, slam
-states and map poses, so a 75 Hz sensor's recorder does not decode every scan only to draw it. Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
+states and map poses, so a 75 Hz sensor's recorder does not decode every scan only to draw it.
+Trajectories are thinned (a pose every ``path_step_m`` or ``path_turn_rad``) and sent
 at most every ``path_period_s`` of data time, a long one less often, so that their cost stays
 bounded (:class:`ViewConfig`). The map is the mapper's tiles put together (``msgs/grid_replica.py``)
 as one ``foxglove.Grid`` (Foxglove's 3D panel draws the newest message of a channel), one int8
