@@ -31,8 +31,10 @@ def _seen_through(nearest_m, origins, cos_sin, points, bin_rad, margin_m, margin
             r = math.hypot(x, y)
             b = min(int((math.atan2(y, x) + math.pi) / bin_rad), n_bins - 1)
             beyond = r + margin_m + margin_per_m * r
+            # Most points end where their own bin's beam did: only the rest need their neighbours.
             if not nearest_m[k, b] > beyond:   # NaN (outside the field of view) compares False
                 continue
+            # One bin more than the margin: a point anywhere in its bin has a whole bin of beams each side.
             tolerance = max(math.ceil((lateral_m / max(r, 1e-9) + bearing_rad) / bin_rad), 1.0)
             spread = int(min(tolerance + 1.0, max_spread))
             clear = True
