@@ -131,3 +131,53 @@ def test_on_the_simulator_each_attempt_is_judged_by_the_true_poses_of_its_keyfra
     assert not judged[3].covered
     counts = closure_audit.summary_counts(judged)
     assert closure_audit.precision_recall(counts) == (0.5, 0.5)
+
+
+def _straight_ekf():
+    stamps = np.arange(0.0, 400.0, 0.1)
+    return stamps, np.column_stack([0.5 * stamps, np.zeros_like(stamps), np.zeros_like(stamps)])   # 0.5 m/s along x
+
+
+def test_the_reference_noise_is_the_short_relations_error_at_zero_span_and_its_growth_with_the_span():
+    """Relations under 2 s whose own error has a known variance, and grows by a known one per second
+    (the EKF's drift, here put in the relations): the fit finds both."""
+    stamps, ekf = _straight_ekf()
+    rng = np.random.default_rng(5)
+    relation_var = np.array([1e-4, 4e-4, 1e-5])
+    per_s_var = np.array([2e-4, 1e-4, 3e-6])
+    rows = []
+    for _ in range(6000):
+        i = int(rng.integers(0, stamps.size - 25))
+        j = i + int(rng.integers(1, 21))                       # 0.1–2 s on
+        span = stamps[j] - stamps[i]
+        noise = rng.normal(size=3) * np.sqrt(relation_var + span * per_s_var)
+        rows.append((stamps[i], stamps[j], compose(relative(ekf[i], ekf[j]), noise)))
+    rows.append((stamps[0], stamps[100], relative(ekf[0], ekf[100]) + [5.0, 0.0, 0.0]))   # 10 s: not used
+    noise = closure_audit.reference_noise(load_relations(relations_text(rows)), stamps, ekf, 1e-3)
+    np.testing.assert_allclose(noise.relation, relation_var, rtol=0.25)
+    np.testing.assert_allclose(noise.per_s, per_s_var, rtol=0.25)
+
+
+def test_a_closure_off_by_no_more_than_the_references_own_error_is_no_false_accept_beyond_it():
+    stamps, ekf = _straight_ekf()
+    rng = np.random.default_rng(7)
+    # Short relations whose own error is 2 cm and 0.5 degrees (sigma), and one 10 s relation to judge by.
+    sigma = np.array([0.02, 0.02, math.radians(0.5)])
+    rows = [(stamps[i], stamps[i + 10], compose(relative(ekf[i], ekf[i + 10]), rng.normal(size=3) * sigma))
+            for i in range(0, 3000, 3)]
+    rows.append((stamps[10], stamps[110], relative(ekf[10], ekf[110])))
+    rels = load_relations(relations_text(rows))
+    cov = np.diag([0.005 ** 2, 0.005 ** 2, math.radians(0.1) ** 2])   # claims 5 mm and 0.1 degrees
+    truth = relative(ekf[10], ekf[110])
+
+    def attempt(off):
+        return ClosureAttempt(round(stamps[10] * 1e9), round(stamps[110] * 1e9), compose(truth, off), cov, "accepted")
+
+    within = attempt([0.0, 0.0, math.radians(0.6)])   # 6 of its own sigmas, one of the reference's
+    beyond = attempt([0.0, 0.0, math.radians(3.0)])   # beyond both
+    judged = closure_audit.judge([within, beyond], rels, stamps, ekf, 1e-3)
+    assert judged[0].false_accept and not judged[0].false_accept_beyond_reference
+    assert judged[1].false_accept and judged[1].false_accept_beyond_reference
+    counts = closure_audit.summary_counts(judged)
+    assert counts["false_accepts"] == 2 and counts["false_accepts_beyond_reference"] == 1
+    assert "2 of 2 covered accepted closures; 1 beyond" in closure_audit.report(judged)
