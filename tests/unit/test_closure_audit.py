@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from lrfslam.algo.geometry import compose, relative
+from lrfslam.algo.geometry import compose, relative, rotate_covariance
 from lrfslam.algo.loop_closure import VERDICTS, ClosureAttempt, LoopClosingMapper
 from lrfslam.evaluation import closure_audit
 from lrfslam.evaluation.relations import load_relations
@@ -73,8 +73,9 @@ def test_each_attempt_is_judged_against_the_relation_that_covers_it(hallway):
         np.testing.assert_allclose(j.error, expected, atol=1e-9)
         assert j.right == (math.hypot(*expected[:2]) <= closure_audit.RIGHT_M
                            and abs(expected[2]) <= closure_audit.RIGHT_RAD)
-        if a.cov is not None:
-            assert j.chi2 == pytest.approx(expected @ np.linalg.solve(a.cov, expected))
+        if a.cov is not None:   # the closure's covariance is in the old keyframe's axes, the error in the truth's
+            cov = rotate_covariance(a.cov, -true_rel[2])
+            assert j.chi2 == pytest.approx(expected @ np.linalg.solve(cov, expected))
     accepted = [j for j in judged if j.attempt.verdict == "accepted"]
     assert accepted and all(j.right for j in accepted)   # the hallway's closures are all right
     text = closure_audit.report(judged)

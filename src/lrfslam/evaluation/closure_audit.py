@@ -33,7 +33,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from lrfslam.algo.geometry import compose_with_covariance, inverse, relative
+from lrfslam.algo.geometry import (
+    compose_with_covariance,
+    inverse,
+    relative,
+    rotate_covariance,
+)
 from lrfslam.algo.loop_closure import VERDICTS, ClosureAttempt
 from lrfslam.evaluation.relations import Relations, match_stamps, stamp_s
 from lrfslam.runtime import chain
@@ -209,13 +214,13 @@ def _against(att: ClosureAttempt, truth: np.ndarray | None, truth_cov: np.ndarra
     error[2] = math.remainder(error[2], 2 * math.pi)
     if att.cov is None:
         return Judged(att, error, None)
-    chi = float(error @ np.linalg.solve(att.cov, error))
+    # The error is in the truth's axes; the closure's covariance (and the truth's) in the old
+    # keyframe's: turned into the error's.
+    cov = rotate_covariance(att.cov, -truth[2])
+    chi = float(error @ np.linalg.solve(cov, error))
     if truth_cov is None:
         return Judged(att, error, chi, chi)
-    # The error is in the truth's axes: the truth's covariance turned into them.
-    c, s = math.cos(truth[2]), math.sin(truth[2])
-    turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    return Judged(att, error, chi, float(error @ np.linalg.solve(att.cov + turn @ truth_cov @ turn.T, error)))
+    return Judged(att, error, chi, float(error @ np.linalg.solve(cov + rotate_covariance(truth_cov, -truth[2]), error)))
 
 
 def report(judged: list[Judged]) -> str:
