@@ -204,11 +204,19 @@ def test_every_forward_corner_in_a_random_room_is_a_map_corner(room, sigma_m, se
     fs = extract_features(scan.ranges_m, scan.angles_rad, kept, DEFAULT)
     assert np.isfinite(fs.xy_m).all() and np.isfinite(fs.cov_m2).all()
     truth = to_frame(world.corners().xy_m, pose)
+    ok = kept & np.isfinite(scan.ranges_m)
+    returns = np.column_stack((scan.ranges_m[ok] * np.cos(scan.angles_rad[ok]), scan.ranges_m[ok] * np.sin(scan.angles_rad[ok])))
     for xy, refined in zip(forward(fs), fs.refined[fs.kind == FORWARD]):
-        miss = np.min(np.hypot(*(truth - xy).T))
-        # Noise-free ranges are still quantised to 1 cm; an unrefined corner (too few
-        # wall points for the refit, e.g. at grazing incidence) sits on its base point.
-        assert miss < (0.01 if sigma_m == 0 and refined else 0.1)
+        miss = np.hypot(*(truth - xy).T)
+        k = int(np.argmin(miss))
+        if refined:   # noise-free ranges are still quantised to 1 cm
+            assert miss[k] < (0.01 if sigma_m == 0 else 0.1)
+        else:
+            # Too few wall points for the refit (e.g. at grazing incidence): the corner sits on its
+            # base point, a return beside the true corner, as far from it as the returns there lie
+            # apart (6 cm at 3.5 m, more on a wall seen edge-on), noise and quantisation aside.
+            beside = np.sort(np.hypot(*(returns - truth[k]).T))[:2]
+            assert miss[k] < max(0.1, beside[-1] + 3.0 * sigma_m + 0.01)
 
 
 ranges_st = arrays(
