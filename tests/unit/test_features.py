@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from lrfslam.algo.features import BACKWARD, FORWARD, FeatureParams, extract_features
-from lrfslam.algo.geometry import from_frame, to_frame
+from lrfslam.algo.geometry import from_frame, polar_to_xy, to_frame
 from lrfslam.algo.histogram import DenoiseParams, denoise
 from lrfslam.errors import ConfigError
 from lrfslam.sim.floor_plans import corridor_end, doorway_room, l_corner, straight_wall
@@ -205,7 +205,7 @@ def test_every_forward_corner_in_a_random_room_is_a_map_corner(room, sigma_m, se
     assert np.isfinite(fs.xy_m).all() and np.isfinite(fs.cov_m2).all()
     truth = to_frame(world.corners().xy_m, pose)
     ok = kept & np.isfinite(scan.ranges_m)
-    returns = np.column_stack((scan.ranges_m[ok] * np.cos(scan.angles_rad[ok]), scan.ranges_m[ok] * np.sin(scan.angles_rad[ok])))
+    returns = polar_to_xy(scan.ranges_m[ok], scan.angles_rad[ok])
     for xy, refined in zip(forward(fs), fs.refined[fs.kind == FORWARD]):
         miss = np.hypot(*(truth - xy).T)
         k = int(np.argmin(miss))

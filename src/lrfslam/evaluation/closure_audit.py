@@ -38,6 +38,7 @@ from lrfslam.algo.geometry import (
     inverse,
     relative,
     rotate_covariance,
+    wrap_angle,
 )
 from lrfslam.algo.loop_closure import VERDICTS, ClosureAttempt
 from lrfslam.evaluation.relations import Relations, match_stamps, stamp_s
@@ -110,7 +111,7 @@ def reference_noise(relations: Relations, ekf_stamps_s: np.ndarray, ekf_poses: n
     if short.size < 2:
         return ReferenceNoise(np.zeros(3), np.zeros(3))
     err = np.array([relative(relations.delta[i], relative(ekf_poses[ia[i]], ekf_poses[ib[i]])) for i in short])
-    err[:, 2] = np.remainder(err[:, 2] + np.pi, 2 * np.pi) - np.pi
+    err[:, 2] = wrap_angle(err[:, 2])
     design = np.column_stack((np.ones(short.size), span[short]))
     relation, per_s = np.zeros(3), np.zeros(3)
     for c in range(3):
@@ -134,7 +135,7 @@ def observed_stages(stages: Iterable[chain.Stage], journal: list[ClosureAttempt]
 
 
 def judge(attempts: Iterable[ClosureAttempt], relations: Relations, ekf_stamps_s: np.ndarray,
-          ekf_poses: np.ndarray, max_gap_s: float) -> list[Judged]:
+          ekf_poses: np.ndarray, max_gap_s: float, noise: ReferenceNoise | None = None) -> list[Judged]:
     """Each attempt with its error against the relations where they cover it.
 
     Parameters
@@ -146,13 +147,16 @@ def judge(attempts: Iterable[ClosureAttempt], relations: Relations, ekf_stamps_s
         keyframes' scans.
     max_gap_s : float
         Stamp-matching tolerance (s) between a relation's or a keyframe's stamp and the EKF's.
+    noise : ReferenceNoise, optional
+        The truth's own error; :func:`reference_noise` of these relations when not given.
     """
     rel_a, _ = match_stamps(ekf_stamps_s, relations.stamp1_s, max_gap_s)
     rel_b, _ = match_stamps(ekf_stamps_s, relations.stamp2_s, max_gap_s)
     usable = (rel_a >= 0) & (rel_b >= 0)
     t1, t2 = relations.stamp1_s[usable], relations.stamp2_s[usable]
     ia, ib, delta = rel_a[usable], rel_b[usable], relations.delta[usable]
-    noise = reference_noise(relations, ekf_stamps_s, ekf_poses, max_gap_s)
+    if noise is None:
+        noise = reference_noise(relations, ekf_stamps_s, ekf_poses, max_gap_s)
     attempts = list(attempts)
     old_all = np.array([stamp_s(a.old_stamp_ns) for a in attempts])
     new_all = np.array([stamp_s(a.new_stamp_ns) for a in attempts])

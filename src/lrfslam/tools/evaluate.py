@@ -63,10 +63,10 @@ def audit_closures(recording: str, relations_path: str, work: Path, sets: list[s
     out = work / (Path(recording).name.split(".")[0] + ".closures.mcap")
     pipeline.run_pipeline(stages, "audit", recording, out)
     traj, _ = read_trajectories(out, {"slam": topics.SLAM_STATE})
-    judged = closure_audit.judge(journal, relations, *traj["slam"], max_gap_s)
+    noise = closure_audit.reference_noise(relations, *traj["slam"], max_gap_s)
+    judged = closure_audit.judge(journal, relations, *traj["slam"], max_gap_s, noise)
     print(f"{recording} vs {relations_path}: {len(journal)} closure attempts, "
           f"{sum(j.covered for j in judged)} covered by a relation within {closure_audit.BRIDGE_S} s")
-    noise = closure_audit.reference_noise(relations, *traj["slam"], max_gap_s)
     print(f"the reference's own error (fitted on the relations under {closure_audit.SHORT_SPAN_S:g} s): a relation "
           f"sigma {1e3 * np.sqrt(noise.relation[0]):.1f} {1e3 * np.sqrt(noise.relation[1]):.1f} mm "
           f"{np.degrees(np.sqrt(noise.relation[2])):.2f} deg; the EKF's bridge sigma per sqrt(s) "
