@@ -2,7 +2,8 @@
 
 in:  scan           LaserScan (the raw scan: the keyframes' points)
      slam/state     SlamState (the EKF's pose after each scan)
-out: map/pose       MapPose (per slam state: the pose corrected by every closure so far)
+out: map/pose       MapPose (per slam state: the pose corrected by every closure so far; published
+                    before the keyframe work the state may cause, whose closures the next pose carries)
      map/keyframes  MapKeyframes (after each optimisation and at the end: the graph's optimised
                     keyframes, and those retired from it since the last, once)
      map/grid       MapGrid (at most once a second of data, and at the end: the tiles of the
@@ -36,6 +37,7 @@ mapper has its grid again.
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -219,10 +221,10 @@ class MapperStep(StepBase):
             self.grid.add_scan(v.stamp_ns, v.grid_ranges(), v.angle_min_rad, v.angle_increment_rad)
         elif msg.topic is topics.SLAM_STATE:
             self.align.add_features(v.stamp_ns, v.scan_seq, v)
-        return [out for a in self.align.ready() for out in self._place(a.features, a.scan_xy_m)]
+        return self._placing(self.align.ready())
 
     def finish(self):
-        outs = [out for a in self.align.ready(final=True) for out in self._place(a.features, a.scan_xy_m)]
+        outs = list(self._placing(self.align.ready(final=True)))
         if self.mapper.keyframe_count:
             self.mapper.finish()   # every closure still pending solved for, every revisit folded
             outs.append(self._keyframes(self._last_stamp))
@@ -271,20 +273,30 @@ class MapperStep(StepBase):
                          cells=np.array(cells, np.int8).reshape(-1, side, side), whole=whole,
                          keyframes=self.grid.keyframes, pending=self.grid.pending)
 
-    def _place(self, state: t.SlamState, points: np.ndarray | None) -> list[Output]:
+    def _placing(self, ready) -> Iterator[Output]:
+        for a in ready:
+            yield from self._place(a.features, a.scan_xy_m)
+
+    def _place(self, state: t.SlamState, points: np.ndarray | None) -> Iterator[Output]:
+        """The scan's ``map/pose`` first, on the graph as it stands; then the keyframe it may make (its closure
+        search, an optimisation: up to tens of ms), the keyframes after an optimisation, and the grid. Live, the
+        pose goes out before that work (the runner puts each output as it comes), and the next scan's pose
+        carries what the work found."""
         if points is None:
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
         local, reference = self.local.add(state)
         if self.mapper.waiting_for_join:
-            return self._find(state, local, points)
+            yield from self._find(state, local, points)
+            return
+        yield self._pose(state, self.mapper.place(local), local)
         made = self.mapper.keyframe_count
         pose = self.mapper.add_scan(state.stamp_ns, local, points, reference, online_pose=state.pose)
-        if self.mapper.keyframe_count != made:   # this scan made a keyframe: its pose is the keyframe's
+        if self.mapper.keyframe_count != made:   # this scan made a keyframe: the grid lays its scan there
             self.grid.add_keyframe(state.stamp_ns, pose)
-        return self._placed(state, pose, local)
+        yield from self._after(state.stamp_ns)
 
-    def _find(self, state: t.SlamState, local: np.ndarray, points: np.ndarray) -> list[Output]:
+    def _find(self, state: t.SlamState, local: np.ndarray, points: np.ndarray) -> Iterator[Output]:
         """On a saved map before the fix: the scan to the localizer; at the fix the run joins the graph."""
         found = self.finder.add_scan(local, points)
         count_localizer(self.counts, self.finder)
@@ -293,36 +305,42 @@ class MapperStep(StepBase):
             self.counts["scans"] += 1
             self._last_stamp = state.stamp_ns
             self.seq += 1
-            outs = [Output(topics.MAP_POSE, t.MapPose(
+            yield Output(topics.MAP_POSE, t.MapPose(
                 stamp_ns=state.stamp_ns, seq=self.seq, scan_seq=state.scan_seq, pose=found.pose,
                 map_from_slam=compose(found.pose, relative(state.pose, np.zeros(3))),
-                keyframes=self.mapper.keyframe_count, local_pose=local, localization=t.NOT_LOCALIZED))]
-            return outs + self._grid_changes(state.stamp_ns)
+                keyframes=self.mapper.keyframe_count, local_pose=local, localization=t.NOT_LOCALIZED))
+            yield from self._grid_changes(state.stamp_ns)
+            return
         log.info("found on the saved map after %d global searches: mapping on from it", self.finder.searches)
         pose = self.mapper.join(state.stamp_ns, local, points, found.pose, found.cov, online_pose=state.pose)
         self.grid.add_keyframe(state.stamp_ns, pose)
         self.finder = None
-        return self._placed(state, pose, local)
+        yield self._pose(state, pose, local)
+        yield from self._after(state.stamp_ns)
 
-    def _placed(self, state: t.SlamState, pose: np.ndarray, local: np.ndarray) -> list[Output]:
-        """``map/pose`` of a scan the graph placed at ``pose``, the keyframes after an optimisation, the grid."""
+    def _pose(self, state: t.SlamState, pose: np.ndarray, local: np.ndarray) -> Output:
+        """``map/pose`` of a scan the graph places at ``pose``."""
         self._last_stamp = state.stamp_ns
         stats = self.mapper.stats
-        verified, nis_sum = self.mapper.closure_nis
-        self.counts["closures_verified"] = verified
-        self.counts["closure_nis_milli"] = round(1000.0 * nis_sum)
         self.counts["scans"] += 1
         self.seq += 1
         rejected = stats.ambiguous + stats.refine_failed + stats.gated + stats.removed
-        outs = [Output(topics.MAP_POSE, t.MapPose(
+        return Output(topics.MAP_POSE, t.MapPose(
             stamp_ns=state.stamp_ns, seq=self.seq, scan_seq=state.scan_seq, pose=pose,
             map_from_slam=compose(pose, relative(state.pose, np.zeros(3))), keyframes=self.mapper.keyframe_count,
-            closures=stats.accepted - stats.removed, closures_rejected=rejected, local_pose=local))]
-        if stats.optimisations != self.optimisations:
-            self.optimisations = stats.optimisations
-            outs.append(self._keyframes(state.stamp_ns))
+            closures=stats.accepted - stats.removed, closures_rejected=rejected, local_pose=local))
+
+    def _after(self, stamp_ns: int) -> list[Output]:
+        """After a scan's keyframe work: the keyframes if it optimised the graph, the grid's changes."""
+        verified, nis_sum = self.mapper.closure_nis
+        self.counts["closures_verified"] = verified
+        self.counts["closure_nis_milli"] = round(1000.0 * nis_sum)
+        outs = []
+        if self.mapper.stats.optimisations != self.optimisations:
+            self.optimisations = self.mapper.stats.optimisations
+            outs.append(self._keyframes(stamp_ns))
         self.grid.work()
-        return outs + self._grid_changes(state.stamp_ns)
+        return outs + self._grid_changes(stamp_ns)
 
     def _keyframes(self, stamp_ns: int) -> Output:
         stamps, local_poses = self.mapper.keyframe_stamped_local_poses()

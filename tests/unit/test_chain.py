@@ -140,3 +140,23 @@ def test_build_step_layers_preset_file_environment_and_sets(tmp_path):
     assert stage("denoise").config == stage("denoise", env={}).config
     with pytest.raises(ConfigError):
         stage("denoise", sets=["nonsense=1"])
+
+
+class Answering(StepBase):
+    """scan -> odometry yielded at once, then (a 1-beam scan: bad input found by the later work) an error."""
+
+    def on_message(self, msg: Message):
+        yield Output(topics.ODOM, t.Odometry(stamp_ns=msg.stamp_ns, seq=msg.seq, pose=[0.0, 0.0, 0.0]))
+        if msg.value.ranges_m.size < 2:
+            raise InputError("one beam")
+        yield Output(topics.ODOM, t.Odometry(stamp_ns=msg.stamp_ns, seq=100 + msg.seq, pose=[1.0, 0.0, 0.0]))
+
+
+def test_a_generator_step_keeps_what_it_yielded_before_a_bad_input():
+    # Live, the runner has put an output the moment it was yielded; the chain keeps it too, so replay equals live.
+    answering = spec("answering", (topics.SCAN,), (topics.ODOM,), lambda cfg, ctx: Answering())
+    chain = Chain([Stage(answering, ToyConfig()), Stage(MARKER, ToyConfig())])
+    out = list(chain.feed([scan(1), scan(2, beams=1), scan(3)]))
+    assert names(out) == [("odom", 1), ("truth", 1), ("odom", 101), ("truth", 101), ("odom", 2), ("truth", 2),
+                          ("odom", 3), ("truth", 3), ("odom", 103), ("truth", 103), ("truth", 1000)]
+    assert chain.counts()["answering"] == {"in.scan": 3, "error.input": 1, "out.odom": 5}

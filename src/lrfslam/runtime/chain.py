@@ -229,12 +229,14 @@ class Chain:
                 lk.counts[f"{counters.IN}{msg.name}"] += 1
             else:
                 continue
+            produced: list[Output] = []
             try:
-                produced = list(lk.step.on_message(msg))
+                produced.extend(lk.step.on_message(msg))   # what a step yielded before a bad input stays, as live
             except InputError as exc:
                 lk.counts[counters.ERROR_INPUT] += 1
                 lk.once.warning(counters.ERROR_INPUT, type(exc).__name__, "%s: skipping bad input on %s: %s",
                                 lk.name, msg.name, exc)
+                out += [self._item(i, o) for o in produced]
                 continue
             if lk.checkpointer is not None:
                 lk.checkpointer.after(msg.stamp_ns)

@@ -245,17 +245,22 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                                    schemas=tuple(tp.schema for tp in spec.inputs + spec.outputs), pid=os.getpid(),
                                    host=socket.gethostname())
 
-        def publish(outs) -> None:
-            newest_stamp = None
+        def publish(outs) -> bool:
+            """Put each output as the step gives it (a step that yields its answer before further work has it
+            out before that work); whether there was any."""
+            newest_stamp = answered_ns = None
             for out in outs:
                 payload = bus.publish(out)
+                answered_ns = answered_ns or time.time_ns()
                 if out.topic.name in latest_qs:
                     newest[out.topic.name] = (payload, out.value.seq, out.value.stamp_ns)
                 last_data[0] = max(last_data[0], int(out.value.stamp_ns))
                 newest_stamp = max(newest_stamp or 0, int(out.value.stamp_ns))
             if age is not None and newest_stamp is not None:
-                # One figure per input (or sensor poll): the age of the newest scan it published about.
-                age.add(time.time_ns() - newest_stamp)
+                # One figure per input (or sensor poll): the age of the newest scan it published about, when its
+                # first output went out.
+                age.add(answered_ns - newest_stamp)
+            return newest_stamp is not None
 
         def answer_latest() -> None:
             for name, queryable in latest_qs.items():
@@ -286,9 +291,7 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
         def handle(msg) -> None:
             last_data[0] = max(last_data[0], int(msg.stamp_ns))
             try:
-                outs = list(step.on_message(msg))
-                publish(outs)
-                if outs:
+                if publish(step.on_message(msg)):
                     latency.add(time.monotonic_ns() - bus.received_ns)
                 if checkpointer is not None:
                     checkpointer.after(msg.stamp_ns)

@@ -45,7 +45,12 @@ class Output:
 
 @runtime_checkable
 class Step(Protocol):
-    """Processing stage: called once per input message, in arrival order."""
+    """Processing stage: called once per input message, in arrival order.
+
+    ``on_message`` may be a generator: live, each output is put as it is yielded, so a step that yields
+    its answer before work that need not delay it (the mapper's keyframes) answers first; every
+    driver consumes it whole.
+    """
 
     def on_message(self, msg: Message) -> Iterable[Output]: ...
 

@@ -109,6 +109,22 @@ class LoopClosingMapper:
         """Seeded with a saved map (:meth:`seeded`) and its run's first scan not placed yet (:meth:`join`)."""
         return bool(self._keyframes) and self._keyframes[-1].ordinal < self._search.run_start
 
+    def place(self, local_pose) -> np.ndarray:
+        """Where the graph as it stands puts a scan at ``local_pose`` (3,): the last keyframe's corrected
+        pose and the local motion since, as :meth:`add_scan` gives it for a scan that makes no keyframe.
+
+        Cheap, and changes nothing: a caller answers with it before :meth:`add_scan`'s work on a
+        keyframe (its motion check, closure search and optimisation), whose result the next scan's
+        pose then carries.
+        """
+        pose = np.asarray(local_pose, dtype=float)
+        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+            raise InputError("local_pose must be (3,) and finite")
+        if not self._keyframes:
+            return pose.copy()
+        k = len(self._keyframes) - 1
+        return compose(self.graph.poses[k], relative(self._keyframes[k].local_pose, pose))
+
     def add_scan(self, stamp_ns: int, local_pose, points_xy_m, reference_step=None, online_pose=None) -> np.ndarray:
         """Take one scan; returns its corrected pose (3,), as known now.
 
