@@ -21,12 +21,12 @@ def test_the_kernel_scores_as_the_numpy_form(seed, height, width, angles, points
     cols = rng.integers(-10, width + 10, (angles, points))
     cand = np.column_stack((rng.integers(0, angles, candidates), rng.integers(-15, 15, candidates),
                             rng.integers(-15, 15, candidates)))
-    got, want = kernel.scores(grid, rows, cols, cand), oracle(grid, rows, cols, cand)
+    got, want = kernel.scores(grid, kernel.PointCells(rows, cols), cand), oracle(grid, rows, cols, cand)
     assert got.shape == want.shape == (candidates,)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
     # With a bound, what cannot reach it is cut (-1) and the rest score as without one.
     bound = float(rng.uniform(0, 1))
-    cut = kernel.scores(grid, rows, cols, cand, bound)
+    cut = kernel.scores(grid, kernel.PointCells(rows, cols), cand, bound)
     assert np.all((cut == got) | ((cut == -1.0) & (want < bound + 1e-12)))
     assert np.all(cut[want >= bound + 1e-12] == got[want >= bound + 1e-12])
 
@@ -42,10 +42,10 @@ def test_a_uint8_level_scores_its_values_over_255(seed, points, candidates):
     cand = np.column_stack((rng.integers(0, 2, candidates), rng.integers(-8, 8, candidates),
                             rng.integers(-8, 8, candidates)))
     want = oracle(grid.astype(np.float64) / 255.0, rows, cols, cand)
-    got = kernel.scores(grid, rows, cols, cand)
+    got = kernel.scores(grid, kernel.PointCells(rows, cols), cand)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
     bound = float(rng.uniform(0, 1))
-    cut = kernel.scores(grid, rows, cols, cand, bound)
+    cut = kernel.scores(grid, kernel.PointCells(rows, cols), cand, bound)
     assert np.all((cut == got) | ((cut == -1.0) & (want < bound + 1e-12)))
     assert np.all(cut[want >= bound + 1e-12] == got[want >= bound + 1e-12])
 
@@ -55,4 +55,23 @@ def test_a_point_off_the_grid_scores_the_edge_cell():
     grid[2, 3] = 1.0          # the top-right cell
     rows, cols = np.array([[50]]), np.array([[50]])
     cand = np.array([[0, 0, 0], [0, -60, -60]])
-    np.testing.assert_array_equal(kernel.scores(grid, rows, cols, cand), [1.0, 0.0])
+    np.testing.assert_array_equal(kernel.scores(grid, kernel.PointCells(rows, cols), cand), [1.0, 0.0])
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), angles=st.integers(1, 4), points=st.integers(1, 150),
+       candidates=st.integers(1, 200), uint8=st.booleans())
+def test_candidates_wholly_on_the_grid_score_as_the_numpy_form(seed, angles, points, candidates, uint8):
+    """The path without clipping: every point of every candidate inside the grid (and some just
+    across an edge, to pass between the two paths)."""
+    rng = np.random.default_rng(seed)
+    height, width = 30, 45
+    grid = rng.integers(0, 256, (height, width)).astype(np.uint8) if uint8 else \
+        rng.uniform(0, 1, (height, width)).astype(np.float32)
+    rows = rng.integers(5, height - 5, (angles, points))
+    cols = rng.integers(5, width - 5, (angles, points))
+    cand = np.column_stack((rng.integers(0, angles, candidates), rng.integers(-6, 7, candidates),
+                            rng.integers(-6, 7, candidates)))
+    values = grid.astype(np.float64) / 255.0 if uint8 else grid
+    np.testing.assert_allclose(kernel.scores(grid, kernel.PointCells(rows, cols), cand),
+                               oracle(values, rows, cols, cand), rtol=1e-12, atol=1e-15)

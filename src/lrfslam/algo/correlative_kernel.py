@@ -5,7 +5,9 @@ NumPy that is a gather of ``K × N`` cells (``K`` candidates, ``N`` points) with
 a mean, allocating three ``K × N`` arrays per level. It was two thirds of the mapper's time
 live. Here one loop does it without temporaries. The mean is summed in candidate order, not
 NumPy's pairwise order, so scores equal the NumPy form's (kept in
-``tests/unit/reference_correlative.py``) within round-off, not bit for bit.
+``tests/unit/reference_correlative.py``) within round-off, not bit for bit. A candidate whose
+points all lie on the grid (each rotation's extent says so: most of them) adds one precomputed
+offset per point instead of clipping a row and a column (:class:`PointCells`), in the same order.
 
 Compiled on first use and cached beside the module (numba's ``cache=True``), as the scan
 matcher's kernels are.
@@ -24,35 +26,45 @@ numba.config.THREADING_LAYER = "workqueue"
 
 
 @njit(cache=True)
-def _score_one(flat, width, height, rows, cols, cand, bound, full, out, k):
+def _score_one(flat, width, height, rows, cols, offsets, extent, cand, bound, full, out, k):
     """``out[k]``: candidate ``k``'s mean, or -1 once it cannot reach ``bound``."""
     n = rows.shape[1]
     need = bound * n * full   # a candidate whose sum cannot reach this is cut (grid values are <= full)
     a, di, dj = cand[k, 0], cand[k, 1], cand[k, 2]
     total = 0.0
-    for i in range(n):
-        r = min(max(rows[a, i] + dj, 0), height - 1)
-        q = min(max(cols[a, i] + di, 0), width - 1)
-        total += flat[r * width + q]
-        if (i & 15) == 15 and total + full * (n - 1 - i) < need:
-            out[k] = -1.0
-            return
+    if (extent[a, 0] + dj >= 0 and extent[a, 1] + dj < height and extent[a, 2] + di >= 0
+            and extent[a, 3] + di < width):
+        # Every point on the grid (most candidates): one offset per point, nothing to clip.
+        base = dj * width + di
+        for i in range(n):
+            total += flat[base + offsets[a, i]]
+            if (i & 15) == 15 and total + full * (n - 1 - i) < need:
+                out[k] = -1.0
+                return
+    else:
+        for i in range(n):
+            r = min(max(rows[a, i] + dj, 0), height - 1)
+            q = min(max(cols[a, i] + di, 0), width - 1)
+            total += flat[r * width + q]
+            if (i & 15) == 15 and total + full * (n - 1 - i) < need:
+                out[k] = -1.0
+                return
     out[k] = total / (n * full)
 
 
 @njit(cache=True)
-def _scores(flat, width, height, rows, cols, cand, bound, full):
+def _scores(flat, width, height, rows, cols, offsets, extent, cand, bound, full):
     out = np.empty(cand.shape[0])
     for k in range(cand.shape[0]):
-        _score_one(flat, width, height, rows, cols, cand, bound, full, out, k)
+        _score_one(flat, width, height, rows, cols, offsets, extent, cand, bound, full, out, k)
     return out
 
 
 @njit(cache=True, parallel=True)
-def _scores_parallel(flat, width, height, rows, cols, cand, bound, full):
+def _scores_parallel(flat, width, height, rows, cols, offsets, extent, cand, bound, full):
     out = np.empty(cand.shape[0])
     for k in prange(cand.shape[0]):
-        _score_one(flat, width, height, rows, cols, cand, bound, full, out, k)
+        _score_one(flat, width, height, rows, cols, offsets, extent, cand, bound, full, out, k)
     return out
 
 
@@ -62,8 +74,36 @@ def _scores_parallel(flat, width, height, rows, cols, cand, bound, full):
 PARALLEL_FROM = 20_000
 
 
-def scores(grid_level: np.ndarray, rows: np.ndarray, cols: np.ndarray, cand: np.ndarray,
-           bound: float = -np.inf) -> np.ndarray:
+class PointCells:
+    """The cells of N points under each of A rotations, with what the scoring needs of them, made once
+    per search: each rotation's extent, and the points' offsets in a flattened grid of a given width.
+
+    Parameters
+    ----------
+    rows, cols : array_like of int, shape (A, N)
+        Cells of the N points rotated by each of A angles, with the window's centre translation.
+    """
+
+    def __init__(self, rows, cols) -> None:
+        self.rows = np.ascontiguousarray(rows, dtype=np.int64)
+        self.cols = np.ascontiguousarray(cols, dtype=np.int64)
+        if self.rows.shape != self.cols.shape or self.rows.ndim != 2:
+            raise ValueError(f"rows and cols must be alike (A, N), got {self.rows.shape} and {self.cols.shape}")
+        if self.rows.shape[1]:
+            self.extent = np.column_stack((self.rows.min(axis=1), self.rows.max(axis=1),
+                                           self.cols.min(axis=1), self.cols.max(axis=1)))
+        else:
+            self.extent = np.zeros((self.rows.shape[0], 4), np.int64)
+        self._offsets: dict[int, np.ndarray] = {}
+
+    def offsets(self, width: int) -> np.ndarray:
+        """``row * width + col`` of each point (A, N), int64."""
+        if width not in self._offsets:
+            self._offsets[width] = self.rows * width + self.cols
+        return self._offsets[width]
+
+
+def scores(grid_level: np.ndarray, cells: PointCells, cand: np.ndarray, bound: float = -np.inf) -> np.ndarray:
     """Mean of ``grid_level`` over each candidate's shifted points.
 
     Parameters
@@ -71,11 +111,10 @@ def scores(grid_level: np.ndarray, rows: np.ndarray, cols: np.ndarray, cand: np.
     grid_level : ndarray, shape (H, W)
         A (pooled) likelihood grid, row = y: float32 in [0, 1], or uint8 in 0–255 standing for
         the value / 255 (a pooled level's bounds, a quarter of the memory to gather from).
-    rows, cols : ndarray of int64, shape (A, N)
-        Cells of the N points rotated by each of A angles, with the window's centre translation.
+    cells : PointCells
+        The points' cells per rotation.
     cand : ndarray of int64, shape (K, 3)
         Candidates ``(angle index, x offset, y offset)`` in cells.
-
     bound : float
         Candidates that cannot reach this mean (the grid's values are at most 1) are scored -1
         as soon as that is certain: the search cuts them anyway, and most are cut after a
@@ -90,14 +129,14 @@ def scores(grid_level: np.ndarray, rows: np.ndarray, cols: np.ndarray, cand: np.
     height, width = grid_level.shape
     full = 255.0 if grid_level.dtype == np.uint8 else 1.0
     kernel = _scores_parallel if cand.shape[0] >= PARALLEL_FROM else _scores
-    return kernel(grid_level.ravel(), width, height, rows, cols, np.ascontiguousarray(cand, dtype=np.int64),
-                  float(bound), full)
+    return kernel(grid_level.ravel(), width, height, cells.rows, cells.cols, cells.offsets(width), cells.extent,
+                  np.ascontiguousarray(cand, dtype=np.int64), float(bound), full)
 
 
 def warm_up() -> None:
     """Compile the kernel now (or load it from numba's cache), on a tiny grid."""
-    idx = np.zeros((1, 2), np.int64)
+    cells = PointCells(np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64))
     cand = np.zeros((1, 3), np.int64)
     for dtype in (np.float32, np.uint8):
         for kernel in (_scores, _scores_parallel):
-            kernel(np.zeros(4, dtype), 2, 2, idx, idx, cand, 0.0, 1.0)
+            kernel(np.zeros(4, dtype), 2, 2, cells.rows, cells.cols, cells.offsets(2), cells.extent, cand, 0.0, 1.0)

@@ -291,9 +291,10 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     cols = np.floor((x - grid.origin_xy_m[0]) / p.cell_m).astype(np.int64)
     rows = np.floor((y - grid.origin_xy_m[1]) / p.cell_m).astype(np.int64)
     top = p.levels - 1
+    cells = kernel.PointCells(rows, cols)
 
     def scores(level: int, cand: np.ndarray, bound: float = -np.inf) -> np.ndarray:
-        return kernel.scores(grid.pooled[level], rows, cols, cand, bound)
+        return kernel.scores(grid.pooled[level], cells, cand, bound)
 
     def children(level: int, cand: np.ndarray) -> np.ndarray:
         """The four sub-blocks (level − 1) of each candidate that start inside the window."""
