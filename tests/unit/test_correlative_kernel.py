@@ -75,3 +75,30 @@ def test_candidates_wholly_on_the_grid_score_as_the_numpy_form(seed, angles, poi
     values = grid.astype(np.float64) / 255.0 if uint8 else grid
     np.testing.assert_allclose(kernel.scores(grid, kernel.PointCells(rows, cols), cand),
                                oracle(values, rows, cols, cand), rtol=1e-12, atol=1e-15)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), candidates=st.integers(0, 200), level=st.integers(1, 5), masked=st.booleans())
+def test_expand_gives_the_children_the_mask_admits(seed, candidates, level, masked):
+    """The compiled children of a level against their NumPy form: four sub-blocks per candidate in
+    order, those starting beyond the window dropped, and with a pooled mask those it does not admit
+    (a block reaching into the mask from below an edge judged by the edge's cell)."""
+    rng = np.random.default_rng(seed)
+    half, n_xy = 1 << (level - 1), int(rng.integers(0, 40))
+    cand = np.column_stack((rng.integers(0, 3, candidates), rng.integers(-45, n_xy + 1, candidates),
+                            rng.integers(-45, n_xy + 1, candidates)))
+    want = np.repeat(cand, 4, axis=0)
+    want[:, 1] += np.tile([0, half, 0, half], candidates)
+    want[:, 2] += np.tile([0, 0, half, half], candidates)
+    want = want[(want[:, 1] <= n_xy) & (want[:, 2] <= n_xy)]
+    if not masked:
+        np.testing.assert_array_equal(kernel.expand(cand, half, n_xy), want.reshape(-1, 3))
+        return
+    mask = rng.random((30, 25)) < 0.3
+    base_col, base_row = int(rng.integers(-10, 30)), int(rng.integers(-10, 35))
+    col, row = base_col + want[:, 1], base_row + want[:, 2]
+    inside = (col + half > 0) & (col < 25) & (row + half > 0) & (row < 30)
+    admitted = np.zeros(want.shape[0], dtype=bool)
+    admitted[inside] = mask[np.maximum(row[inside], 0), np.maximum(col[inside], 0)]
+    np.testing.assert_array_equal(kernel.expand(cand, half, n_xy, mask, base_col, base_row),
+                                  want[admitted].reshape(-1, 3))

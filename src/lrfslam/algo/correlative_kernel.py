@@ -133,10 +133,48 @@ def scores(grid_level: np.ndarray, cells: PointCells, cand: np.ndarray, bound: f
                   np.ascontiguousarray(cand, dtype=np.int64), float(bound), full)
 
 
+@njit(cache=True)
+def _expand(cand, half, n_xy, admitted, base_col, base_row, size):
+    """The four sub-blocks of each candidate that start inside the window and, where ``admitted`` has
+    cells, hold an admitted position: the numbers of :func:`expand`, in one pass."""
+    h, w = admitted.shape
+    out = np.empty((4 * cand.shape[0], 3), np.int64)
+    m = 0
+    for k in range(cand.shape[0]):
+        for c in range(4):
+            i = cand[k, 1] + (half if c & 1 else 0)
+            j = cand[k, 2] + (half if c & 2 else 0)
+            if i > n_xy or j > n_xy:
+                continue
+            if h > 0:
+                col, row = base_col + i, base_row + j
+                if not (col + size > 0 and col < w and row + size > 0 and row < h):
+                    continue
+                if not admitted[max(row, 0), max(col, 0)]:
+                    continue
+            out[m, 0], out[m, 1], out[m, 2] = cand[k, 0], i, j
+            m += 1
+    return out[:m]
+
+
+def expand(cand: np.ndarray, half: int, n_xy: int, admitted: np.ndarray | None = None, base_col: int = 0,
+           base_row: int = 0) -> np.ndarray:
+    """Children of the candidates ``cand`` (K, 3) of a branch-and-bound level, in order: each one's four
+    sub-blocks offset by ``half`` cells in x and y, those starting beyond ``n_xy`` dropped, and where
+    ``admitted`` (H, W) bool, a pooled position mask of the children's level indexed from cell
+    ``(base_col, base_row)``, is given, those holding no admitted position (a block reaching into the
+    mask from below its edge is judged by the edge's cell). (M, 3) int64."""
+    mask = np.zeros((0, 0), np.bool_) if admitted is None else admitted
+    return _expand(np.ascontiguousarray(cand, dtype=np.int64), int(half), int(n_xy), mask, int(base_col),
+                   int(base_row), int(half))
+
+
 def warm_up() -> None:
     """Compile the kernel now (or load it from numba's cache), on a tiny grid."""
     cells = PointCells(np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64))
     cand = np.zeros((1, 3), np.int64)
+    expand(cand, 1, 4)
+    expand(cand, 1, 4, np.ones((2, 2), np.bool_))
     for dtype in (np.float32, np.uint8):
         for kernel in (_scores, _scores_parallel):
             kernel(np.zeros(4, dtype), 2, 2, cells.rows, cells.cols, cells.offsets(2), cells.extent, cand, 0.0, 1.0)

@@ -200,11 +200,16 @@ class PositionMask:
         self.cell_m = cell
         self.pooled = max_pooled(mask, grid.params.levels)   # of booleans: any admitted in the block
 
+    def cell_of(self, centre_xy_m: np.ndarray) -> tuple[int, int]:
+        """The mask's (column, row) of the cell holding ``centre_xy_m`` (2,), from which candidates' offsets count."""
+        base = np.floor((np.asarray(centre_xy_m, dtype=float) - self.origin_xy_m) / self.cell_m).astype(np.int64)
+        return int(base[0]), int(base[1])
+
     def admits(self, level: int, centre_xy_m: np.ndarray, cand: np.ndarray) -> np.ndarray:
         """Whether each candidate block (K, 3: angle index, x and y offsets in cells from
         ``centre_xy_m``; side ``2^level`` cells) holds an admitted position, (K,) bool."""
-        base = np.floor((np.asarray(centre_xy_m, dtype=float) - self.origin_xy_m) / self.cell_m).astype(np.int64)
-        col, row = base[0] + cand[:, 1], base[1] + cand[:, 2]
+        base_col, base_row = self.cell_of(centre_xy_m)
+        col, row = base_col + cand[:, 1], base_row + cand[:, 2]
         grid, size = self.pooled[level], 1 << level
         h, w = grid.shape
         # A block that starts below the grid but reaches into it: the pooled cell at the grid's edge
@@ -296,13 +301,16 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     def scores(level: int, cand: np.ndarray, bound: float = -np.inf) -> np.ndarray:
         return kernel.scores(grid.pooled[level], cells, cand, bound)
 
-    def children(level: int, cand: np.ndarray) -> np.ndarray:
-        """The four sub-blocks (level − 1) of each candidate that start inside the window."""
+    def children(level: int, cand: np.ndarray, keep) -> np.ndarray:
+        """The four sub-blocks (level − 1) of each candidate that start inside the window and that
+        ``keep(cand, side_cells)`` admits (where it admits what the mask does, in one compiled pass)."""
         half = 1 << (level - 1)
-        out = np.repeat(cand, 4, axis=0)
-        out[:, 1] += np.tile([0, half, 0, half], cand.shape[0])
-        out[:, 2] += np.tile([0, 0, half, half], cand.shape[0])
-        return out[(out[:, 1] <= n_xy) & (out[:, 2] <= n_xy)]
+        if keep is everywhere:
+            if where is None:
+                return kernel.expand(cand, half, n_xy)
+            return kernel.expand(cand, half, n_xy, where.pooled[level - 1], *where_cell)
+        out = kernel.expand(cand, half, n_xy)
+        return out[keep(out, half)]
 
     block = 1 << top
     starts = np.arange(-n_xy, n_xy + 1, block)
@@ -321,8 +329,7 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
             if frontier.shape[0] > max_frontier:
                 best_first = np.argsort(-front_scores, kind="stable")[: max_frontier]
                 frontier, is_exact = frontier[best_first], False
-            frontier = children(level, frontier)
-            frontier = frontier[keep(frontier, 1 << (level - 1))]
+            frontier = children(level, frontier, keep)
             front_scores = scores(level - 1, frontier, bound)
             if level == 1:
                 n_leaves += frontier.shape[0]
@@ -338,8 +345,7 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
         for start in admitted[np.argsort(-root_scores[admitted], kind="stable")[:greedy_starts]]:
             cand = roots[start][None, :]
             for level in range(top, 0, -1):
-                cand = children(level, cand)
-                cand = cand[keep(cand, 1 << (level - 1))]
+                cand = children(level, cand, keep)
                 if cand.shape[0] == 0:
                     break
                 cand = cand[np.argmax(scores(level - 1, cand))][None, :]
@@ -349,6 +355,8 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
 
     def to_pose(cand: np.ndarray) -> np.ndarray:
         return np.array([centre[0] + cand[1] * p.cell_m, centre[1] + cand[2] * p.cell_m, angles[cand[0]]])
+
+    where_cell = where.cell_of(centre[:2]) if where is not None else (0, 0)
 
     def everywhere(cand: np.ndarray, size: int) -> np.ndarray:
         if where is None:
