@@ -1,4 +1,4 @@
-"""The branch-and-bound search's inner loop, compiled: the mean grid value under each candidate.
+"""The branch-and-bound search's inner loops, compiled: the mean grid value under each candidate, and a level's children.
 
 :func:`lrfslam.algo.correlative_match.search` scores whole levels of candidates at once; in
 NumPy that is a gather of ``K × N`` cells (``K`` candidates, ``N`` points) with clipping and
