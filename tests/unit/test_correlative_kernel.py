@@ -21,12 +21,12 @@ def test_the_kernel_scores_as_the_numpy_form(seed, height, width, angles, points
     cols = rng.integers(-10, width + 10, (angles, points))
     cand = np.column_stack((rng.integers(0, angles, candidates), rng.integers(-15, 15, candidates),
                             rng.integers(-15, 15, candidates)))
-    got, want = kernel.scores(grid, kernel.PointCells(rows, cols), cand), oracle(grid, rows, cols, cand)
+    got, want = kernel.scores(grid, kernel.PointCells(rows, cols, grid.shape[1]), cand), oracle(grid, rows, cols, cand)
     assert got.shape == want.shape == (candidates,)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
     # With a bound, what cannot reach it is cut (-1) and the rest score as without one.
     bound = float(rng.uniform(0, 1))
-    cut = kernel.scores(grid, kernel.PointCells(rows, cols), cand, bound)
+    cut = kernel.scores(grid, kernel.PointCells(rows, cols, grid.shape[1]), cand, bound)
     assert np.all((cut == got) | ((cut == -1.0) & (want < bound + 1e-12)))
     assert np.all(cut[want >= bound + 1e-12] == got[want >= bound + 1e-12])
 
@@ -42,10 +42,10 @@ def test_a_uint8_level_scores_its_values_over_255(seed, points, candidates):
     cand = np.column_stack((rng.integers(0, 2, candidates), rng.integers(-8, 8, candidates),
                             rng.integers(-8, 8, candidates)))
     want = oracle(grid.astype(np.float64) / 255.0, rows, cols, cand)
-    got = kernel.scores(grid, kernel.PointCells(rows, cols), cand)
+    got = kernel.scores(grid, kernel.PointCells(rows, cols, grid.shape[1]), cand)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
     bound = float(rng.uniform(0, 1))
-    cut = kernel.scores(grid, kernel.PointCells(rows, cols), cand, bound)
+    cut = kernel.scores(grid, kernel.PointCells(rows, cols, grid.shape[1]), cand, bound)
     assert np.all((cut == got) | ((cut == -1.0) & (want < bound + 1e-12)))
     assert np.all(cut[want >= bound + 1e-12] == got[want >= bound + 1e-12])
 
@@ -55,7 +55,7 @@ def test_a_point_off_the_grid_scores_the_edge_cell():
     grid[2, 3] = 1.0          # the top-right cell
     rows, cols = np.array([[50]]), np.array([[50]])
     cand = np.array([[0, 0, 0], [0, -60, -60]])
-    np.testing.assert_array_equal(kernel.scores(grid, kernel.PointCells(rows, cols), cand), [1.0, 0.0])
+    np.testing.assert_array_equal(kernel.scores(grid, kernel.PointCells(rows, cols, grid.shape[1]), cand), [1.0, 0.0])
 
 
 @settings(max_examples=40, deadline=None)
@@ -73,7 +73,7 @@ def test_candidates_wholly_on_the_grid_score_as_the_numpy_form(seed, angles, poi
     cand = np.column_stack((rng.integers(0, angles, candidates), rng.integers(-6, 7, candidates),
                             rng.integers(-6, 7, candidates)))
     values = grid.astype(np.float64) / 255.0 if uint8 else grid
-    np.testing.assert_allclose(kernel.scores(grid, kernel.PointCells(rows, cols), cand),
+    np.testing.assert_allclose(kernel.scores(grid, kernel.PointCells(rows, cols, grid.shape[1]), cand),
                                oracle(values, rows, cols, cand), rtol=1e-12, atol=1e-15)
 
 

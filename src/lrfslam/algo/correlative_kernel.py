@@ -76,31 +76,28 @@ PARALLEL_FROM = 20_000
 
 class PointCells:
     """The cells of N points under each of A rotations, with what the scoring needs of them, made once
-    per search: each rotation's extent, and the points' offsets in a flattened grid of a given width.
+    per search: each rotation's extent, and the points' offsets in the flattened grid.
 
     Parameters
     ----------
     rows, cols : array_like of int, shape (A, N)
         Cells of the N points rotated by each of A angles, with the window's centre translation.
+    width : int
+        Columns of the grid levels they are scored on (every pooled level has the grid's).
     """
 
-    def __init__(self, rows, cols) -> None:
+    def __init__(self, rows, cols, width: int) -> None:
         self.rows = np.ascontiguousarray(rows, dtype=np.int64)
         self.cols = np.ascontiguousarray(cols, dtype=np.int64)
         if self.rows.shape != self.cols.shape or self.rows.ndim != 2:
             raise ValueError(f"rows and cols must be alike (A, N), got {self.rows.shape} and {self.cols.shape}")
+        self.width = int(width)
+        self.offsets = self.rows * self.width + self.cols   # (A, N): row * width + col
         if self.rows.shape[1]:
             self.extent = np.column_stack((self.rows.min(axis=1), self.rows.max(axis=1),
                                            self.cols.min(axis=1), self.cols.max(axis=1)))
         else:
             self.extent = np.zeros((self.rows.shape[0], 4), np.int64)
-        self._offsets: dict[int, np.ndarray] = {}
-
-    def offsets(self, width: int) -> np.ndarray:
-        """``row * width + col`` of each point (A, N), int64."""
-        if width not in self._offsets:
-            self._offsets[width] = self.rows * width + self.cols
-        return self._offsets[width]
 
 
 def scores(grid_level: np.ndarray, cells: PointCells, cand: np.ndarray, bound: float = -np.inf) -> np.ndarray:
@@ -127,9 +124,11 @@ def scores(grid_level: np.ndarray, cells: PointCells, cand: np.ndarray, bound: f
         -1 for a candidate cut by ``bound``.
     """
     height, width = grid_level.shape
+    if width != cells.width:
+        raise ValueError(f"cells made for a grid {cells.width} wide, scored on one {width} wide")
     full = 255.0 if grid_level.dtype == np.uint8 else 1.0
     kernel = _scores_parallel if cand.shape[0] >= PARALLEL_FROM else _scores
-    return kernel(grid_level.ravel(), width, height, cells.rows, cells.cols, cells.offsets(width), cells.extent,
+    return kernel(grid_level.ravel(), width, height, cells.rows, cells.cols, cells.offsets, cells.extent,
                   np.ascontiguousarray(cand, dtype=np.int64), float(bound), full)
 
 
@@ -171,10 +170,10 @@ def expand(cand: np.ndarray, half: int, n_xy: int, admitted: np.ndarray | None =
 
 def warm_up() -> None:
     """Compile the kernel now (or load it from numba's cache), on a tiny grid."""
-    cells = PointCells(np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64))
+    cells = PointCells(np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64), 2)
     cand = np.zeros((1, 3), np.int64)
     expand(cand, 1, 4)
     expand(cand, 1, 4, np.ones((2, 2), np.bool_))
     for dtype in (np.float32, np.uint8):
         for kernel in (_scores, _scores_parallel):
-            kernel(np.zeros(4, dtype), 2, 2, cells.rows, cells.cols, cells.offsets(2), cells.extent, cand, 0.0, 1.0)
+            kernel(np.zeros(4, dtype), 2, 2, cells.rows, cells.cols, cells.offsets, cells.extent, cand, 0.0, 1.0)

@@ -296,7 +296,7 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     cols = np.floor((x - grid.origin_xy_m[0]) / p.cell_m).astype(np.int64)
     rows = np.floor((y - grid.origin_xy_m[1]) / p.cell_m).astype(np.int64)
     top = p.levels - 1
-    cells = kernel.PointCells(rows, cols)
+    cells = kernel.PointCells(rows, cols, grid.grid.shape[1])
 
     def scores(level: int, cand: np.ndarray, bound: float = -np.inf) -> np.ndarray:
         return kernel.scores(grid.pooled[level], cells, cand, bound)

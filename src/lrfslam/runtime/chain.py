@@ -236,10 +236,9 @@ class Chain:
                 lk.counts[counters.ERROR_INPUT] += 1
                 lk.once.warning(counters.ERROR_INPUT, type(exc).__name__, "%s: skipping bad input on %s: %s",
                                 lk.name, msg.name, exc)
-                out += [self._item(i, o) for o in produced]
-                continue
-            if lk.checkpointer is not None:
-                lk.checkpointer.after(msg.stamp_ns)
+            else:
+                if lk.checkpointer is not None:
+                    lk.checkpointer.after(msg.stamp_ns)
             out += [self._item(i, o) for o in produced]
         return out
 
