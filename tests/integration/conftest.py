@@ -58,6 +58,13 @@ class Cluster:
         self.procs[name] = proc
         return proc
 
+    def start_group(self, stages) -> subprocess.Popen:
+        """``stages`` in one process (``lrfslam group``), known as ``group``."""
+        proc = subprocess.Popen(self.cmd("group", ",".join(stages), "--robot", self.robot, "--mode", "client",
+                                         "--connect", self.endpoint, "--log-level", "WARNING"), cwd=self.tmp)
+        self.procs["group"] = proc
+        return proc
+
     def session(self) -> zenoh.Session:
         deadline = time.monotonic() + 15
         while True:

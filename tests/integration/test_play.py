@@ -148,14 +148,19 @@ def by_topic(source, names) -> dict[str, list]:
     return out
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize(("name", "stages"), [("intel_150", ("denoise", "features", "slam")),
-                                              ("sim_head", ("denoise", "features", "slam", "mapper"))])
-def test_rate_max_through_live_stages_equals_the_offline_pipeline(cluster, name, stages):
+@pytest.mark.parametrize(("name", "stages", "grouped"), [
+    pytest.param("intel_150", ("denoise", "features", "slam"), False, marks=pytest.mark.slow),
+    pytest.param("sim_head", ("denoise", "features", "slam", "mapper"), False, marks=pytest.mark.slow),
+    pytest.param("sim_head", ("denoise", "features", "slam", "mapper"), True, id="sim_head-one-process")])
+def test_rate_max_through_live_stages_equals_the_offline_pipeline(cluster, name, stages, grouped):
+    """As separate processes, or as one (``lrfslam group``: between stages in memory, each still on the bus)."""
     source = GOLDEN / f"{name}.mcap"
     cluster.start("recorder", "name=run")
-    for stage in stages:
-        cluster.start(stage)
+    if grouped:
+        cluster.start_group(stages)
+    else:
+        for stage in stages:
+            cluster.start(stage)
     session = cluster.session()
     with session:
         alive(cluster, session, "recorder", *stages)
@@ -163,6 +168,7 @@ def test_rate_max_through_live_stages_equals_the_offline_pipeline(cluster, name,
         out, err = proc.communicate(timeout=600)
         assert proc.returncode == 0, (out, err)
         by_service = stage_counters(session, cluster)
+        pids = {st.service: st.pid for st in query_status(session, cluster.robot, 2.0)[1]}
     scans = sum(1 for _ in read_recording(source, ["scan"]))
     watched = "map/pose" if "mapper" in stages else "slam/state"
     assert out.strip().endswith(f"{watched} answered {scans} of {scans} scans; live services dropped 0, gaps 0"), out
@@ -170,8 +176,11 @@ def test_rate_max_through_live_stages_equals_the_offline_pipeline(cluster, name,
         c = by_service[service]
         assert counters.total(c, "drop.", "gap.", "dup.", "restart.", "error.") == 0, (service, c)
     assert by_service["denoise"]["in.scan"] == scans and by_service["slam"]["out.slam/state"] == scans
-    for service in (*stages, "recorder"):   # the stages' last outputs reach the recorder before it stops
+    if grouped:
+        assert len({pids[s] for s in stages}) == 1 and pids[stages[0]] != pids["recorder"], pids
+    for service in ("group",) if grouped else stages:   # their last outputs reach the recorder before it stops
         assert cluster.stop(service) == 0, service
+    assert cluster.stop("recorder") == 0
 
     reference = cluster.tmp / "reference.mcap"
     subprocess.run([sys.executable, "-m", "lrfslam.cli", "pipeline", "--replay", str(source), "--out", str(reference),

@@ -103,10 +103,11 @@ def baseline(tmp_path_factory) -> Run:
     return run
 
 
-def killed_run(cwd: Path, stage: str, children_of) -> Run:
-    """``children_of``: src/lrfslam/bench/soak.py's, ``{command: pid}`` of what ``up`` started."""
+def killed_run(cwd: Path, stage: str, children_of, *extra: str) -> Run:
+    """``children_of``: src/lrfslam/bench/soak.py's, ``{command: pid}`` of what ``up`` started; ``stage``
+    one of its commands (``group`` for ``up --group``, in ``extra``)."""
     port = free_port()
-    up = start_up(cwd, port, "rk")
+    up = start_up(cwd, port, "rk", "--port", str(port), *extra)
     try:
         with _session(port, up) as session:
             deadline = time.monotonic() + 60
@@ -229,6 +230,26 @@ def test_a_killed_stage_is_restarted_and_the_run_holds(stage, baseline, tmp_path
     tolerance = max(0.1 * baseline.final_cm, 3 * run.sigma_cm)
     print(f"\n| {stage} | {back_s:.2f} | {n_lost} | {run.final_cm:.2f} (baseline {baseline.final_cm:.2f}) | "
           f"{run.rmse_cm:.2f} (baseline {baseline.rmse_cm:.2f}) | 1-sigma {run.sigma_cm:.2f} |")
+    assert run.final_cm <= baseline.final_cm + tolerance, (run.final_cm, baseline.final_cm, tolerance)
+
+
+GROUP = ("denoise", "features", "slam", "mapper")
+
+
+def test_a_killed_group_is_restarted_and_each_of_its_stages_resumes(baseline, tmp_path, soak_module):
+    """``up --group``: the stages sharing a process die together and come back together; the slam and
+    the mapper each resume from their own checkpoint, and nothing is lost from the recording."""
+    run = killed_run(tmp_path, "group", soak_module.children_of, "--group", ",".join(GROUP))
+    label = "+".join(GROUP)
+    assert re.search(rf"^restarts: .*\b{re.escape(label)} 1 \(back after", run.stdout, re.MULTILINE), run.stdout
+    rows = [line.split() for line in run.stdout.splitlines()]
+    restarts = {row[0]: row[7] for row in rows if row and row[0] in GROUP}   # stage in out ... restarts exit
+    assert restarts == dict.fromkeys(GROUP, "1"), run.stdout
+    assert gaps(run.scan_seqs) == [], "the sensor and recorder ran throughout: nothing may be missing"
+    for stage in ("slam", "mapper"):
+        health = [codec.SERVICE_STATUS.decode(m.data) for m in read_recording(run.recording, [f"health/{stage}"])]
+        assert health[-1].counters.get("step.restored") == 1, stage
+    tolerance = max(0.1 * baseline.final_cm, 3 * run.sigma_cm)
     assert run.final_cm <= baseline.final_cm + tolerance, (run.final_cm, baseline.final_cm, tolerance)
 
 

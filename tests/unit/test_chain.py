@@ -160,3 +160,27 @@ def test_a_generator_step_keeps_what_it_yielded_before_a_bad_input():
     assert names(out) == [("odom", 1), ("truth", 1), ("odom", 101), ("truth", 101), ("odom", 2), ("truth", 2),
                           ("odom", 3), ("truth", 3), ("odom", 103), ("truth", 103), ("truth", 1000)]
     assert chain.counts()["answering"] == {"in.scan": 3, "error.input": 1, "out.odom": 5}
+
+
+def test_emit_gets_each_output_as_its_step_yields_it():
+    # The live runner puts what ``emit`` gets: an output must be out before its step goes on. A stage takes
+    # the whole stream before the next, so across stages emission is by stage; each topic keeps its order.
+    emitted: list[tuple[str, str, int]] = []
+    seen_by_step: list[int] = []
+
+    class Watching(Answering):
+        def on_message(self, msg):
+            for out in super().on_message(msg):
+                yield out
+                seen_by_step.append(len(emitted))   # how many were out when the step resumed
+
+    watching = spec("answering", (topics.SCAN,), (topics.ODOM,), lambda cfg, ctx: Watching())
+    chain = Chain([Stage(watching, ToyConfig()), Stage(MARKER, ToyConfig())],
+                  emit=lambda name, item: emitted.append((name, item.msg.name, item.msg.seq)))
+    out = list(chain.feed([scan(1), scan(2, beams=1)]))
+    assert emitted[:4] == [("answering", "odom", 1), ("answering", "odom", 101), ("marker", "truth", 1),
+                           ("marker", "truth", 101)]
+    assert seen_by_step == [1, 2, 5]   # after odom 1, odom 101, odom 2 (then scan 2 raised)
+    assert sorted((m.name, m.seq) for m in out) == sorted((n, q) for _, n, q in emitted)
+    assert emitted[-1] == ("marker", "truth", 1000)   # finish() outputs are emitted too
+

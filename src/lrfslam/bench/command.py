@@ -1,6 +1,7 @@
 """``lrfslam bench``: what the pipeline costs on this machine, as one Markdown table from one run.
 
     lrfslam bench [--only SECTIONS] [--quick] [--json] [--datasets DIR] [--rates HZ,HZ,...] [--duration S]
+                  [--group STAGES]
     lrfslam bench --check ekf
 
 The table's header names the machine (cores, CPU model, Python and numpy versions, BLAS threads,
@@ -63,6 +64,7 @@ from lrfslam.bench import cost, live
 from lrfslam.errors import ConfigError
 from lrfslam.io.carmen import LASER_MESSAGES
 from lrfslam.io.textfile import carmen_logs, log_name, open_log
+from lrfslam.runtime.runner import group_stages
 from lrfslam.tools.importers import import_carmen
 
 SECTIONS = ("stages", "ekf", "codecs", "live", "rates", "logs")
@@ -73,8 +75,8 @@ LIVE_RATE_HZ = 75.0
 #: States at each end of a played log over which the slam's per-scan message is measured (flat in the map).
 STATE_WINDOW = 1000
 DEFAULT_RATES = (75.0, 150.0, 225.0, 300.0, 400.0)
-#: Processes in the order of the memory rows.
-PROCESSES = ("up", "router", "sensor", "denoise", "features", "slam", "mapper", "recorder")
+#: Processes in the order of the memory rows (``group``: ``--group``'s stages in one process).
+PROCESSES = ("up", "router", "sensor", "denoise", "features", "slam", "mapper", "group", "recorder")
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,7 @@ class Settings:
     log_scans: int | None = None
     seed: int = 0
     compile_kernels: bool = True   # time the scan matcher's kernels compiled afresh (~10 s)
+    group: str = ""                # the live sections' ``lrfslam up --group`` (stages in one process); "": none
 
     @classmethod
     def quick(cls) -> Settings:
@@ -142,7 +145,8 @@ def table(info: dict, rows: Sequence[cost.Row]) -> str:
     header = (f"**lrfslam bench** at `{info['commit']}`, {info['utc']} UTC: {info['cores']} cores ({info['cpu']}), "
               f"Python {info['python']}, numpy {info['numpy']}, OPENBLAS_NUM_THREADS={info['blas_threads']}, "
               f"load average {info['load_average']} at the start"
-              + (f", {info['load_average_end']} at the end" if "load_average_end" in info else ""))
+              + (f", {info['load_average_end']} at the end" if "load_average_end" in info else "")
+              + (f"; stages in one process: {info['group']}" if info.get("group") else ""))
     lines = [header, "",
              "| section | measure | value | unit | compared with | ratio | note |",
              "|---|---|---|---|---|---|---|"]
@@ -272,14 +276,14 @@ def run(sections: Sequence[str], s: Settings, datasets: Path, progress: Callable
         runs: dict[float, live.LiveRun] = {}
         if "live" in sections:
             progress(f"live at {LIVE_RATE_HZ:g} Hz for {s.duration_s:g} s")
-            runs[LIVE_RATE_HZ] = live.run_up(LIVE_RATE_HZ, s.duration_s, work)
+            runs[LIVE_RATE_HZ] = live.run_up(LIVE_RATE_HZ, s.duration_s, work, group=s.group)
             rows += live_rows(runs[LIVE_RATE_HZ], f"live {LIVE_RATE_HZ:g} Hz")
             memory.append((f"up at {LIVE_RATE_HZ:g} Hz, {s.duration_s:g} s", runs[LIVE_RATE_HZ].peak_rss_kb))
         if "rates" in sections:
             def at(rate: float) -> live.LiveRun:
                 if rate not in runs:
                     progress(f"rate {rate:g} Hz for {s.duration_s:g} s")
-                    runs[rate] = live.run_up(rate, s.duration_s, work)
+                    runs[rate] = live.run_up(rate, s.duration_s, work, group=s.group)
                 return runs[rate]
             rows += rate_rows(search_rates(s.rates, s.refine, at))
         if "logs" in sections:
@@ -294,7 +298,7 @@ def run(sections: Sequence[str], s: Settings, datasets: Path, progress: Callable
                 mcap = work / f"{name}.mcap"
                 import_carmen(source, mcap, robot=live.ROBOT)
                 before = set(work.iterdir())
-                played.append(live.run_play(mcap, name, work))
+                played.append(live.run_play(mcap, name, work, group=s.group))
                 for recording in sorted(p for p in set(work.iterdir()) - before if p.is_dir()):
                     states += cost.state_rows(name, recording, STATE_WINDOW, s.repeat)
             rows += play_rows(played) + states
@@ -347,6 +351,8 @@ def main(argv: list[str] | None = None) -> int:
                                         f"(default {','.join(f'{r:g}' for r in DEFAULT_RATES)})")
     parser.add_argument("--duration", type=float, help="seconds of each live run (default 60; --quick 8)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--group", metavar="STAGES", default="",
+                        help="run the live sections with lrfslam up --group STAGES (e.g. denoise,features,slam,mapper)")
     args = parser.parse_args(argv)
     info = machine()
     if args.check:
@@ -366,6 +372,9 @@ def main(argv: list[str] | None = None) -> int:
         if not args.duration > 0:
             raise ConfigError(f"--duration must be > 0 s, got {args.duration}")
         settings = replace(settings, duration_s=args.duration)
+    if args.group:
+        settings = replace(settings, group=",".join(group_stages(args.group)))
+        info["group"] = settings.group
     started = time.monotonic()
 
     def progress(what: str) -> None:

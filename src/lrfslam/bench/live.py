@@ -267,13 +267,15 @@ def _stop(proc: subprocess.Popen, timeout_s: float) -> None:
             proc.wait()
 
 
-def run_up(rate_hz: float, duration_s: float, workdir: Path, seed: int = 1) -> LiveRun:
-    """``lrfslam up`` on the simulator at ``rate_hz`` scans per wall second for ``duration_s``, sampled."""
+def run_up(rate_hz: float, duration_s: float, workdir: Path, seed: int = 1, group: str = "") -> LiveRun:
+    """``lrfslam up`` on the simulator at ``rate_hz`` scans per wall second for ``duration_s``, sampled
+    (``group``: ``up --group``)."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     cmd = [sys.executable, "-m", "lrfslam.cli", "up", "--duration", f"{duration_s:g}", "--seed", str(seed),
            "--robot", ROBOT, "--port", str(port), "--recordings", str(workdir), "-q",
-           "--set", f"sensor.rate_hz={rate_hz:g}", "--set", f"sensor.speed_mps={SCAN_SPACING_M * rate_hz:g}"]
+           "--set", f"sensor.rate_hz={rate_hz:g}", "--set", f"sensor.speed_mps={SCAN_SPACING_M * rate_hz:g}",
+           *(["--group", group] if group else [])]
     up = subprocess.Popen(cmd, cwd=workdir, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     sampler = Sampler(endpoint, ROBOT, up.pid, while_alive="sensor")
     try:
@@ -324,12 +326,12 @@ def parse_play_line(name: str, returncode: int, line: str) -> PlayRun:
     return PlayRun(name, returncode, scans, seconds, rate, pace, dropped, gaps, line.strip())
 
 
-def run_play(recording: Path, name: str, workdir: Path, timeout_s: float = 3600.0) -> PlayRun:
+def run_play(recording: Path, name: str, workdir: Path, timeout_s: float = 3600.0, group: str = "") -> PlayRun:
     """``lrfslam up --skip sensor``, then ``lrfslam play recording --rate max`` into it; up stopped by SIGTERM."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     cmd = [sys.executable, "-m", "lrfslam.cli", "up", "--skip", "sensor", "--robot", ROBOT, "--port", str(port),
-           "--recordings", str(workdir), "-q"]
+           "--recordings", str(workdir), "-q", *(["--group", group] if group else [])]
     up = subprocess.Popen(cmd, cwd=workdir, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     sampler = Sampler(endpoint, ROBOT, up.pid)
     try:

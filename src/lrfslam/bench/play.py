@@ -1,9 +1,9 @@
 """``lrfslam play --rate max`` through live stages against ``lrfslam pipeline --replay`` of the same input.
 
-    python -m lrfslam.bench.play RECORDING [--stages denoise,features,slam] [--window 8] [--no-compare]
+    python -m lrfslam.bench.play RECORDING [--stages denoise,features,slam] [--group STAGES] [--window 8] [--no-compare]
 
 In a temporary folder: a router, the recorder and each stage as separate processes (Zenoh clients
-over TCP on loopback), then ``lrfslam play RECORDING --rate max``; its one-line summary is printed
+over TCP on loopback; ``--group``: those of the stages in one ``lrfslam group`` process), then ``lrfslam play RECORDING --rate max``; its one-line summary is printed
 (seconds on play's monotonic clock, scans/s, drops and gaps of the live services). The stages are
 stopped (SIGTERM, in pipeline order, then the recorder), and ``lrfslam pipeline --replay`` runs the
 same stages over the same input in one process, timed on this script's monotonic clock; then every
@@ -76,6 +76,8 @@ def main() -> None:
     parser.add_argument("recording", type=Path)
     parser.add_argument("--stages", default="denoise,features,slam")
     parser.add_argument("--window", default="8")
+    parser.add_argument("--group", metavar="STAGES", default="",
+                        help="these of the stages in one process (lrfslam group), e.g. denoise,features,slam")
     parser.add_argument("--no-compare", action="store_true", help="skip the offline run and the comparison")
     args = parser.parse_args()
     stages = args.stages.split(",")
@@ -86,17 +88,20 @@ def main() -> None:
         common = ["--robot", ROBOT, "--mode", "client", "--connect", endpoint, "--log-level", "WARNING"]
         procs = {"router": cli("router", "--listen", endpoint, "--log-level", "WARNING", cwd=work)}
         procs["recorder"] = cli("recorder", *common, "--set", "name=live", cwd=work)
-        for stage in stages:
-            procs[stage] = cli(stage, *common, cwd=work)
+        grouped = args.group.split(",") if args.group else []
+        if grouped:
+            procs["group"] = cli("group", args.group, *common, cwd=work)
+        procs.update({stage: cli(stage, *common, cwd=work) for stage in stages if stage not in grouped})
         try:
             wait_alive(endpoint, ["recorder", *stages])
             subprocess.run([sys.executable, "-m", "lrfslam.cli", "play", str(recording), "--rate", "max", "--robot",
                             ROBOT, "--connect", endpoint, "--window", args.window, "--log-level", "WARNING"],
                            cwd=work, check=False)
         finally:
-            for name in [*stages, "recorder", "router"]:
-                procs[name].terminate()
-                procs[name].wait(60)
+            for proc in [*(p for n, p in procs.items() if n not in ("recorder", "router")), procs["recorder"],
+                         procs["router"]]:
+                proc.terminate()
+                proc.wait(60)
         if args.no_compare:
             return
         started = time.monotonic()

@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 import sys
 from collections import Counter
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Self
@@ -103,6 +103,8 @@ class Item:
             r = self.rec
             return Message(None, r.data, r.stamp_ns, r.schema, r.topic, r.sequence)
         m = self.msg
+        if m.topic is None:   # received raw off the bus
+            return m
         return Message(None, self.payload or m.topic.codec.encode(m.value), m.stamp_ns, m.schema, m.name, m.seq)
 
 
@@ -142,11 +144,17 @@ class Chain:
         the bus delivers them (float32 points), so results equal the live
         services'. False: the values as the step made them, at full precision
         (the Monte Carlo measures the algorithms so).
+    emit : callable, optional
+        ``emit(stage_name, item)`` for every output as its step yields it, before the step goes on:
+        the live runner puts each on the bus so (a step that yields its answer before further work
+        has it out before that work).
     """
 
     def __init__(self, stages: Iterable[Stage], *, robot: str = DEFAULT_ROBOT, checkpoint_dir: Path | None = None,
-                 checkpoint_period_s: float = checkpoints.PERIOD_S, wire: bool = True) -> None:
+                 checkpoint_period_s: float = checkpoints.PERIOD_S, wire: bool = True,
+                 emit: Callable[[str, Item], None] | None = None) -> None:
         self.wire = wire
+        self._emit = emit
         self._links = [_Link(st, st.build(robot), checkpoint_dir, checkpoint_period_s) for st in stages]
         # Topics some stage after the i-th decodes: only those outputs need decoding again
         # (a raw stage takes the payload).
@@ -191,6 +199,14 @@ class Chain:
             stream += [self._item(i, out) for out in lk.step.finish()]
         return stream
 
+    def push_outputs(self, name: str, outputs: Iterable[Output]) -> list[Item]:
+        """What stage ``name`` made outside an input (a source's poll), each passed through the stages after it."""
+        i = next(i for i, lk in enumerate(self._links) if lk.name == name)
+        stream = [self._item(i, out) for out in outputs]
+        for j in range(i + 1, len(self._links)):
+            stream = self._through(j, self._links[j], stream)
+        return stream
+
     def push(self, msg: Message) -> list[Message]:
         """Feed one message; the outputs of every stage it caused, in stream order."""
         return [it.msg for it in self.push_item(Item(msg))[1:]]
@@ -201,13 +217,13 @@ class Chain:
             yield from self.push(msg)
         yield from (it.msg for it in self.finish_items())
 
-    def close(self) -> None:
-        """Save every checkpoint and close every step, once (a chain never closed is a killed process:
-        its last periodic checkpoints stay)."""
+    def close(self, save: bool = True) -> None:
+        """Save every checkpoint (unless not ``save``: after a failure) and close every step, once (a chain
+        never closed is a killed process: its last periodic checkpoints stay)."""
         if not self._closed:
             self._closed = True
             for lk in self._links:
-                if lk.checkpointer is not None:
+                if save and lk.checkpointer is not None:
                     lk.checkpointer.save()
                 lk.step.close()
 
@@ -229,9 +245,9 @@ class Chain:
                 lk.counts[f"{counters.IN}{msg.name}"] += 1
             else:
                 continue
-            produced: list[Output] = []
             try:
-                produced.extend(lk.step.on_message(msg))   # what a step yielded before a bad input stays, as live
+                for o in lk.step.on_message(msg):   # what a step yielded before a bad input stays
+                    out.append(self._item(i, o))
             except InputError as exc:
                 lk.counts[counters.ERROR_INPUT] += 1
                 lk.once.warning(counters.ERROR_INPUT, type(exc).__name__, "%s: skipping bad input on %s: %s",
@@ -239,17 +255,21 @@ class Chain:
             else:
                 if lk.checkpointer is not None:
                     lk.checkpointer.after(msg.stamp_ns)
-            out += [self._item(i, o) for o in produced]
         return out
 
     def _item(self, i: int, out: Output) -> Item:
-        self._links[i].counts[f"{counters.OUT}{out.topic.name}"] += 1
+        lk = self._links[i]
+        lk.counts[f"{counters.OUT}{out.topic.name}"] += 1
         if not self.wire:
-            return Item(Message.of(out))
-        payload = out.topic.codec.encode(out.value)
-        if out.topic.name in self._later[i]:
-            out = Output(out.topic, out.topic.codec.decode(payload))
-        return Item(Message.of(out), None, payload)
+            item = Item(Message.of(out))
+        else:
+            payload = out.topic.codec.encode(out.value)
+            if out.topic.name in self._later[i]:
+                out = Output(out.topic, out.topic.codec.decode(payload))
+            item = Item(Message.of(out), None, payload)
+        if self._emit is not None:
+            self._emit(lk.name, item)
+        return item
 
 
 def replay_recording(stages: Iterable[Stage], robot: str, in_path: RecordingSource, out_path: str | Path | None, *,

@@ -21,17 +21,17 @@ import socket
 import threading
 import time
 from collections import Counter
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
-from lrfslam.errors import ConfigError, InputError, LrfSlamError, StartupError
+from lrfslam.errors import ConfigError, LrfSlamError, StartupError
 from lrfslam.msgs import codec, counters, topics
 from lrfslam.msgs import types as t
-from lrfslam.runtime import checkpoints, health_file
 from lrfslam.runtime import config as config_mod
+from lrfslam.runtime import health_file
 from lrfslam.runtime.bus import (
     BusConfig,
     ZenohBus,
@@ -41,12 +41,11 @@ from lrfslam.runtime.bus import (
     open_session,
     zenoh_config,
 )
-from lrfslam.runtime.chain import Stage, replay_recording
-from lrfslam.runtime.checkpoints import Checkpointer, Resumable
+from lrfslam.runtime.chain import Chain, Item, Stage, replay_recording
 from lrfslam.runtime.decoding import LogOnce
 from lrfslam.runtime.latency import LatencyWindow
 from lrfslam.runtime.recording import RecordingSource, describe_source
-from lrfslam.runtime.step import RunContext, ServiceSpec, Source
+from lrfslam.runtime.step import Message, ServiceSpec, Source
 
 log = logging.getLogger("lrfslam")
 
@@ -150,6 +149,58 @@ def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[st
         return 2
 
 
+def group_main(argv: list[str] | None = None) -> int:
+    """``lrfslam group STAGE,STAGE,...``: several services in one process (:func:`run_services`)."""
+    from lrfslam import services  # the registry sits above the runtime
+    parser = argparse.ArgumentParser(
+        prog="lrfslam group", description="run several stages in one process, as ROS 2's component containers do: "
+        "each keeps its liveliness token, status, health and outputs on the bus; between them, messages pass in "
+        "memory (docs/delivery.md, Stages sharing a process)")
+    parser.add_argument("stages", help=f"comma-separated, any of {', '.join(GROUPABLE)}, e.g. "
+                                       "denoise,features,slam,mapper")
+    add_common_arguments(parser)   # --set SERVICE.NAME=VALUE here, as in lrfslam up
+    parser.add_argument("--health-file", metavar="FILE",
+                        help="write the first stage's health to FILE, for a container healthcheck")
+    parser.add_argument("--checkpoint-dir", metavar="DIR", help="where the slam and the mapper save their state")
+    args = parser.parse_args(argv)
+    setup_logging("group", args.log_level)
+    try:
+        names = group_stages(args.stages)
+        setup_logging("+".join(names), args.log_level)
+        file = config_mod.read_file(args.config, services.CONFIG_TABLES)
+        bus = bus_config(args, file, os.environ)
+        sets = config_mod.by_service(args.sets, names)
+        hosted = [(services.spec(n), config_mod.service_config(services.spec(n), sets=sets[n], file=file,
+                                                               env=os.environ)) for n in names]
+        for spec, cfg in hosted:
+            log.info("%s config %s", spec.name, config_mod.to_json(cfg))
+        return run_services(hosted, bus)
+    except (LrfSlamError, OSError) as exc:
+        log.error("%s", exc)
+        return 2
+
+
+#: The stages a group may hold: those that take inputs and answer each at once (the sensor is a
+#: source with its own device or simulator; the recorder takes everything in batches).
+GROUPABLE = ("denoise", "features", "slam", "mapper")
+
+
+def group_stages(text: str) -> list[str]:
+    """``"slam,denoise"`` -> the stages in pipeline order.
+
+    Raises
+    ------
+    ConfigError
+        A name that is no groupable stage, a repeated one, or fewer than two.
+    """
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in GROUPABLE]
+    if bad or len(set(names)) != len(names) or len(names) < 2:
+        raise ConfigError(f"a group is two or more different stages of {', '.join(GROUPABLE)}, comma-separated; "
+                          f"got {text!r}")
+    return sorted(names, key=GROUPABLE.index)
+
+
 # ---- replay ------------------------------------------------------------------------------
 
 
@@ -186,142 +237,201 @@ def install_signal_handlers(stop: threading.Event) -> None:
     signal.signal(signal.SIGINT, handler)
 
 
+class _Hosted:
+    """One service of a live process: its step's status, health, liveliness and latest answers.
+
+    A process hosts one service, or several sharing one Zenoh session (:func:`group_main`): each
+    keeps its own token, status queryable, health and counters, so supervisors and viewers see the
+    same services either way.
+    """
+
+    def __init__(self, session: zenoh.Session, robot: str, spec: ServiceSpec, cfg: Any, wall_clock: bool) -> None:
+        self.spec = spec
+        self.cfg = cfg
+        self.name = spec.name
+        self.health_topic = topics.health(spec.name)
+        self.counts: Counter = Counter()
+        self.latency = LatencyWindow("latency")
+        self.age = LatencyWindow("age") if wall_clock else None
+        self.takes = {tp.name for tp in spec.inputs}
+        #: When the input being handled was received (monotonic ns; None: a source's poll, no latency),
+        #: cleared once the first output for it went out.
+        self.pending_ns: int | None = None
+        self.answering = False
+        self.last_data = 0
+        self.status_q = session.declare_queryable(topics.status(robot, spec.name))
+        # The newest of the outputs a late viewer needs, kept encoded.
+        self.newest: dict[str, tuple[bytes, int, int]] = {}   # topic name -> (payload, seq, stamp ns)
+        self.latest_qs = {tp.name: session.declare_queryable(topics.latest(robot, tp.name)) for tp in spec.latest}
+        self.token = None
+        self.next_health = 0.0   # monotonic s
+
+    def close(self) -> None:
+        self.status_q.undeclare()
+        for queryable in self.latest_qs.values():
+            queryable.undeclare()
+        if self.token is not None:
+            self.token.undeclare()
+
+
 def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Event | None = None) -> int:
     """Run ``spec`` on Zenoh until ``stop`` is set (by a signal, unless given)."""
+    return run_services([(spec, cfg)], bus_cfg, stop)
+
+
+def run_services(hosted: Sequence[tuple[ServiceSpec, Any]], bus_cfg: BusConfig,
+                 stop: threading.Event | None = None) -> int:
+    """Run the services ``hosted`` (in pipeline order) in this process on Zenoh until ``stop`` is set.
+
+    One service is what ``lrfslam <service>`` runs. Several share one session and one in-process
+    :class:`~lrfslam.runtime.chain.Chain`: an input from the bus goes through their steps in turn,
+    each output put on the bus as its step yields it and handed to the later steps in memory (as
+    the bus would deliver it, so the outputs are those of separate processes). Only the inputs
+    none of them makes are subscribed to. What the process's subscribers count (gaps, drops,
+    skipped inputs, undecodable ones) shows in the first service's status.
+    """
     if stop is None:
         stop = threading.Event()
         install_signal_handlers(stop)
+    names = [sp.name for sp, _ in hosted]
+    label = "+".join(names)
     started = time.monotonic()
-    counts: Counter = Counter()
+    bus_counts: Counter = Counter()
     once = LogOnce(log)
     zenoh.init_log_from_env_or("error")
     robot = bus_cfg.robot
-    last_data = [0]
-    health_topic = topics.health(spec.name)
     session = open_session(zenoh_config(bus_cfg), stop, bus_cfg.connect)
     if session is None:
         return 0
     with closing(session):
-        if not bus_cfg.join and not wait_until_free(session, robot, spec.name, stop):
+        if not bus_cfg.join and not all(wait_until_free(session, robot, name, stop) for name in names):
             return 0
+        services = [_Hosted(session, robot, sp, cfg, bus_cfg.wall_clock_stamps) for sp, cfg in hosted]
+        by_name = {h.name: h for h in services}
+        first = services[0]
+        made = {tp.name for sp, _ in hosted for tp in sp.outputs}
+        inputs = tuple(dict.fromkeys(tp for sp, _ in hosted for tp in sp.inputs if tp.name not in made))
+        lead_spec = first.spec
+        skippable = tuple(tp for tp in lead_spec.skippable if tp.name not in made)
+        bus = None
+
+        def emit(name: str, item: Item) -> None:
+            """Put a stage's output as its step yields it."""
+            h = by_name[name]
+            value = item.msg.value
+            bus.put(item.msg.topic, item.payload, value.stamp_ns, value.seq)
+            if item.msg.name in h.latest_qs:
+                h.newest[item.msg.name] = (item.payload, value.seq, value.stamp_ns)
+            h.last_data = max(h.last_data, int(value.stamp_ns))
+            if h.answering:
+                # One figure per input (or poll): from its receipt, and from its scan's stamp, to the first output.
+                h.answering = False
+                if h.pending_ns is not None:
+                    h.latency.add(time.monotonic_ns() - h.pending_ns)
+                if h.age is not None:
+                    h.age.add(time.time_ns() - int(value.stamp_ns))
+
         # Built once the bus is known to be ours: a recorder opens its segment here, a slam reads its checkpoint.
-        step = spec.build(cfg, RunContext(robot))
-        checkpointer = None
-        if bus_cfg.checkpoint_dir and isinstance(step, Resumable):
-            checkpointer = Checkpointer(step, checkpoints.path_for(bus_cfg.checkpoint_dir, spec.name),
-                                        bus_cfg.checkpoint_period_s)
-            checkpointer.restore()
-        is_source = isinstance(step, Source) and not spec.inputs and not spec.raw_inputs
-        bus = ZenohBus(session, robot, spec.inputs, spec.raw_inputs, bus_cfg.queue_size, counts, spec.skippable,
-                       spec.max_lag_s if bus_cfg.wall_clock_stamps and bus_cfg.skip_stale else 0.0, spec.batched)
-        latency = LatencyWindow("latency")
-        age = LatencyWindow("age") if bus_cfg.wall_clock_stamps else None
-        slow_s = bus_cfg.debug_delay_s(spec.name)
+        chain = Chain([Stage(sp, cfg) for sp, cfg in hosted], robot=robot,
+                      checkpoint_dir=Path(bus_cfg.checkpoint_dir) if bus_cfg.checkpoint_dir else None,
+                      checkpoint_period_s=bus_cfg.checkpoint_period_s, emit=emit)
+        source = chain.step(first.name) if (isinstance(chain.step(first.name), Source) and not lead_spec.inputs
+                                            and not lead_spec.raw_inputs) else None
+        bus = ZenohBus(session, robot, inputs, lead_spec.raw_inputs, bus_cfg.queue_size, bus_counts, skippable,
+                       lead_spec.max_lag_s if bus_cfg.wall_clock_stamps and bus_cfg.skip_stale else 0.0,
+                       lead_spec.batched)
+        slow_s = max(bus_cfg.debug_delay_s(name) for name in names)
         if slow_s:
             log.warning("debug: sleeping %.0f ms after each input (bus.debug_slow)", slow_s * 1e3)
-            counts["debug.slow_ms"] = round(slow_s * 1e3)
-        status_q = session.declare_queryable(topics.status(robot, spec.name))
-        # The newest of the outputs a late viewer needs, kept encoded.
-        newest: dict[str, tuple[bytes, int, int]] = {}   # topic name -> (payload, seq, stamp ns)
-        latest_qs = {tp.name: session.declare_queryable(topics.latest(robot, tp.name)) for tp in spec.latest}
+            first.counts["debug.slow_ms"] = round(slow_s * 1e3)
         # Last: a supervisor that sees the token may start the sensor, so the subscribers must exist by then.
-        token = session.liveliness().declare_token(topics.alive(robot, spec.name))
-        log.info("%s up: robot=%s mode=%s connect=%s", spec.name, robot, bus_cfg.mode, ",".join(bus_cfg.connect))
+        for h in services:
+            h.token = session.liveliness().declare_token(topics.alive(robot, h.name))
+        log.info("%s up: robot=%s mode=%s connect=%s", label, robot, bus_cfg.mode, ",".join(bus_cfg.connect))
 
-        def status() -> t.ServiceStatus:
+        def status(h: _Hosted) -> t.ServiceStatus:
+            step = chain.step(h.name)
             level, message = step.health()
-            merged = Counter(counts)
-            merged.update(bus.receive_counts())
-            merged.update({f"{counters.STEP}{k}": v for k, v in step.counts.items()})
-            merged.update(latency.counters())
+            merged = chain.counts()[h.name]
+            merged.update(h.counts)
+            own_health = f"{counters.OUT}{h.health_topic.name}"
+            merged.update({k: v for k, v in bus_counts.items() if k == own_health or (
+                h is first and not k.startswith((counters.IN, counters.OUT)))})
+            if h is first:
+                merged.update(bus.receive_counts())
+            merged.update(h.latency.counters())
             # A gauge, not a count: inputs received and not yet handled (lrfslam play --rate max holds back on it).
             merged[BACKLOG] = bus.pending()
-            if age is not None:
-                merged.update(age.counters())
-            return t.ServiceStatus(service=spec.name, robot=robot, level=level, message=message,
+            if h.age is not None:
+                merged.update(h.age.counters())
+            return t.ServiceStatus(service=h.name, robot=robot, level=level, message=message,
                                    wall_stamp_ns=time.time_ns(), uptime_s=time.monotonic() - started,
-                                   counters=dict(merged), last_data_stamp_ns=last_data[0],
-                                   config_json=config_mod.to_json(cfg),
-                                   schemas=tuple(tp.schema for tp in spec.inputs + spec.outputs), pid=os.getpid(),
-                                   host=socket.gethostname())
+                                   counters=dict(merged), last_data_stamp_ns=h.last_data,
+                                   config_json=config_mod.to_json(h.cfg),
+                                   schemas=tuple(tp.schema for tp in h.spec.inputs + h.spec.outputs),
+                                   pid=os.getpid(), host=socket.gethostname())
 
-        def publish(outs) -> bool:
-            """Put each output as the step gives it (a step that yields its answer before further work has it
-            out before that work); whether there was any."""
-            newest_stamp = answered_ns = None
-            for out in outs:
-                payload = bus.publish(out)
-                answered_ns = answered_ns or time.time_ns()
-                if out.topic.name in latest_qs:
-                    newest[out.topic.name] = (payload, out.value.seq, out.value.stamp_ns)
-                last_data[0] = max(last_data[0], int(out.value.stamp_ns))
-                newest_stamp = max(newest_stamp or 0, int(out.value.stamp_ns))
-            if age is not None and newest_stamp is not None:
-                # One figure per input (or sensor poll): the age of the newest scan it published about, when its
-                # first output went out.
-                age.add(answered_ns - newest_stamp)
-            return newest_stamp is not None
-
-        def answer_latest() -> None:
-            for name, queryable in latest_qs.items():
+        def answer_queries(h: _Hosted) -> None:
+            while (query := h.status_q.try_recv()) is not None:
+                with query:
+                    query.reply(query.key_expr, h.health_topic.codec.encode(status(h)),
+                                encoding=zenoh.Encoding(h.health_topic.codec.encoding))
+            for name, queryable in h.latest_qs.items():
                 while (query := queryable.try_recv()) is not None:
                     with query:
                         topic = topics.by_name(name)
-                        if (value := step.latest(topic)) is not None:
-                            newest[name] = (topic.codec.encode(value), value.seq, value.stamp_ns)
-                        if name in newest:
-                            payload, seq, stamp = newest[name]
+                        if (value := chain.step(h.name).latest(topic)) is not None:
+                            h.newest[name] = (topic.codec.encode(value), value.seq, value.stamp_ns)
+                        if name in h.newest:
+                            payload, seq, stamp = h.newest[name]
                             query.reply(topics.latest(robot, name), payload,
                                         attachment=attachment(seq, stamp, bus.producer),
                                         encoding=zenoh.Encoding(topic.codec.encoding))
 
-        def publish_health() -> None:
-            counts["health"] += 1   # numbered from 1 like every stream
-            st = status()
-            bus.put(health_topic, health_topic.codec.encode(st), st.wall_stamp_ns, counts["health"])
-            if bus_cfg.health_file:
+        def publish_health(h: _Hosted) -> None:
+            h.counts["health"] += 1   # numbered from 1 like every stream
+            st = status(h)
+            bus.put(h.health_topic, h.health_topic.codec.encode(st), st.wall_stamp_ns, h.counts["health"])
+            if bus_cfg.health_file and h is first:   # the process's: its loop turns and its session is connected
                 try:
                     health_file.write(bus_cfg.health_file, health_file.HealthRecord(
-                        spec.name, robot, st.level, st.message, st.wall_stamp_ns, bus_cfg.health_period_s,
+                        h.name, robot, st.level, st.message, st.wall_stamp_ns, bus_cfg.health_period_s,
                         connected(session), st.pid))
                 except OSError as exc:
-                    counts[counters.ERROR_HEALTH_FILE] += 1
+                    h.counts[counters.ERROR_HEALTH_FILE] += 1
                     once.warning(counters.ERROR_HEALTH_FILE, str(exc.errno), "cannot write the health file: %s", exc)
 
-        def handle(msg) -> None:
-            last_data[0] = max(last_data[0], int(msg.stamp_ns))
-            try:
-                if publish(step.on_message(msg)):
-                    latency.add(time.monotonic_ns() - bus.received_ns)
-                if checkpointer is not None:
-                    checkpointer.after(msg.stamp_ns)
-            except InputError as exc:
-                counts[counters.ERROR_INPUT] += 1
-                once.warning(counters.ERROR_INPUT, type(exc).__name__, "skipping bad input on %s: %s", msg.name, exc)
+        def handle(msg: Message) -> None:
+            for h in services:
+                h.pending_ns, h.answering = bus.received_ns, True
+                if msg.name in h.takes or h.spec.raw_inputs:
+                    h.last_data = max(h.last_data, int(msg.stamp_ns))
+            chain.push_item(Item(msg))
             if slow_s:
                 time.sleep(slow_s)
 
-        next_health = 0.0
+        # Each service's health a fraction of a period after the one before: Zenoh queues few express
+        # samples at once (a burst of four lost two a second when every stage was busy).
+        for i, h in enumerate(services):
+            h.next_health = started + i * bus_cfg.health_period_s / len(services)
         next_tick = 0.0
         try:
             while not stop.is_set():
-                if is_source:
-                    publish(step.poll(0.1))
+                if source is not None:
+                    first.pending_ns, first.answering = None, True
+                    chain.push_outputs(first.name, source.poll(0.1))
                 elif (msg := bus.get(0.1)) is not None:
                     handle(msg)
                 now = time.monotonic()
                 if now >= next_tick:
                     next_tick = now + 0.1
-                    step.tick()
-                    while (query := status_q.try_recv()) is not None:
-                        with query:
-                            st = status()
-                            query.reply(query.key_expr, health_topic.codec.encode(st),
-                                        encoding=zenoh.Encoding(health_topic.codec.encoding))
-                    answer_latest()
-                if now >= next_health:
-                    next_health = now + bus_cfg.health_period_s
-                    publish_health()
+                    for h in services:
+                        chain.step(h.name).tick()
+                        answer_queries(h)
+                for h in services:
+                    if now >= h.next_health:
+                        h.next_health = now + bus_cfg.health_period_s
+                        publish_health(h)
             # What arrived before the stop is handled (for a while), what remains is counted.
             bus.stop_receiving()
             drain_until = time.monotonic() + STOP_DRAIN_S
@@ -329,18 +439,16 @@ def run_live(spec: ServiceSpec, cfg: Any, bus_cfg: BusConfig, stop: threading.Ev
                 if (msg := bus.get(0.0)) is not None:
                     handle(msg)
             bus.discard_pending()
-            publish(step.finish())
-            if checkpointer is not None:
-                checkpointer.save()   # a clean stop resumes where it stood
-            publish_health()  # the final counts, for supervisors and the recording
+            chain.finish_items()
+            chain.close()   # the checkpoints saved: a clean stop resumes where it stood
+            for h in services:
+                publish_health(h)  # the final counts, for supervisors and the recording
         finally:
-            step.close()
+            chain.close(save=False)   # after a failure, only the periodic checkpoints stay
             bus.close()
-            status_q.undeclare()
-            for queryable in latest_qs.values():
-                queryable.undeclare()
-            token.undeclare()
-    stopped_cleanly(spec.name)
+            for h in services:
+                h.close()
+    stopped_cleanly(label)
     return 0
 
 

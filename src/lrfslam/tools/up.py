@@ -60,7 +60,12 @@ from lrfslam.ros2 import wire
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig, closing, parse_attachment
 from lrfslam.runtime.recording import ReadReport, count_messages, read_recording
-from lrfslam.runtime.runner import install_signal_handlers, live_services, setup_logging
+from lrfslam.runtime.runner import (
+    group_stages,
+    install_signal_handlers,
+    live_services,
+    setup_logging,
+)
 from lrfslam.runtime.saved_map import SavedMap
 from lrfslam.tools import maps
 from lrfslam.tools.exposure import check_listen
@@ -100,7 +105,7 @@ def child_environment() -> dict[str, str]:
     return env
 
 
-@dataclass
+@dataclass(eq=False)   # one process, whichever stages it runs: compared (and hashed) by identity
 class Child:
     """One supervised process.
 
@@ -218,9 +223,9 @@ def child_argv(name: str, args: argparse.Namespace, endpoint: str, extra: list[s
     return argv + extra
 
 
-def wait_alive(session: zenoh.Session, robot: str, children: list[Child], timeout_s: float,
+def wait_alive(session: zenoh.Session, robot: str, names: Sequence[str], children: list[Child], timeout_s: float,
                stop: threading.Event) -> bool:
-    """Wait until every one of ``children`` has declared its liveliness token.
+    """Wait until every service of ``names``, run by ``children``, has declared its liveliness token.
 
     Returns False if ``stop`` was set first.
 
@@ -231,7 +236,7 @@ def wait_alive(session: zenoh.Session, robot: str, children: list[Child], timeou
         ``timeout_s`` passed without all tokens.
     """
     deadline = time.monotonic() + timeout_s
-    names = {c.name for c in children}
+    names = set(names)
     seen: set[str] = set()
     while not names <= seen:
         for child in children:
@@ -318,6 +323,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="leave a stage out: --skip mapper runs the EKF without loop closing (with "
                              "--set slam.scan_matching=false, the paper's filter alone); --skip sensor waits for "
                              "scans from lrfslam play")
+    parser.add_argument("--group", metavar="STAGES",
+                        help="run these stages in one process (lrfslam group), e.g. denoise,features,slam,mapper: "
+                             "about half the CPU per scan on a small machine; each is still its own service on the "
+                             "bus (docs/delivery.md, Stages sharing a process)")
     parser.add_argument("--recordings", default="recordings",
                         help="parent of the recording folder (<UTC time>_<robot>/, one MCAP segment per recorder start)")
     parser.add_argument("--max-restarts", type=int, default=3, help="restarts of each process (the router too)")
@@ -375,8 +384,11 @@ def main(argv: list[str] | None = None) -> int:
     order = tuple(n for n in START_ORDER if n not in args.skip)
     try:
         sets = config_mod.by_service(args.sets, order)
+        group = group_stages(args.group) if args.group else []
     except ConfigError as exc:
         parser.error(str(exc))
+    if skipped := [n for n in group if n not in order]:
+        parser.error(f"--group {args.group}: {', '.join(skipped)} is left out by --skip")
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     # One folder for the run: a restarted recorder adds the next segment to it.
     recording = Path(args.recordings) / f"{stamp}_{args.robot}"
@@ -412,14 +424,19 @@ def main(argv: list[str] | None = None) -> int:
         + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)]
         + (["--insecure"] if args.insecure else []))
     router_id = start_router(router) if router else None
-    children = {n: Child(n, child_argv(n, args, endpoint, extra[n]), env=stage_env) for n in order}
+    children = {n: Child(n, child_argv(n, args, endpoint, extra[n]), env=stage_env) for n in order if n not in group}
+    if group:
+        together = Child("+".join(group), child_argv("group", args, endpoint, [
+            ",".join(group), *(a for n in group for item in sets[n] for a in ("--set", f"{n}.{item}"))]), env=stage_env)
+        children = {n: together if n in group else children[n] for n in order}
+    processes = list(dict.fromkeys(children.values()))   # a group is one process for several stages
     monitor = Child("monitor", [sys.executable, "-m", "lrfslam.cli", "monitor", "--connect", endpoint, "--robot",
                                 args.robot, "--dashboard", "--port", str(args.monitor_port), "--http-port",
                                 str(args.http_port), "--log-level", args.log_level]) if args.monitor else None
     ros2 = Child("ros2", [sys.executable, "-m", "lrfslam.cli", "ros2", "--connect", endpoint, "--robot", args.robot,
                           "--domain-id", str(args.domain_id), "--log-level", args.log_level]) if args.ros2 else None
     viewers = [c for c in (monitor, ros2) if c]
-    supervised = ([router] if router else []) + list(children.values()) + viewers
+    supervised = ([router] if router else []) + processes + viewers
     observer = Observer()
     started = time.monotonic()
     try:
@@ -449,9 +466,9 @@ def main(argv: list[str] | None = None) -> int:
                     + ", ".join(f"{n} ({w})" if w else n for n, w in sorted(found.items()))
                     + "; start with another --robot, or with --join to run beside them")
             stages = [n for n in order if n != "sensor"]
-            for name in stages:
-                children[name].start()
-            up = wait_alive(session, args.robot, [children[n] for n in stages], START_TIMEOUT_S, stop)
+            for child in dict.fromkeys(children[n] for n in stages):
+                child.start()
+            up = wait_alive(session, args.robot, stages, [children[n] for n in stages], START_TIMEOUT_S, stop)
         except StartupError:
             abort()
             remove_if_empty(recording)
@@ -669,7 +686,7 @@ def summary(observer: Observer, children: dict[str, Child], recording: Path, wal
     lines += recording_lines(recording, observer.counters("sensor").get(f"{counters.OUT}{topics.SCAN.name}", 0)
                              if "sensor" in children else None)
     lines += unrecorded_lines(observer, recording, children.get("recorder"))
-    lines += restart_lines(([router] if router else []) + list(children.values()) + list(viewers))
+    lines += restart_lines(([router] if router else []) + list(dict.fromkeys(children.values())) + list(viewers))
     return "\n".join(lines)
 
 
