@@ -19,7 +19,8 @@ calls), so figures from two machines can be compared. Sections (``--only``, comm
     Protobuf encode + decode of every message the stages make, and of what the slam stage publishes
     per scan with a map of 50, 200 and 1,000 landmarks.
 ``live``
-    ``lrfslam up`` (every stage, the recorder and the router as separate processes) at 75 scans/s for
+    ``lrfslam up`` (every stage, the recorder and the router as separate processes; ``--group STAGES``:
+    those stages in one process, in every live section and the logs) at 75 scans/s for
     ``--duration`` s: the scan-to-output ``age`` p50/p99 the slam and mapper report, drops, gaps,
     skipped inputs, every process's CPU time per scan and peak resident memory
     (src/lrfslam/bench/live.py).

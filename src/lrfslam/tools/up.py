@@ -13,7 +13,8 @@ is now, and the recorder adds a segment. While it runs, a status line every
 ``--status-period`` seconds (scans, their rate, landmarks, the pose error against the truth;
 ``--quiet``: none); ``--monitor`` also runs ``lrfslam monitor --dashboard`` and ``--ros2``
 ``lrfslam ros2`` (the robot's topics for ROS 2 over rmw_zenoh, docs/ros2.md), each as one more
-supervised process. On Ctrl-C, SIGTERM or after ``--duration`` seconds the sensor stops
+supervised process. ``--group STAGES`` runs those stages in one process (``lrfslam group``), supervised
+as one. On Ctrl-C, SIGTERM or after ``--duration`` seconds the sensor stops
 first, the pipeline drains, the rest stop in order, and a summary compares the SLAM estimate
 with the simulator's ground truth. ``--skip sensor`` runs the pipeline without one, for a
 recording played in (``lrfslam play RECORDING --robot R``, src/lrfslam/tools/play.py): the
@@ -324,9 +325,10 @@ def main(argv: list[str] | None = None) -> int:
                              "--set slam.scan_matching=false, the paper's filter alone); --skip sensor waits for "
                              "scans from lrfslam play")
     parser.add_argument("--group", metavar="STAGES",
-                        help="run these stages in one process (lrfslam group), e.g. denoise,features,slam,mapper: "
-                             "about half the CPU per scan on a small machine; each is still its own service on the "
-                             "bus (docs/delivery.md, Stages sharing a process)")
+                        help="run these stages in one process (lrfslam group) on a small computer, e.g. "
+                             "denoise,features,slam: less CPU and memory, fresher answers; each is still its own "
+                             "service on the bus, restarted with the others (docs/delivery.md, Stages sharing a "
+                             "process)")
     parser.add_argument("--recordings", default="recordings",
                         help="parent of the recording folder (<UTC time>_<robot>/, one MCAP segment per recorder start)")
     parser.add_argument("--max-restarts", type=int, default=3, help="restarts of each process (the router too)")
