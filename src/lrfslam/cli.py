@@ -57,7 +57,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
              "play a recording onto the live bus (--rate X, or --rate max: as fast as the stages answer)"),
     "ros2": ("lrfslam.tools.ros2", "main",
              "the robot's topics to ROS 2 over rmw_zenoh (--subscribe: a ROS 2 robot's scans into the pipeline)"),
-    "group": ("lrfslam.runtime.runner", "group_main",
+    "group": ("lrfslam.tools.group", "main",
               "several stages in one process (e.g. denoise,features,slam,mapper), each still its own service on the bus"),
     "bench": ("lrfslam.bench.command", "main",
               "one table: stage costs, EKF against a dense update, codecs, live latency, max rate, logs, memory"),

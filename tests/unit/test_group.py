@@ -7,8 +7,9 @@ from __future__ import annotations
 import pytest
 
 from lrfslam.errors import ConfigError
-from lrfslam.runtime.runner import group_main, group_stages
+from lrfslam.runtime.runner import group_stages
 from lrfslam.tools import up
+from lrfslam.tools.group import main as group_main
 
 
 def test_a_group_is_two_or_more_stages_in_pipeline_order():

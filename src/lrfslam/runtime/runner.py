@@ -8,6 +8,8 @@ names in ``latest``), publishes ``lrf/<robot>/health/<service>``
 and drives the service's step until SIGTERM/SIGINT. With ``--replay IN`` (an MCAP
 file, a recording folder, or several files) it drives the same step over the
 recording, as fast as the CPU allows, and writes the outputs to ``--out OUT.mcap``.
+Live, the step runs inside the same in-process chain as a replay (:func:`run_services`), which also
+hosts several services in one process (``lrfslam group``, src/lrfslam/tools/group.py).
 """
 
 from __future__ import annotations
@@ -149,37 +151,6 @@ def main(spec: ServiceSpec, argv: list[str] | None = None, tables: Collection[st
         return 2
 
 
-def group_main(argv: list[str] | None = None) -> int:
-    """``lrfslam group STAGE,STAGE,...``: several services in one process (:func:`run_services`)."""
-    from lrfslam import services  # the registry sits above the runtime
-    parser = argparse.ArgumentParser(
-        prog="lrfslam group", description="run several stages in one process, as ROS 2's component containers do: "
-        "each keeps its liveliness token, status, health and outputs on the bus; between them, messages pass in "
-        "memory (docs/delivery.md, Stages sharing a process)")
-    parser.add_argument("stages", help=f"comma-separated, any of {', '.join(GROUPABLE)}, e.g. "
-                                       "denoise,features,slam,mapper")
-    add_common_arguments(parser)   # --set SERVICE.NAME=VALUE here, as in lrfslam up
-    parser.add_argument("--health-file", metavar="FILE",
-                        help="write the first stage's health to FILE, for a container healthcheck")
-    parser.add_argument("--checkpoint-dir", metavar="DIR", help="where the slam and the mapper save their state")
-    args = parser.parse_args(argv)
-    setup_logging("group", args.log_level)
-    try:
-        names = group_stages(args.stages)
-        setup_logging("+".join(names), args.log_level)
-        file = config_mod.read_file(args.config, services.CONFIG_TABLES)
-        bus = bus_config(args, file, os.environ)
-        sets = config_mod.by_service(args.sets, names)
-        hosted = [(services.spec(n), config_mod.service_config(services.spec(n), sets=sets[n], file=file,
-                                                               env=os.environ)) for n in names]
-        for spec, cfg in hosted:
-            log.info("%s config %s", spec.name, config_mod.to_json(cfg))
-        return run_services(hosted, bus)
-    except (LrfSlamError, OSError) as exc:
-        log.error("%s", exc)
-        return 2
-
-
 #: The stages a group may hold: those that take inputs and answer each at once (the sensor is a
 #: source with its own device or simulator; the recorder takes everything in batches).
 GROUPABLE = ("denoise", "features", "slam", "mapper")
@@ -240,7 +211,7 @@ def install_signal_handlers(stop: threading.Event) -> None:
 class _Hosted:
     """One service of a live process: its step's status, health, liveliness and latest answers.
 
-    A process hosts one service, or several sharing one Zenoh session (:func:`group_main`): each
+    A process hosts one service, or several sharing one Zenoh session (``lrfslam group``): each
     keeps its own token, status queryable, health and counters, so supervisors and viewers see the
     same services either way.
     """
