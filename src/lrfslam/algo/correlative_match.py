@@ -303,14 +303,11 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
 
     def children(level: int, cand: np.ndarray, keep) -> np.ndarray:
         """The four sub-blocks (level − 1) of each candidate that start inside the window and that
-        ``keep(cand, side_cells)`` admits (where it admits what the mask does, in one compiled pass)."""
+        ``keep(cand, side_cells)`` admits (the mask's part in the same compiled pass)."""
         half = 1 << (level - 1)
-        if keep is everywhere:
-            if where is None:
-                return kernel.expand(cand, half, n_xy)
-            return kernel.expand(cand, half, n_xy, where.pooled[level - 1], *where_cell)
-        out = kernel.expand(cand, half, n_xy)
-        return out[keep(out, half)]
+        mask = () if where is None else (where.pooled[level - 1], *where_cell)
+        out = kernel.expand(cand, half, n_xy, *mask)
+        return out if keep is everywhere else out[keep(out, half)]
 
     block = 1 << top
     starts = np.arange(-n_xy, n_xy + 1, block)

@@ -306,8 +306,8 @@ def run_services(hosted: Sequence[tuple[ServiceSpec, Any]], bus_cfg: BusConfig,
         chain = Chain([Stage(sp, cfg) for sp, cfg in hosted], robot=robot,
                       checkpoint_dir=Path(bus_cfg.checkpoint_dir) if bus_cfg.checkpoint_dir else None,
                       checkpoint_period_s=bus_cfg.checkpoint_period_s, emit=emit)
-        source = chain.step(first.name) if (isinstance(chain.step(first.name), Source) and not lead_spec.inputs
-                                            and not lead_spec.raw_inputs) else None
+        lead_step = chain.step(first.name)
+        source = lead_step if isinstance(lead_step, Source) and not lead_spec.inputs and not lead_spec.raw_inputs else None
         bus = ZenohBus(session, robot, inputs, lead_spec.raw_inputs, bus_cfg.queue_size, bus_counts, skippable,
                        lead_spec.max_lag_s if bus_cfg.wall_clock_stamps and bus_cfg.skip_stale else 0.0,
                        lead_spec.batched)

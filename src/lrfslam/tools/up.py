@@ -426,11 +426,11 @@ def main(argv: list[str] | None = None) -> int:
         + [a for ep in [endpoint, *args.listen] for a in ("--listen", ep)]
         + (["--insecure"] if args.insecure else []))
     router_id = start_router(router) if router else None
-    children = {n: Child(n, child_argv(n, args, endpoint, extra[n]), env=stage_env) for n in order if n not in group}
-    if group:
-        together = Child("+".join(group), child_argv("group", args, endpoint, [
-            ",".join(group), *(a for n in group for item in sets[n] for a in ("--set", f"{n}.{item}"))]), env=stage_env)
-        children = {n: together if n in group else children[n] for n in order}
+    together = Child("+".join(group), child_argv("group", args, endpoint, [
+        ",".join(group), *(a for n in group for item in sets[n] for a in ("--set", f"{n}.{item}"))]),
+        env=stage_env) if group else None
+    children = {n: together if n in group else Child(n, child_argv(n, args, endpoint, extra[n]), env=stage_env)
+                for n in order}
     processes = list(dict.fromkeys(children.values()))   # a group is one process for several stages
     monitor = Child("monitor", [sys.executable, "-m", "lrfslam.cli", "monitor", "--connect", endpoint, "--robot",
                                 args.robot, "--dashboard", "--port", str(args.monitor_port), "--http-port",
