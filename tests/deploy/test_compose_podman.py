@@ -8,7 +8,9 @@ stops the sensor first and then the rest, and reads the recording back; once as 
 certs service makes the certificates on the first start, every link is mutual TLS under the
 router's access-control list, the host asks with the monitor certificate, which the monitor
 container holds too, and intruders are refused: no certificate, another CA, a monitor
-certificate that publishes), and once with compose.insecure.yaml over it. Needs podman,
+certificate that publishes), once with compose.group.yaml over it (denoise, features and slam in
+one container, one process: still six services on the bus), and once with compose.insecure.yaml
+over it. Needs podman,
 podman-compose and a base image (deploy/setup-podman.sh prepares a Debian machine); skips
 when podman is missing.
 """
@@ -47,9 +49,11 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "deploy" / "compose.yaml"
 COMPOSE_INSECURE = ROOT / "deploy" / "compose.insecure.yaml"
+COMPOSE_GROUP = ROOT / "deploy" / "compose.group.yaml"
 RUN_S = 40.0            # wall time with all five up; at speedup 1 that is ~400 scans at 10 Hz
 STARTUP_TIMEOUT_S = 90.0
 CONTAINERS = ("zenohd", "monitor", *services.NAMES)
+GROUPED = ("denoise", "features", "slam")   # compose.group.yaml's `stages` container
 HEALTHCHECK_RETRIES = 3  # deploy/compose.yaml, x-healthcheck
 ROBOT = "robot1"         # deploy/config.toml's [bus] robot
 INTRUDER_STAMP_NS = 1    # no sensor stamps a scan 1 ns after 1970
@@ -93,9 +97,9 @@ def run(argv: list[str], timeout: float, env: dict | None = None, check: bool = 
 class Deployment:
     """One compose project with its own name, router port and recordings folder."""
 
-    def __init__(self, compose: list[str], tmp: Path, insecure: bool) -> None:
+    def __init__(self, compose: list[str], tmp: Path, variant: str) -> None:
         """As shipped (TLS; its certs service makes the certificates in ``tmp``/tls), or with
-        compose.insecure.yaml over it."""
+        compose.group.yaml or compose.insecure.yaml over it (``variant``: shipped, group, insecure)."""
         self.project = f"lrfslam-test-{os.getpid()}"
         self.port = free_port()
         self.foxglove_port, self.dashboard_port = free_port(), free_port()
@@ -112,7 +116,11 @@ class Deployment:
         self.monitor_config = tmp / "monitor-tls.json5"
         self.monitor_config.write_text((ROOT / "deploy" / "zenoh" / "monitor-tls.json5").read_text()
                                        .replace('"tls/', f'"{self.certs}/'))
-        if insecure:
+        self.containers = CONTAINERS
+        if variant == "group":
+            self.compose += ["-f", str(COMPOSE_GROUP)]
+            self.containers = (*(c for c in CONTAINERS if c not in GROUPED), "stages")
+        if variant == "insecure":
             self.compose += ["-f", str(COMPOSE_INSECURE)]
             self.endpoint, self.zenoh_config = f"tcp/127.0.0.1:{self.port}", None
         else:
@@ -136,7 +144,7 @@ class Deployment:
 
     def logs(self) -> str:
         out = []
-        for service in ("certs", *CONTAINERS):
+        for service in ("certs", *self.containers):
             proc = run(["podman", "logs", "--timestamps", "--tail", "40", self.container(service)], 30,
                        check=False)
             out.append(f"--- {service}\n{proc.stdout}{proc.stderr}")
@@ -232,14 +240,15 @@ def check_nothing_intruded(messages: list) -> None:
     assert last_sensor.counters["out.scan"] == len(scans)
 
 
-@pytest.mark.parametrize("insecure", [False, True], ids=["as-shipped-tls-acl", "insecure-override"])
-def test_compose_up_status_down_recording(engine, tmp_path, insecure):
+@pytest.mark.parametrize("variant", ["shipped", "group", "insecure"],
+                         ids=["as-shipped-tls-acl", "group-override", "insecure-override"])
+def test_compose_up_status_down_recording(engine, tmp_path, variant):
     t0 = time.monotonic()
     # The build is part of the test: the Dockerfile must install the repo on the base image.
     run([str(ROOT / "deploy" / "podman-build.sh")], 1200, dict(os.environ, LRFSLAM_IMAGE="lrfslam:test"))
     build_s = time.monotonic() - t0
 
-    dep = Deployment(engine, tmp_path, insecure)
+    dep = Deployment(engine, tmp_path, variant)
     try:
         dep("up", "-d", "--no-build", timeout=180)
         # The certs service made every certificate before the router started, and said where.
@@ -268,7 +277,7 @@ def test_compose_up_status_down_recording(engine, tmp_path, insecure):
         # Every healthcheck command, run by the engine inside its container. Here podman has no
         # systemd to schedule them, so this is also the only place they run at all. The engine
         # calls a container unhealthy after `retries` failures in a row, so that is the test too.
-        for service in CONTAINERS:
+        for service in dep.containers:
             failures = []
             for _ in range(HEALTHCHECK_RETRIES):
                 t_check = time.monotonic()
@@ -279,7 +288,7 @@ def test_compose_up_status_down_recording(engine, tmp_path, insecure):
             assert len(failures) < HEALTHCHECK_RETRIES, \
                 f"{service} healthcheck: {failures}\n{dep.health_log(service)}\n{dep.logs()}"
 
-        if not insecure:
+        if variant != "insecure":
             intrude(dep, tmp_path)
         time.sleep(RUN_S)
         alive, statuses = ask(dep)
@@ -292,8 +301,10 @@ def test_compose_up_status_down_recording(engine, tmp_path, insecure):
             dashboard = check_monitor(dep)
         except (AssertionError, OSError, TimeoutError) as exc:
             raise AssertionError(f"monitor: {exc!r}\n{dep.logs()}") from exc
-        for service in CONTAINERS:
+        for service in dep.containers:
             assert dep.inspect(service, "{{.RestartCount}}") == "0", f"{service} restarted\n{dep.logs()}"
+        if variant == "group":   # the three stages answer from one process
+            assert len({(s.pid, s.host) for s in statuses if s.service in GROUPED}) == 1, statuses
 
         # Docker's stop order, which podman-compose does not keep by itself (deploy/README.md):
         # the sensor first so the pipeline drains, then the stages and the monitor, the recorder,
@@ -301,9 +312,9 @@ def test_compose_up_status_down_recording(engine, tmp_path, insecure):
         # its own handler, not a SIGKILL (137).
         dep("stop", "sensor", timeout=60)
         time.sleep(3)
-        dep("stop", "denoise", "features", "slam", "mapper", "monitor", timeout=60)
+        dep("stop", *(c for c in dep.containers if c not in ("zenohd", "recorder", "sensor")), timeout=60)
         dep("stop", timeout=120)
-        codes = {s: dep.inspect(s, "{{.State.ExitCode}}") for s in CONTAINERS}
+        codes = {s: dep.inspect(s, "{{.State.ExitCode}}") for s in dep.containers}
         assert set(codes.values()) == {"0"}, f"{codes}\n{dep.logs()}"
     finally:
         dep("down", timeout=180, check=False)

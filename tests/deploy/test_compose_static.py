@@ -22,7 +22,7 @@ import yaml
 from lrfslam import cli, services
 from lrfslam.runtime import config as config_mod
 from lrfslam.runtime.bus import BusConfig
-from lrfslam.runtime.runner import bus_config, flag_sets, service_parser
+from lrfslam.runtime.runner import bus_config, flag_sets, group_stages, service_parser
 from lrfslam.tools import monitor, ros2, status
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -304,11 +304,12 @@ def test_shell_scripts_parse(script):
     subprocess.run(["bash", "-n", str(DEPLOY / script)], check=True)
 
 
-def test_compose_spec_schema():
+@pytest.mark.parametrize("name", ["compose.yaml", "compose.group.yaml"])
+def test_compose_spec_schema(name):
     exe = shutil.which("check-jsonschema") or shutil.which("check-jsonschema", path=str(Path(sys.executable).parent))
     if exe is None:
         pytest.skip("check-jsonschema not installed (pip install check-jsonschema)")
-    run = subprocess.run([exe, "--builtin-schema", "vendor.compose-spec", str(COMPOSE)],
+    run = subprocess.run([exe, "--builtin-schema", "vendor.compose-spec", str(DEPLOY / name)],
                          capture_output=True, text=True, timeout=120, check=False)
     assert run.returncode == 0, run.stdout + run.stderr
 
@@ -333,3 +334,20 @@ def test_lms200_override_is_the_base_sensor_plus_the_device():
         run = subprocess.run([exe, "--builtin-schema", "vendor.compose-spec", str(DEPLOY / "compose.lms200.yaml")],
                              capture_output=True, text=True, timeout=120, check=False)
         assert run.returncode == 0, run.stdout + run.stderr
+
+
+def test_group_override_runs_the_three_stages_as_the_base_runs_slam(svcs):
+    """deploy/compose.group.yaml: `stages` is the base's slam container running `lrfslam group`
+    with the slam's own arguments; the three stage containers are left out, and the sensor waits
+    for `stages` and no longer for them."""
+    override = yaml.safe_load((DEPLOY / "compose.group.yaml").read_text())["services"]
+    stages = override["stages"]
+    assert stages["extends"] == {"file": "compose.yaml", "service": "slam"}
+    group, names, *rest = stages["command"]
+    assert (group, names) == ("group", "denoise,features,slam") and rest == svcs["slam"]["command"][1:]
+    assert group_stages(names) == ["denoise", "features", "slam"]   # (the rest parse as the slam's do)
+    for name in names.split(","):
+        assert override[name] == {"profiles": ["process-per-stage"]}
+        assert svcs["sensor"]["depends_on"][name]["required"] is False
+    assert set(override["sensor"]["depends_on"]) == {"stages"}
+    assert set(stages["depends_on"]) == set(svcs["slam"]["depends_on"])
