@@ -130,6 +130,46 @@ def test_two_identical_rooms_give_two_equal_peaks():
     assert peaks[1] == pytest.approx(13.0, abs=0.1)
 
 
+def test_three_identical_rooms_are_each_a_rival_once():
+    """With a second ratio, every copy of the place comes back as a rival, once, best first: a
+    localizer that sees only the second peak never hears of the third copy, which may be the truth."""
+    rng = np.random.default_rng(2)
+    params = CorrelativeParams()
+    triple = np.vstack([ROOM, ROOM + (10.0, 0.0), ROOM + (20.0, 0.0)])
+    grid = LikelihoodGrid(triple, params)
+    truth = np.array([3.0, 1.5, 0.0])
+    pts = seen_from(truth, rng)
+    centre = truth + (10.0, 0.0, 0.0)
+    result = search(grid, pts, centre, half_width_m=12.0, half_angle_rad=0.1, min_score=0.3, second_ratio=0.9)
+    assert result.rival_poses.shape == (2, 3)
+    np.testing.assert_array_equal(result.rival_poses[0], result.second_pose)
+    xs = sorted([result.pose[0], *result.rival_poses[:, 0]])
+    np.testing.assert_allclose(xs, [3.0, 13.0, 23.0], atol=0.15)
+    # Without a second ratio the search does not look for every copy.
+    assert search(grid, pts, centre, 12.0, 0.1, 0.3).rival_poses.shape == (0, 3)
+
+
+def test_an_exact_grid_scores_a_wall_more_alike_wherever_it_lies_on_the_cells():
+    """A straight wall (points with 1 cm noise) shifted across a cell: on the cell grid its own points
+    score about 0.8 on a cell's edge and 1.0 mid-cell; the exact grid takes the walls' half of that
+    bias away (the points' half stays: each is scored at its cell)."""
+    rng = np.random.default_rng(0)
+    cell = 0.1
+    params = CorrelativeParams(cell_m=cell, levels=3)
+    wall = np.column_stack((np.linspace(0.0, 4.0, 400), np.zeros(400)))
+    anchor = np.array([[0.0, -1.0], [4.0, -1.0]])    # the grid's origin puts a cell edge at y = 0
+    by_shift = {True: [], False: []}
+    for f in np.linspace(0.0, 1.0, 9):
+        shifted = wall + (0.0, f * cell)
+        seen = shifted + rng.normal(0.0, 0.01, shifted.shape)
+        for exact in (True, False):
+            by_shift[exact].append(LikelihoodGrid(np.vstack([anchor, shifted]), params, exact=exact).score(seen, np.zeros(3)))
+    cells, exact = np.array(by_shift[False]), np.array(by_shift[True])
+    assert cells.min() < 0.85 and cells.max() > 0.99
+    assert exact.min() > cells.min() + 0.05
+    assert np.ptp(exact) < 0.7 * np.ptp(cells)
+
+
 @settings(max_examples=8, deadline=None)
 @given(st.floats(1.0, 7.0), st.floats(0.5, 5.0), st.floats(-np.pi, np.pi), st.integers(0, 2**31))
 def test_a_whole_turn_from_more_greedy_starts_finds_the_same_best(x, y, th, seed):

@@ -55,10 +55,11 @@ H. Rapp, D. Andor, "Real-time loop closure in 2D LIDAR SLAM", ICRA 2016.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt, maximum_filter
+from scipy.spatial import cKDTree
 
 from lrfslam.algo import correlative_kernel as kernel
 from lrfslam.algo.checks import require_finite
@@ -125,9 +126,14 @@ class LikelihoodGrid:
     margin_m : float
         Extra room around the points' bounding box (m): where the likelihood
         falls off; beyond it every cell is empty.
+    exact : bool
+        A cell's likelihood from its centre's distance to the nearest point, not to the nearest
+        cell holding a point. On cells as wide as the likelihood's σ the cell distance makes a wall
+        on a cell's edge score a fifth less than one mid-cell: harmless between two scans of one
+        place, a bias between two places of one map, which the localizer's search compares.
     """
 
-    def __init__(self, points_xy_m, params: CorrelativeParams, margin_m: float = 0.5) -> None:
+    def __init__(self, points_xy_m, params: CorrelativeParams, margin_m: float = 0.5, exact: bool = False) -> None:
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         if pts.shape[0] == 0:
@@ -142,6 +148,11 @@ class LikelihoodGrid:
         col, row = np.floor((pts - self.origin_xy_m) / cell).astype(int).T
         occupied[row, col] = True
         dist_m = distance_transform_edt(~occupied) * cell
+        if exact:
+            # Only cells near a point need the exact distance; the rest have no likelihood anyway.
+            near = np.nonzero(dist_m <= 4.0 * HIT_SIGMA_M + cell)
+            centres = self.origin_xy_m + (np.column_stack((near[1], near[0])) + 0.5) * cell
+            dist_m[near] = cKDTree(pts).query(centres)[0]
         grid = np.exp(-0.5 * (dist_m / HIT_SIGMA_M) ** 2)
         grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = 0.0
         # float32 halves the memory the search gathers from; scores are means of <= 1 numbers.
@@ -239,6 +250,10 @@ class SearchResult:
         False if a level was capped at ``max_frontier``.
     leaves : int
         Leaf candidates scored (a measure of the work).
+    rival_poses : ndarray, shape (K, 3)
+        With ``second_ratio``: the best pose of each place above it, separated from ``pose`` and
+        from each other, best first (``second_pose`` the first): a building's copies of one
+        stretch. Empty otherwise.
     """
 
     pose: np.ndarray
@@ -247,6 +262,7 @@ class SearchResult:
     second_pose: np.ndarray
     exact: bool
     leaves: int
+    rival_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_angle_rad: float,
@@ -379,14 +395,17 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     sep_angles = PEAK_SEPARATION_RAD / step
     full_turn = 2.0 * np.pi / step
 
-    def separated(cand: np.ndarray, size: int) -> np.ndarray:
-        """Blocks of side ``size`` cells holding a leaf separated from the best (its farthest corner is)."""
-        dx = np.maximum(np.abs(cand[:, 1] - best[1]), np.abs(cand[:, 1] + size - 1 - best[1]))
-        dy = np.maximum(np.abs(cand[:, 2] - best[2]), np.abs(cand[:, 2] + size - 1 - best[2]))
+    def apart(cand: np.ndarray, size: int, peak: np.ndarray) -> np.ndarray:
+        """Blocks of side ``size`` cells holding a leaf separated from ``peak`` (its farthest corner is)."""
+        dx = np.maximum(np.abs(cand[:, 1] - peak[1]), np.abs(cand[:, 1] + size - 1 - peak[1]))
+        dy = np.maximum(np.abs(cand[:, 2] - peak[2]), np.abs(cand[:, 2] + size - 1 - peak[2]))
         # Angle steps apart, the short way round: a window of a whole turn holds a heading twice.
-        turned = np.abs(cand[:, 0] - best[0])
+        turned = np.abs(cand[:, 0] - peak[0])
         turned = np.minimum(turned, np.abs(full_turn - turned))
-        return ((np.hypot(dx, dy) >= sep_cells) | (turned >= sep_angles)) & everywhere(cand, size)
+        return (np.hypot(dx, dy) >= sep_cells) | (turned >= sep_angles)
+
+    def separated(cand: np.ndarray, size: int) -> np.ndarray:
+        return apart(cand, size, best) & everywhere(cand, size)
 
     # The second peak: the best leaf separated from the winner.
     if second_ratio > 0:
@@ -400,4 +419,13 @@ def search(grid: LikelihoodGrid, points_xy_m, centre, half_width_m: float, half_
     if others.shape[0] == 0:
         return SearchResult(best_pose, best_score, 0.0, np.full(3, np.nan), exact, leaves)
     k = int(np.argmax(other_scores))
-    return SearchResult(best_pose, best_score, float(other_scores[k]), to_pose(others[k]), exact, leaves)
+    second_pose = to_pose(others[k])
+    rivals = []
+    if second_ratio > 0:
+        # Best first (ties in candidate order, as for the second), each place once.
+        left = others[np.argsort(-other_scores, kind="stable")]
+        while left.shape[0]:
+            rivals.append(to_pose(left[0]))
+            left = left[apart(left, 1, left[0])]
+    return SearchResult(best_pose, best_score, float(other_scores[k]), second_pose, exact, leaves,
+                        np.array(rivals).reshape(-1, 3))

@@ -15,14 +15,17 @@ that drifts slowly but is right to centimetres over metres; the localizer finds 
 * **Verifying.** A search's answer is a *candidate* when it scores at least :data:`MIN_SCORE`,
   point-to-line matching against the map's keyframes near it converges, and its beams do not pass
   through the map's walls there (:data:`MAX_SEE_THROUGH`: the walls a look-alike place has behind
-  the ones matched disagree with what the scans saw through). Its best rival elsewhere (a metre or
-  20° away) must score below :data:`MAX_SECOND_RATIO` of it unless the walls contradict the rival
-  clearly more (:data:`SEE_THROUGH_MARGIN`): twin corridors leave both peaks alike and both
-  consistent, so the robot waits for more evidence. A fix is *trusted* only when
+  the ones matched disagree with what the scans saw through). Every other place the search found
+  (a metre or 20° away) scoring :data:`MAX_SECOND_RATIO` of it is a rival unless the walls
+  contradict it clearly more (:data:`SEE_THROUGH_MARGIN`): twin corridors leave both places alike
+  and both consistent, so the robot waits for more evidence. A rival stays one, checked at each
+  search, until it scores below :data:`HOLD_RATIO` of the best or the walls refute it. A fix is
+  *trusted* only when
   :data:`CONFIRM_CANDIDATES` successive candidates over :data:`CONFIRM_TRAVEL_M` of travel put the
   local trajectory in the same place (:data:`AGREE_M`, :data:`AGREE_RAD`), with no ambiguous search
-  between them: one lucky search is not a fix. The peaks are compared where point-to-line matching
-  puts them, not at the search's cells and angle steps.
+  between them: one lucky search is not a fix. The places are compared where point-to-line
+  matching puts them, by each point's distance to the walls (:meth:`LocalizationMap.fit`), not at
+  the search's cells and angle steps.
 * **Tracking.** Once trusted, ``map_from_local`` is a small filter's state: its uncertainty grows
   with the travel (the local trajectory drifts, :data:`DRIFT_M_PER_SQRT_M`), and each scan,
   matched point to line against the map's keyframes near the predicted pose, measures it; a
@@ -46,6 +49,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from lrfslam.algo import correlative_match as cm
 from lrfslam.algo.geometry import (
@@ -90,6 +94,11 @@ SEARCH_SPACING_M = 1.0
 MIN_SCORE = 0.5
 #: ...and its best separated rival's below this fraction of it.
 MAX_SECOND_RATIO = 0.9
+#: A place that once rivalled the best (:data:`MAX_SECOND_RATIO`) stays a rival while it scores at
+#: least this fraction of the best: inside a stretch the building repeats, the map favours one copy
+#: or the other by chance (a wall mapped thicker, a person), the right one no more often than the
+#: wrong, so a rival is dismissed only when the walls beyond the stretch refute it.
+HOLD_RATIO = 0.8
 #: A candidate is refused when more than this share of its query's beams passes through an
 #: occupied cell of the map (:meth:`Localizer.see_through`), followed up to SEE_THROUGH_CLEAR_M (m)
 #: short of its return (the wall it ends on, blurred by a cell and the filter's drift).
@@ -216,7 +225,7 @@ class Walls:
 @dataclass(frozen=True, eq=False)
 class _Peak:
     map_from_local: np.ndarray   # (3,)
-    score: float                 # the query's mean likelihood there (0–1)
+    score: float                 # the query's mean likelihood there (0–1), LocalizationMap.fit
     see_through: float           # Localizer.see_through there
     cov: np.ndarray              # (3, 3) the match's
 
@@ -260,13 +269,24 @@ class LocalizationMap:
             raise InputError("a localizer needs a map with occupied cells")
         extent = float(np.max(np.ptp(every, axis=0)))
         levels = int(min(12, max(1, np.ceil(np.log2(max(TOP_BLOCK_M, extent / 8.0) / GRID_CELL_M)) + 1)))
-        self.grid = cm.LikelihoodGrid(every, cm.CorrelativeParams(cell_m=GRID_CELL_M, levels=levels))
+        self.grid = cm.LikelihoodGrid(every, cm.CorrelativeParams(cell_m=GRID_CELL_M, levels=levels), exact=True)
+        self._walls_tree = cKDTree(every)
         #: Where a search may place the robot: the map's free space (anywhere, in a grid with no free cell).
         free = walls.free_xy_m()
         self.free = cm.PositionMask(self.grid, free, FREE_MARGIN_M) if free.shape[0] else None
         lo, hi = every.min(axis=0), every.max(axis=0)
         self.centre = np.array([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, 0.0])
         self.half_width_m = float(np.max(hi - lo)) / 2.0 + 1.0
+
+    def fit(self, points_xy_m: np.ndarray, pose: np.ndarray) -> float:
+        """Mean likelihood (0–1) of the points (N, 2, robot frame) at ``pose`` (3,), from each point's
+        distance to the nearest occupied cell's centre: the search grid's likelihood without its
+        cells. Peaks are compared by it: on cells of :data:`GRID_CELL_M` a wall lying on a cell's
+        edge costs a place up to a fifth of its score, a wall mid-cell nothing, and a building's
+        two alike halves have their walls on the grid differently (in the simulator's building the
+        true place lost 0.7 against its mirror's 0.9 on the grid, and tied by this fit)."""
+        d, _ = self._walls_tree.query(from_frame(points_xy_m, pose), distance_upper_bound=4.0 * cm.HIT_SIGMA_M)
+        return float(np.mean(np.exp(-0.5 * (np.minimum(d, 4.0 * cm.HIT_SIGMA_M) / cm.HIT_SIGMA_M) ** 2)))
 
     def reference_near(self, pose: np.ndarray) -> ReferenceScan:
         """Point-to-line reference of the keyframes within :data:`REFERENCE_RADIUS_M` of ``pose`` (3,)."""
@@ -291,6 +311,7 @@ class Localizer:
         self._last_local: np.ndarray | None = None
         self._next_search_m = 0.0
         self._agreeing: list[tuple[float, np.ndarray]] = []   # (travel m, map_from_local) of agreeing candidates
+        self._rivals: list[np.ndarray] = []          # map_from_local of places that rivalled the best, not yet refuted
         self.map_from_local: np.ndarray | None = None   # the trusted fix
         self._last_on_map_m = 0.0
         self._cov = np.zeros((3, 3))                 # of map_from_local
@@ -372,15 +393,26 @@ class Localizer:
         if best is None:
             self.refused["refine_failed"] += 1
             return
-        if found.second_score >= MAX_SECOND_RATIO * found.score:
-            rival = self._refine(query, found.second_pose, local)
-            if rival is not None and rival.score > best.score:
-                best, rival = rival, best
-            if rival is not None and rival.score >= MAX_SECOND_RATIO * best.score and \
-                    rival.see_through <= min(MAX_SEE_THROUGH, best.see_through + SEE_THROUGH_MARGIN):
-                self.refused["ambiguous"] += 1
-                self._agreeing.clear()   # a rival as good, where the walls do not contradict it more:
-                return                   # wait, and count agreeing candidates from the next on
+        peaks = [best, *(p for p in (self._refine(query, pose, local) for pose in found.rival_poses) if p is not None)]
+        best = max(peaks, key=lambda p: p.score)
+        # Rivals as good, where the walls do not contradict them more: they stay rivals until
+        # refuted.
+        tied = [p.map_from_local for p in peaks if not _agree(p.map_from_local, best.map_from_local)
+                and p.score >= MAX_SECOND_RATIO * best.score and self._rivals_with(p, best)]
+        self._rivals += tied
+        held = []
+        for place in self._rivals:
+            if _agree(place, best.map_from_local) or any(_agree(place, h) for h in held):
+                continue
+            peak = self._refine(query, compose(place, local), local)
+            if peak is not None and peak.score >= HOLD_RATIO * best.score and self._rivals_with(peak, best):
+                held.append(peak.map_from_local)
+        self._rivals = held
+        if self._rivals:
+            self._rivals.append(best.map_from_local)
+            self.refused["ambiguous"] += 1
+            self._agreeing.clear()   # wait, and count agreeing candidates from the next on
+            return
         if best.see_through > MAX_SEE_THROUGH:
             self.refused["seen_through"] += 1
             return
@@ -394,9 +426,16 @@ class Localizer:
             self.fixes += 1
             self.map_from_local = candidate
             chain.clear()
+            self._rivals.clear()
             self._last_on_map_m = self._travel_m
             inv = np.linalg.inv(_lever(compose(candidate, local), candidate))
             self._cov = inv @ (TRACK_COV_SCALE * refined.cov + np.diag([MAP_SIGMA_M ** 2] * 2 + [MAP_SIGMA_RAD ** 2])) @ inv.T
+
+    @staticmethod
+    def _rivals_with(rival: _Peak, best: _Peak) -> bool:
+        """Whether ``rival`` stays a rival of ``best`` as far as the walls go: its beams do not pass
+        through clearly more of them (:data:`SEE_THROUGH_MARGIN`) nor too many (:data:`MAX_SEE_THROUGH`)."""
+        return rival.see_through <= min(MAX_SEE_THROUGH, best.see_through + SEE_THROUGH_MARGIN)
 
     def _refine(self, query: np.ndarray, pose: np.ndarray, local: np.ndarray) -> _Peak | None:
         """A search's peak ``pose`` (3,) matched point to line against the map near it; None if that fails."""
@@ -404,7 +443,7 @@ class Localizer:
         if not res.ok:
             return None
         map_from_local = compose(res.pose, inverse(local))
-        return _Peak(map_from_local, self.map.grid.score(query, res.pose), self.see_through(map_from_local), res.cov)
+        return _Peak(map_from_local, self.map.fit(query, res.pose), self.see_through(map_from_local), res.cov)
 
     def see_through(self, map_from_local: np.ndarray) -> float:
         """Share (0–1) of the query's beams that pass through an occupied cell of the map when the
