@@ -149,27 +149,6 @@ def test_three_identical_rooms_are_each_a_rival_once():
     assert search(grid, pts, centre, 12.0, 0.1, 0.3).rival_poses.shape == (0, 3)
 
 
-def test_an_exact_grid_scores_a_wall_more_alike_wherever_it_lies_on_the_cells():
-    """A straight wall (points with 1 cm noise) shifted across a cell: on the cell grid its own points
-    score about 0.8 on a cell's edge and 1.0 mid-cell; the exact grid takes the walls' half of that
-    bias away (the points' half stays: each is scored at its cell)."""
-    rng = np.random.default_rng(0)
-    cell = 0.1
-    params = CorrelativeParams(cell_m=cell, levels=3)
-    wall = np.column_stack((np.linspace(0.0, 4.0, 400), np.zeros(400)))
-    anchor = np.array([[0.0, -1.0], [4.0, -1.0]])    # the grid's origin puts a cell edge at y = 0
-    by_shift = {True: [], False: []}
-    for f in np.linspace(0.0, 1.0, 9):
-        shifted = wall + (0.0, f * cell)
-        seen = shifted + rng.normal(0.0, 0.01, shifted.shape)
-        for exact in (True, False):
-            by_shift[exact].append(LikelihoodGrid(np.vstack([anchor, shifted]), params, exact=exact).score(seen, np.zeros(3)))
-    cells, exact = np.array(by_shift[False]), np.array(by_shift[True])
-    assert cells.min() < 0.85 and cells.max() > 0.99
-    assert exact.min() > cells.min() + 0.05
-    assert np.ptp(exact) < 0.7 * np.ptp(cells)
-
-
 @settings(max_examples=8, deadline=None)
 @given(st.floats(1.0, 7.0), st.floats(0.5, 5.0), st.floats(-np.pi, np.pi), st.integers(0, 2**31))
 def test_a_whole_turn_from_more_greedy_starts_finds_the_same_best(x, y, th, seed):

@@ -59,7 +59,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt, maximum_filter
-from scipy.spatial import cKDTree
 
 from lrfslam.algo import correlative_kernel as kernel
 from lrfslam.algo.checks import require_finite
@@ -126,14 +125,9 @@ class LikelihoodGrid:
     margin_m : float
         Extra room around the points' bounding box (m): where the likelihood
         falls off; beyond it every cell is empty.
-    exact : bool
-        A cell's likelihood from its centre's distance to the nearest point, not to the nearest
-        cell holding a point. On cells as wide as the likelihood's σ the cell distance makes a wall
-        on a cell's edge score a fifth less than one mid-cell: harmless between two scans of one
-        place, a bias between two places of one map, which the localizer's search compares.
     """
 
-    def __init__(self, points_xy_m, params: CorrelativeParams, margin_m: float = 0.5, exact: bool = False) -> None:
+    def __init__(self, points_xy_m, params: CorrelativeParams, margin_m: float = 0.5) -> None:
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         if pts.shape[0] == 0:
@@ -148,11 +142,6 @@ class LikelihoodGrid:
         col, row = np.floor((pts - self.origin_xy_m) / cell).astype(int).T
         occupied[row, col] = True
         dist_m = distance_transform_edt(~occupied) * cell
-        if exact:
-            # Only cells near a point need the exact distance; the rest have no likelihood anyway.
-            near = np.nonzero(dist_m <= 4.0 * HIT_SIGMA_M + cell)
-            centres = self.origin_xy_m + (np.column_stack((near[1], near[0])) + 0.5) * cell
-            dist_m[near] = cKDTree(pts).query(centres)[0]
         grid = np.exp(-0.5 * (dist_m / HIT_SIGMA_M) ** 2)
         grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = 0.0
         # float32 halves the memory the search gathers from; scores are means of <= 1 numbers.

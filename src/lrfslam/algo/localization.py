@@ -269,7 +269,7 @@ class LocalizationMap:
             raise InputError("a localizer needs a map with occupied cells")
         extent = float(np.max(np.ptp(every, axis=0)))
         levels = int(min(12, max(1, np.ceil(np.log2(max(TOP_BLOCK_M, extent / 8.0) / GRID_CELL_M)) + 1)))
-        self.grid = cm.LikelihoodGrid(every, cm.CorrelativeParams(cell_m=GRID_CELL_M, levels=levels), exact=True)
+        self.grid = cm.LikelihoodGrid(every, cm.CorrelativeParams(cell_m=GRID_CELL_M, levels=levels))
         self._walls_tree = cKDTree(every)
         #: Where a search may place the robot: the map's free space (anywhere, in a grid with no free cell).
         free = walls.free_xy_m()
