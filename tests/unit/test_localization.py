@@ -94,6 +94,21 @@ def test_found_from_anywhere_without_a_wrong_fix(building, start_m):
     assert np.hypot(d[0], d[1]) < 0.1 and abs(d[2]) < 0.01
 
 
+def test_the_half_turn_mirror_waits_for_the_walls_beyond(building):
+    """The building is symmetric by a half turn about its centre; on a map of its true walls a
+    start at 167 m sees its mirror image exactly as well as its own place for metres on end. The
+    mirror stays a rival until the walls beyond the stretch refute it: no fix over the first 12 m
+    (with rivals never held, ``HOLD_RATIO`` 1, a fix comes after 9 m, right only by chance), then
+    the right one. That the hold also outlasts a lead the map's cells give the wrong copy is
+    measured on mapped maps (``lrfslam.evaluation.localization_sim``, docs/maps.md)."""
+    loc = Localizer(building)
+    runs = drive(loc, "large_building", 167.0, 25.0)
+    fixed = [travel for _, placed, travel in runs if placed.status is Status.LOCALIZED]
+    assert loc.refused["ambiguous"] >= 3
+    assert fixed and 12.0 <= fixed[0] <= 25.0
+    assert not [1 for true, placed, _ in runs if placed.status is Status.LOCALIZED and wrong(true, placed)]
+
+
 @pytest.mark.slow   # 45 m of ambiguous searches: ~20 s
 def test_twin_corridors_wait_for_evidence():
     """Inside a stretch that has a twin 30 m on, the robot is not localized (both are as likely);
