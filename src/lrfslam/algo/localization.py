@@ -393,20 +393,22 @@ class Localizer:
         if best is None:
             self.refused["refine_failed"] += 1
             return
-        peaks = [best, *(p for p in (self._refine(query, pose, local) for pose in found.rival_poses) if p is not None)]
+        found_peaks = [best, *(self._refine(query, pose, local) for pose in found.rival_poses)]
+        # Earlier rivals the search did not find again are checked where they were.
+        earlier = [self._refine(query, compose(place, local), local) for place in self._rivals
+                   if not any(p is not None and _agree(place, p.map_from_local) for p in found_peaks)]
+        peaks = [p for p in found_peaks + earlier if p is not None]
         best = max(peaks, key=lambda p: p.score)
-        # Rivals as good, where the walls do not contradict them more: they stay rivals until
-        # refuted.
-        tied = [p.map_from_local for p in peaks if not _agree(p.map_from_local, best.map_from_local)
-                and p.score >= MAX_SECOND_RATIO * best.score and self._rivals_with(p, best)]
-        self._rivals += tied
-        held = []
-        for place in self._rivals:
+        # A place as good, where the walls do not contradict it more, is a rival; one that was a
+        # rival stays one down to HOLD_RATIO.
+        held: list[np.ndarray] = []
+        for peak in peaks:
+            place = peak.map_from_local
             if _agree(place, best.map_from_local) or any(_agree(place, h) for h in held):
                 continue
-            peak = self._refine(query, compose(place, local), local)
-            if peak is not None and peak.score >= HOLD_RATIO * best.score and self._rivals_with(peak, best):
-                held.append(peak.map_from_local)
+            ratio = HOLD_RATIO if any(_agree(place, r) for r in self._rivals) else MAX_SECOND_RATIO
+            if peak.score >= ratio * best.score and self._rivals_with(peak, best):
+                held.append(place)
         self._rivals = held
         if self._rivals:
             self._rivals.append(best.map_from_local)
