@@ -104,6 +104,16 @@ def test_a_folder_without_logs_is_an_error(tmp_path):
         eval_logs.find_logs(tmp_path)
 
 
+def test_a_log_folder_linked_in_is_found_and_a_link_back_up_does_not_loop(datasets, tmp_path):
+    # A datasets folder of symbolic links to where the logs are kept, one of them pointing at itself.
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    (linked / "scored").symlink_to(datasets / "scored", target_is_directory=True)
+    (linked / "scored" / "up").symlink_to(linked, target_is_directory=True)
+    logs = eval_logs.find_logs(linked)
+    assert [(log.name, log.path.name, log.relations.name) for log in logs] == [("scored", "head.clf", "head.relations")]
+
+
 def test_the_command_prints_one_table(datasets, tmp_path, capsys):
     assert evaluate.main(["relations", "--all", str(datasets), "--work", str(tmp_path / "w"),
                           "--set", "features.mode=paper"]) == 0

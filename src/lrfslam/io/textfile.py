@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import bz2
 import gzip
+import os
 from pathlib import Path
 from typing import TextIO
 
@@ -45,8 +46,20 @@ def open_log(path: str | Path) -> TextIO:
 
 
 def carmen_logs(folder: str | Path) -> list[Path]:
-    """Every CARMEN log file under ``folder`` (``*.clf``, ``.clf.gz``, ``.clf.bz2``, at any depth), in path order."""
-    return sorted(p for p in Path(folder).rglob("*") if p.is_file() and p.name.endswith(CARMEN_SUFFIXES))
+    """Every CARMEN log file under ``folder`` (``*.clf``, ``.clf.gz``, ``.clf.bz2``, at any depth), in path order.
+
+    Symbolic links to folders are followed (a datasets folder of links to where the logs are
+    kept), each real folder once, so a link back up the tree does not loop.
+    """
+    found, seen = [], set()
+    for here, subfolders, files in os.walk(folder, followlinks=True):
+        real = os.path.realpath(here)
+        if real in seen:
+            subfolders.clear()
+            continue
+        seen.add(real)
+        found += [Path(here, f) for f in files if f.endswith(CARMEN_SUFFIXES) and Path(here, f).is_file()]
+    return sorted(found)
 
 
 def log_name(path: str | Path) -> str:
