@@ -13,7 +13,7 @@ from lrfslam.algo.geometry import relative
 from lrfslam.errors import ConfigError
 from lrfslam.evaluation.relations import ErrorSummary
 from lrfslam.io.carmen import iter_records, laser_trajectory
-from lrfslam.io.textfile import open_log
+from lrfslam.io.textfile import carmen_logs, open_log
 from lrfslam.msgs import topics
 from lrfslam.runtime.recording import read_recording
 from lrfslam.tools import eval_logs, evaluate
@@ -167,3 +167,11 @@ def test_the_closure_audit_runs_the_pipeline_on_an_imported_log(datasets, tmp_pa
     assert (tmp_path / "audit" / "head.closures.mcap").exists()
     assert evaluate.main(["closures", str(tmp_path / "missing.mcap"), str(datasets / "scored" / "head.relations"),
                           "--work", str(tmp_path / "audit")]) == 2
+
+
+def test_of_two_links_to_one_log_folder_the_first_by_name_is_given(datasets, tmp_path):
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    for name in ("b_scored", "a_scored"):
+        (linked / name).symlink_to(datasets / "scored", target_is_directory=True)
+    assert [p.relative_to(linked).as_posix() for p in carmen_logs(linked)] == ["a_scored/head.clf"]

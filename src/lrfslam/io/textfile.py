@@ -49,7 +49,8 @@ def carmen_logs(folder: str | Path) -> list[Path]:
     """Every CARMEN log file under ``folder`` (``*.clf``, ``.clf.gz``, ``.clf.bz2``, at any depth), in path order.
 
     Symbolic links to folders are followed (a datasets folder of links to where the logs are
-    kept), each real folder once, so a link back up the tree does not loop.
+    kept), each real folder once, so a link back up the tree does not loop; of two paths to one
+    folder, the first in name order is the one given.
     """
     found, seen = [], set()
     for here, subfolders, files in os.walk(folder, followlinks=True):
@@ -58,6 +59,7 @@ def carmen_logs(folder: str | Path) -> list[Path]:
             subfolders.clear()
             continue
         seen.add(real)
+        subfolders.sort()   # walked in name order, whatever order the file system lists them in
         found += [Path(here, f) for f in files if f.endswith(CARMEN_SUFFIXES) and Path(here, f).is_file()]
     return sorted(found)
 
