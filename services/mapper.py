@@ -156,12 +156,31 @@ def keyframe_point_sets(saved: SavedMap) -> list[np.ndarray]:
     return [saved.keyframe_points(k) for k in range(saved.map_pose.shape[0])]
 
 
+class NoReturnBearings:
+    """Each scan's bearings of beams with no return (rad, robot frame), kept by scan number until
+    its slam state takes them: what the localizer follows through free space. Bounded as the
+    aligner's scans are."""
+
+    def __init__(self) -> None:
+        self._by_seq: dict[int, np.ndarray] = {}
+
+    def add(self, scan: t.LaserScan) -> None:
+        self._by_seq[scan.seq] = scan.angles_rad[scan.status == t.BEAM_NO_RETURN]
+        while len(self._by_seq) > 2 * MAX_WAITING_STATES + 2:
+            del self._by_seq[next(iter(self._by_seq))]
+
+    def take(self, scan_seq: int) -> np.ndarray:
+        """Scan ``scan_seq``'s bearings (K,), none if it never came or was dropped."""
+        return self._by_seq.pop(scan_seq, np.zeros(0))
+
+
 def count_localizer(counts, localizer: Localizer) -> None:
     """The localizer's own counters as the stage's (``lrfslam status``)."""
     counts["global_searches"] = localizer.searches
     counts["fixes"] = localizer.fixes
     counts["fixes_lost"] = localizer.lost
     counts["matches_gated"] = localizer.gated
+    counts["scans_doubted"] = localizer.doubted
     for why, n in localizer.refused.items():
         counts[f"searches_{why}"] = n
 
@@ -194,6 +213,7 @@ class MapperStep(StepBase):
         # A slam state waits for its scan as features do in the slam stage (no odometry here).
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))
+        self.no_returns = NoReturnBearings()
         self.seq = 0
         self.keyframes_seq = 0
         self.optimisations = 0
@@ -218,6 +238,7 @@ class MapperStep(StepBase):
         if msg.topic is topics.SCAN:
             valid = (v.status == t.BEAM_VALID) & np.isfinite(v.ranges_m)
             self.align.add_scan(v.seq, v.stamp_ns, polar_to_xy(v.ranges_m[valid], v.angles_rad[valid]))
+            self.no_returns.add(v)
             self.grid.add_scan(v.stamp_ns, v.grid_ranges(), v.angle_min_rad, v.angle_increment_rad)
         elif msg.topic is topics.SLAM_STATE:
             self.align.add_features(v.stamp_ns, v.scan_seq, v)
@@ -298,7 +319,7 @@ class MapperStep(StepBase):
 
     def _find(self, state: t.SlamState, local: np.ndarray, points: np.ndarray) -> Iterator[Output]:
         """On a saved map before the fix: the scan to the localizer; at the fix the run joins the graph."""
-        found = self.finder.add_scan(local, points)
+        found = self.finder.add_scan(local, points, self.no_returns.take(state.scan_seq))
         count_localizer(self.counts, self.finder)
         if found.status is not Status.LOCALIZED:
             self.counts["not_localized"] += 1
@@ -435,6 +456,7 @@ class LocalizeStep(StepBase):
         self.align: StreamAligner[t.SlamState] = StreamAligner(AlignmentParams(
             wait_for_odometry=False, max_wait=MAX_WAITING_STATES, scans_optional=False))
         self.local = LocalTrajectory(self.counts)
+        self.no_returns = NoReturnBearings()
         self.seq = 0
         self.grid_sent = False
         self._last_stamp = 0
@@ -445,6 +467,7 @@ class LocalizeStep(StepBase):
         if msg.topic is topics.SCAN:
             valid = (v.status == t.BEAM_VALID) & np.isfinite(v.ranges_m)
             self.align.add_scan(v.seq, v.stamp_ns, polar_to_xy(v.ranges_m[valid], v.angles_rad[valid]))
+            self.no_returns.add(v)
         elif msg.topic is topics.SLAM_STATE:
             self.align.add_features(v.stamp_ns, v.scan_seq, v)
         return [out for a in self.align.ready() for out in self._place(a.features, a.scan_xy_m)]
@@ -457,7 +480,7 @@ class LocalizeStep(StepBase):
             self.counts["scan_missing"] += 1
             points = np.zeros((0, 2))
         local, _ = self.local.add(state)
-        placed = self.localizer.add_scan(local, points)
+        placed = self.localizer.add_scan(local, points, self.no_returns.take(state.scan_seq))
         if placed.status is not self._status:
             log.info("%s (%d global searches, %d fixes)", "localized" if placed.status is Status.LOCALIZED
                      else "not localized", self.localizer.searches, self.localizer.fixes)

@@ -292,3 +292,22 @@ def test_a_scan_that_makes_a_keyframe_is_answered_before_the_keyframe_work():
         answered_first += step.mapper.keyframe_count != made
     assert answered_first > 50   # a keyframe every metre or so on the 62 m loop, twice
     assert step.mapper.stats.optimisations > 0
+
+
+def test_each_scans_no_return_bearings_wait_for_its_state_and_are_bounded():
+    """The localizer's open beams (services/mapper.py ``NoReturnBearings``): a scan's bearings with
+    no return are handed once, to its own slam state; a scan whose state never comes is forgotten
+    once as many scans wait as the aligner keeps."""
+    from services.mapper import MAX_WAITING_STATES, NoReturnBearings
+
+    angles = np.radians(np.arange(-90.0, 91.0))
+    ranges = np.full(181, 2.0)
+    ranges[[0, 90, 180]] = np.inf
+    ranges[45] = np.nan   # invalid, not "no return"
+    kept = NoReturnBearings()
+    kept.add(t.LaserScan.from_ranges(1_000, 7, ranges, angles[0], angles[1] - angles[0]))
+    np.testing.assert_allclose(kept.take(7), angles[[0, 90, 180]], atol=1e-12)
+    assert kept.take(7).size == 0 and kept.take(8).size == 0
+    for seq in range(3 * MAX_WAITING_STATES):
+        kept.add(t.LaserScan.from_ranges(seq, seq, ranges, angles[0], angles[1] - angles[0]))
+    assert kept.take(0).size == 0 and kept.take(3 * MAX_WAITING_STATES - 1).size == 3

@@ -17,7 +17,11 @@ that drifts slowly but is right to centimetres over metres; the localizer finds 
   through the map's walls there (:data:`MAX_SEE_THROUGH`: the walls a look-alike place has behind
   the ones matched disagree with what the scans saw through). Every other place the search found
   (a metre or 20° away) scoring :data:`MAX_SECOND_RATIO` of it is a rival unless the walls
-  contradict it clearly more (:data:`SEE_THROUGH_MARGIN`): twin corridors leave both places alike
+  contradict it clearly more (:data:`SEE_THROUGH_MARGIN`). Before the returns are weighed, what
+  the scanner did *not* see is: a place where the query's beams with no return (out through a
+  window or an open door) would cross clearly more of the map's walls than at another
+  (:data:`OPEN_BEAM_M`, :data:`OPEN_THROUGH_MARGIN`) is refuted, best or not: a building's mirror
+  image matches every return and none of its windows. Twin corridors leave both places alike
   and both consistent, so the robot waits for more evidence. A rival stays one, checked at each
   search, until it scores below :data:`HOLD_RATIO` of the best or the walls refute it. A fix is
   *trusted* only when
@@ -31,8 +35,12 @@ that drifts slowly but is right to centimetres over metres; the localizer finds 
   matched point to line against the map's keyframes near the predicted pose, measures it; a
   match beyond :data:`TRACK_GATE_CHI2` of the estimate is refused (a person walking by drags a
   match along; the map's transform does not jump). A scan is *localized* when its match was
-  taken and it lies on the map there (its points' mean likelihood at least
-  :data:`ON_MAP_SCORE`); a scan outside the mapped area, or where the building changed, is *not
+  taken, it lies on the map there (its points' mean likelihood at least :data:`ON_MAP_SCORE`),
+  and its beams do not pass through clearly fewer of the map's walls a step ahead or behind
+  (:data:`NEARBY_STEPS_M`) (:meth:`Localizer._fits_better_nearby`, the rivals' test, scan by scan). The local
+  trajectory can slip along a corridor that neither the returns nor the map tell apart (someone
+  walking ahead holds the filter's scan matching), and matching from its prediction follows it
+  there; the windows and doors the beams went out through then lie behind walls. A scan outside the mapped area, or where the building changed, is *not
   localized* — reported, not forced onto the map — and the transform carries the local trajectory
   on, its uncertainty growing. After :data:`LOST_TRAVEL_M` of travel without a localized scan the
   robot is searched for again, verified as before, but only as far from the dead-reckoned pose
@@ -108,6 +116,19 @@ MAX_SEE_THROUGH = 0.05
 #: beams more over the query is no chance.
 SEE_THROUGH_MARGIN = 0.01
 SEE_THROUGH_CLEAR_M = 0.4
+#: A beam with no return crossed free space at least this far (m): an LMS200 returns from any wall
+#: this close, dark or not. At a look-alike place such a beam may cross the map's walls where, at the
+#: true place, it left through a window or an open door: what the scanner did *not* see tells a
+#: building's mirror image from itself where every return matches both.
+OPEN_BEAM_M = 4.0
+#: A place whose beams with no return cross this much more of the map's walls (a share, 0–1) than
+#: another's is refuted: at the true place a few cross where a wall was mapped thick or a door
+#: closed (0.5–3 % in the simulator's building), at its mirror image most of them.
+OPEN_THROUGH_MARGIN = 0.05
+#: A tracked scan is not localized where it passes through clearly fewer walls this far ahead or
+#: behind (m): a filter held back along a corridor shows there, before it is a metre off, and
+#: where it is, a metre on it does not.
+NEARBY_STEPS_M = (-1.0, -0.5, 0.5, 1.0)
 #: Two candidates agree when their ``map_from_local`` differ by at most this (m, rad).
 AGREE_M = 0.3
 AGREE_RAD = 0.05
@@ -226,14 +247,16 @@ class Walls:
 class _Peak:
     map_from_local: np.ndarray   # (3,)
     score: float                 # the query's mean likelihood there (0–1), LocalizationMap.fit
-    see_through: float           # Localizer.see_through there
+    see_through: float           # Localizer.see_through there: the returns'...
+    open_through: float          # ...and the beams' with no return
     cov: np.ndarray              # (3, 3) the match's
 
 
 @dataclass
 class _QueryScan:
-    local_pose: np.ndarray   # (3,)
-    points_xy_m: np.ndarray  # (N, 2) robot frame, thinned
+    local_pose: np.ndarray         # (3,)
+    points_xy_m: np.ndarray        # (N, 2) robot frame, thinned
+    open_bearings_rad: np.ndarray  # (K,) robot frame: the beams with no return
 
 
 class LocalizationMap:
@@ -323,37 +346,40 @@ class Localizer:
         #: Searches that gave no candidate, by why: ``inexact`` (capped), ``low_score``,
         #: ``refine_failed``, ``ambiguous``, ``seen_through``.
         self.refused: Counter[str] = Counter()
-        #: Tracking matches refused by the gate.
-        self.gated = 0
+        #: Tracking matches refused by the gate; tracked scans doubted (they fit the walls better a
+        #: step on: not localized).
+        self.gated = self.doubted = 0
 
     @property
     def localized(self) -> bool:
         """Whether a fix is trusted (the last scan may still have been off the map)."""
         return self.map_from_local is not None
 
-    def add_scan(self, local_pose, points_xy_m) -> Placement:
-        """Take one scan: its pose on the local trajectory (3,) and its points (N, 2) in the robot frame (m)."""
+    def add_scan(self, local_pose, points_xy_m, open_bearings_rad=()) -> Placement:
+        """Take one scan: its pose on the local trajectory (3,), its points (N, 2) in the robot frame
+        (m), and the bearings (K,) of its beams with no return (rad, robot frame)."""
         local = np.asarray(local_pose, dtype=float).reshape(3)
         pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1) & (np.hypot(pts[:, 0], pts[:, 1]) <= MAX_RANGE_M)]
         step_m = 0.0 if self._last_local is None else float(np.hypot(*relative(self._last_local, local)[:2]))
         self._travel_m += step_m
         self._last_local = local
-        self._keep_for_query(local, pts)
+        open_rad = np.asarray(open_bearings_rad, dtype=float).reshape(-1)
+        self._keep_for_query(local, pts, open_rad)
         if self.map_from_local is None:
             self._search(local, self.map.centre, self.map.half_width_m, np.pi)
         if self.map_from_local is None:
             return Placement(Status.NOT_LOCALIZED, local.copy(), None, np.zeros(3), 0.0)
-        return self._track(local, pts, step_m)
+        return self._track(local, pts, open_rad, step_m)
 
     # -- searching
 
-    def _keep_for_query(self, local: np.ndarray, pts: np.ndarray) -> None:
+    def _keep_for_query(self, local: np.ndarray, pts: np.ndarray, open_rad: np.ndarray) -> None:
         if self._query:
             d = relative(self._query[-1].local_pose, local)
             if np.hypot(d[0], d[1]) < QUERY_SPACING_M and abs(d[2]) < QUERY_SPACING_RAD:
                 return
-        self._query.append(_QueryScan(local, thin_points(pts, QUERY_CELL_M)))
+        self._query.append(_QueryScan(local, thin_points(pts, QUERY_CELL_M), open_rad))
         # Only the last QUERY_TRAVEL_M of travel: drop the oldest beyond it.
         while len(self._query) > 2 and self._path_m(self._query[1:]) > QUERY_TRAVEL_M:
             self._query.pop(0)
@@ -398,6 +424,13 @@ class Localizer:
         earlier = [self._refine(query, compose(place, local), local) for place in self._rivals
                    if not any(p is not None and _agree(place, p.map_from_local) for p in found_peaks)]
         peaks = [p for p in found_peaks + earlier if p is not None]
+        # What the scanner saw no wall through refutes a place before its returns are weighed: of the
+        # places that score near the best, one whose beams with no return cross clearly more of
+        # the map's walls than another's is not where the robot is, however well its returns fit.
+        top = max(p.score for p in peaks)
+        peaks = [p for p in peaks if p.score >= HOLD_RATIO * top]
+        least = min(p.open_through for p in peaks)
+        peaks = [p for p in peaks if p.open_through <= least + OPEN_THROUGH_MARGIN]
         best = max(peaks, key=lambda p: p.score)
         # A place as good, where the walls do not contradict it more, is a rival; one that was a
         # rival stays one down to HOLD_RATIO.
@@ -445,30 +478,39 @@ class Localizer:
         if not res.ok:
             return None
         map_from_local = compose(res.pose, inverse(local))
-        return _Peak(map_from_local, self.map.fit(query, res.pose), self.see_through(map_from_local), res.cov)
+        returns, open_beams = self.see_through(map_from_local)
+        return _Peak(map_from_local, self.map.fit(query, res.pose), returns, open_beams, res.cov)
 
-    def see_through(self, map_from_local: np.ndarray) -> float:
-        """Share (0–1) of the query's beams that pass through an occupied cell of the map when the
-        query's scans are laid by ``map_from_local`` (3,): at the true place a beam ends at the first
-        wall on its way (a person or an opened door aside); at a look-alike place the walls behind
-        the ones it matched disagree."""
-        walls = self.map.walls
-        step = walls.resolution_m
-        shares = []
+    def see_through(self, map_from_local: np.ndarray) -> tuple[float, float]:
+        """Shares (0–1) of the query's beams that pass through an occupied cell of the map when the
+        query's scans are laid by ``map_from_local`` (3,): of the beams with a return, followed up to
+        :data:`SEE_THROUGH_CLEAR_M` short of it, and of those with none, followed :data:`OPEN_BEAM_M`.
+        At the true place a beam ends at the first wall on its way (a person or an opened door
+        aside); at a look-alike place the walls behind the ones it matched disagree."""
+        returns, open_beams = [], []
         for q in self._query:
-            pts = q.points_xy_m
-            r = np.hypot(pts[:, 0], pts[:, 1])
-            # One point a cell along each beam, from the sensor to SEE_THROUGH_CLEAR_M short of its return.
-            n = int(np.ceil(max(float(r.max(initial=0.0)) - SEE_THROUGH_CLEAR_M, 0.0) / step))
-            if n == 0:
-                continue
-            dist = step * np.arange(1, n + 1)
-            inside = dist[None, :] <= (r - SEE_THROUGH_CLEAR_M)[:, None]
-            along = pts[:, None, :] * (dist[None, :] / np.maximum(r, 1e-9)[:, None])[..., None]
-            hit = walls.occupied_at(from_frame(along.reshape(-1, 2), compose(map_from_local, q.local_pose)))
-            shares.append(np.any(hit.reshape(inside.shape) & inside, axis=1))
-        every = np.concatenate(shares) if shares else np.zeros(0, bool)
-        return float(np.mean(every)) if every.size else 1.0
+            pose = compose(map_from_local, q.local_pose)
+            r = np.hypot(q.points_xy_m[:, 0], q.points_xy_m[:, 1])
+            if r.max(initial=0.0) > SEE_THROUGH_CLEAR_M:   # a scan of nothing but the last 0.4 m says nothing
+                returns.append(self._crossing(q.points_xy_m / np.maximum(r, 1e-9)[:, None],
+                                              r - SEE_THROUGH_CLEAR_M, pose))
+            b = q.open_bearings_rad
+            open_beams.append(self._crossing(np.column_stack((np.cos(b), np.sin(b))), np.full(b.size, OPEN_BEAM_M), pose))
+        return _share(returns, empty=1.0), _share(open_beams, empty=0.0)
+
+    def _crossing(self, directions: np.ndarray, reach_m: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """Whether each beam (unit ``directions`` (N, 2), robot frame, from a sensor at ``pose`` (3,))
+        meets an occupied cell of the map within its ``reach_m`` (N,), sampled a cell apart (N,) bool."""
+        step = self.map.walls.resolution_m
+        n = int(np.ceil(float(reach_m.max(initial=0.0)) / step))
+        if n == 0:
+            return np.zeros(directions.shape[0], bool)
+        dist = step * np.arange(1, n + 1)
+        inside = dist[None, :] <= reach_m[:, None]
+        along = directions[:, None, :] * dist[None, :, None]
+        hit = np.zeros(inside.shape, bool)
+        hit[inside] = self.map.walls.occupied_at(from_frame(along[inside], pose))
+        return np.any(hit, axis=1)
 
     # -- tracking
 
@@ -478,7 +520,7 @@ class Localizer:
             self._reference = (pose[:2].copy(), self.map.reference_near(pose))
         return self._reference[1]
 
-    def _track(self, local: np.ndarray, pts: np.ndarray, step_m: float) -> Placement:
+    def _track(self, local: np.ndarray, pts: np.ndarray, open_rad: np.ndarray, step_m: float) -> Placement:
         # The transform drifts as the filter's trajectory does: its uncertainty grows with the travel.
         self._cov += np.diag([DRIFT_M_PER_SQRT_M ** 2 * step_m] * 2 + [DRIFT_RAD_PER_SQRT_M ** 2 * step_m])
         predicted = compose(self.map_from_local, local)
@@ -493,7 +535,13 @@ class Localizer:
         lever = _lever(pose, self.map_from_local)
         cov = lever @ self._cov @ lever.T
         score = self.map.grid.score(pts, pose) if pts.shape[0] else 0.0
-        if matched and score >= ON_MAP_SCORE:
+        # The rivals' test, scan by scan: where the scan's beams pass through clearly fewer walls a
+        # step on, the pose is not where the robot is (the filter's trajectory slipped, and matching
+        # along a corridor neither the scan nor the map tell apart followed it). Such a scan is not
+        # on the map, and LOST_TRAVEL_M of them search for the fix again.
+        doubted = self._fits_better_nearby(pts, open_rad, pose)
+        self.doubted += doubted
+        if matched and score >= ON_MAP_SCORE and not doubted:
             self._lost, self._last_on_map_m = False, self._travel_m
             return Placement(Status.LOCALIZED, pose, cov, self.map_from_local.copy(), score)
         placement = Placement(Status.NOT_LOCALIZED, pose, cov, self.map_from_local.copy(), score)
@@ -507,6 +555,28 @@ class Localizer:
             self._search(local, pose, min(WINDOW_SIGMAS * sigma_m + LOST_TRAVEL_M, self.map.half_width_m),
                          min(WINDOW_SIGMAS * float(np.sqrt(cov[2, 2])) + LOST_WINDOW_RAD, np.pi))
         return placement
+
+    def _fits_better_nearby(self, pts: np.ndarray, open_rad: np.ndarray, pose: np.ndarray) -> bool:
+        """Whether one scan passes through clearly fewer of the map's walls (:data:`OPEN_THROUGH_MARGIN`
+        of its beams) ahead of or behind ``pose`` (3,) (:data:`NEARBY_STEPS_M`) than at it: its returns
+        (``pts`` (N, 2), robot frame) followed as :meth:`see_through` follows a query's, and its
+        beams with no return (``open_rad`` (K,), rad) :data:`OPEN_BEAM_M`. Relative, as rivals
+        are judged: where glass or a door mapped shut lets beams through walls at the right pose,
+        they pass through them a step on too."""
+        here = self._wall_share(pts, open_rad, pose)
+        return here > OPEN_THROUGH_MARGIN and any(
+            self._wall_share(pts, open_rad, compose(pose, np.array([step, 0.0, 0.0]))) < here - OPEN_THROUGH_MARGIN
+            for step in NEARBY_STEPS_M)
+
+    def _wall_share(self, pts: np.ndarray, open_rad: np.ndarray, pose: np.ndarray) -> float:
+        """Share (0–1) of one scan's beams, with a return or without, through the map's walls at ``pose``."""
+        r = np.hypot(pts[:, 0], pts[:, 1])
+        far = r > SEE_THROUGH_CLEAR_M
+        crossed = np.concatenate((
+            self._crossing(pts[far] / r[far, None], r[far] - SEE_THROUGH_CLEAR_M, pose),
+            self._crossing(np.column_stack((np.cos(open_rad), np.sin(open_rad))), np.full(open_rad.size, OPEN_BEAM_M),
+                           pose)))
+        return float(np.mean(crossed)) if crossed.size else 0.0
 
     def _update(self, measured: np.ndarray, pose: np.ndarray, pose_cov: np.ndarray) -> bool:
         """Fuse a scan's ``map_from_local`` (3,), from its matched ``pose`` (3,) with ``pose_cov``, into
@@ -528,6 +598,12 @@ class Localizer:
         self._cov = (np.eye(3) - gain) @ self._cov
         self._cov = 0.5 * (self._cov + self._cov.T)
         return True
+
+
+def _share(hits: list[np.ndarray], empty: float) -> float:
+    """The share of True in ``hits`` (arrays of bool), ``empty`` if there are none."""
+    every = np.concatenate(hits) if hits else np.zeros(0, bool)
+    return float(np.mean(every)) if every.size else empty
 
 
 def query_of(merged_xy_m: np.ndarray) -> np.ndarray:

@@ -74,7 +74,7 @@ def _run(messages: list, mapper, robot: str, taker: MapTaker | None = None, sear
                 taker.take([m, *got])
         if stats is not None and localizer is not None:
             stats.update(localizer.refused, candidates=localizer.candidates, fixes=localizer.fixes,
-                         lost=localizer.lost, gated=localizer.gated)
+                         lost=localizer.lost, gated=localizer.gated, doubted=localizer.doubted)
         last = [it.msg for it in chain.finish_items()]
         out += last
         if taker is not None:
