@@ -117,7 +117,8 @@ MAX_SEE_THROUGH = 0.05
 SEE_THROUGH_MARGIN = 0.01
 SEE_THROUGH_CLEAR_M = 0.4
 #: A beam with no return crossed free space at least this far (m): an LMS200 returns from any wall
-#: this close, dark or not. At a look-alike place such a beam may cross the map's walls where, at the
+#: this close, dark or not (glass at a glancing angle aside, mapped as a wall where it once
+#: returned: so places are only compared by these beams, never judged by them alone). At a look-alike place such a beam may cross the map's walls where, at the
 #: true place, it left through a window or an open door: what the scanner did *not* see tells a
 #: building's mirror image from itself where every return matches both.
 OPEN_BEAM_M = 4.0
