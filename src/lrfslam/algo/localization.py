@@ -37,12 +37,13 @@ that drifts slowly but is right to centimetres over metres; the localizer finds 
   match along; the map's transform does not jump). A scan is *localized* when its match was
   taken, it lies on the map there (its points' mean likelihood at least :data:`ON_MAP_SCORE`),
   and its beams do not pass through clearly fewer of the map's walls a step ahead or behind
-  (:data:`NEARBY_STEPS_M`) (:meth:`Localizer._fits_better_nearby`, the rivals' test, scan by scan). The local
-  trajectory can slip along a corridor that neither the returns nor the map tell apart (someone
-  walking ahead holds the filter's scan matching), and matching from its prediction follows it
-  there; the windows and doors the beams went out through then lie behind walls. A scan outside the mapped area, or where the building changed, is *not
-  localized* — reported, not forced onto the map — and the transform carries the local trajectory
-  on, its uncertainty growing. After :data:`LOST_TRAVEL_M` of travel without a localized scan the
+  (:data:`NEARBY_STEPS_M`; :meth:`Localizer._fits_better_nearby`, the rivals' test, scan by
+  scan). The local trajectory can slip along a corridor that neither the returns nor the map tell
+  apart (someone walking ahead holds the filter's scan matching), and matching from its
+  prediction follows it there; the windows and doors the beams went out through then lie behind
+  walls. A scan outside the mapped area, or where the building changed, is *not localized* —
+  reported, not forced onto the map — and the transform carries the local trajectory on, its
+  uncertainty growing. After :data:`LOST_TRAVEL_M` of travel without a localized scan the
   robot is searched for again, verified as before, but only as far from the dead-reckoned pose
   as it may have drifted: a robot back from an unmapped wing is where it left, and a mapped place
   elsewhere that looks like the wing is not a place to jump to.
@@ -118,9 +119,10 @@ SEE_THROUGH_MARGIN = 0.01
 SEE_THROUGH_CLEAR_M = 0.4
 #: A beam with no return crossed free space at least this far (m): an LMS200 returns from any wall
 #: this close, dark or not (glass at a glancing angle aside, mapped as a wall where it once
-#: returned: so places are only compared by these beams, never judged by them alone). At a look-alike place such a beam may cross the map's walls where, at the
-#: true place, it left through a window or an open door: what the scanner did *not* see tells a
-#: building's mirror image from itself where every return matches both.
+#: returned: so places are only compared by these beams, never judged by them alone). At a
+#: look-alike place such a beam may cross the map's walls where, at the true place, it left
+#: through a window or an open door: what the scanner did *not* see tells a building's mirror
+#: image from itself where every return matches both.
 OPEN_BEAM_M = 4.0
 #: A place whose beams with no return cross this much more of the map's walls (a share, 0–1) than
 #: another's is refuted: at the true place a few cross where a wall was mapped thick or a door
@@ -490,13 +492,11 @@ class Localizer:
         aside); at a look-alike place the walls behind the ones it matched disagree."""
         returns, open_beams = [], []
         for q in self._query:
-            pose = compose(map_from_local, q.local_pose)
-            r = np.hypot(q.points_xy_m[:, 0], q.points_xy_m[:, 1])
-            if r.max(initial=0.0) > SEE_THROUGH_CLEAR_M:   # a scan of nothing but the last 0.4 m says nothing
-                returns.append(self._crossing(q.points_xy_m / np.maximum(r, 1e-9)[:, None],
-                                              r - SEE_THROUGH_CLEAR_M, pose))
-            b = q.open_bearings_rad
-            open_beams.append(self._crossing(np.column_stack((np.cos(b), np.sin(b))), np.full(b.size, OPEN_BEAM_M), pose))
+            directions, reach, is_open = _beams(q.points_xy_m, q.open_bearings_rad)
+            hit = self._crossing(directions, reach, compose(map_from_local, q.local_pose))
+            if np.any(reach[~is_open] > 0.0):   # a scan of nothing but the last 0.4 m says nothing
+                returns.append(hit[~is_open])
+            open_beams.append(hit[is_open])
         return _share(returns, empty=1.0), _share(open_beams, empty=0.0)
 
     def _crossing(self, directions: np.ndarray, reach_m: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -564,20 +564,18 @@ class Localizer:
         beams with no return (``open_rad`` (K,), rad) :data:`OPEN_BEAM_M`. Relative, as rivals
         are judged: where glass or a door mapped shut lets beams through walls at the right pose,
         they pass through them a step on too."""
-        here = self._wall_share(pts, open_rad, pose)
-        return here > OPEN_THROUGH_MARGIN and any(
-            self._wall_share(pts, open_rad, compose(pose, np.array([step, 0.0, 0.0]))) < here - OPEN_THROUGH_MARGIN
-            for step in NEARBY_STEPS_M)
+        directions, reach, _ = _beams(pts, open_rad)
+        followed = reach > 0.0   # returns within SEE_THROUGH_CLEAR_M have no way to cross
+        directions, reach = directions[followed], reach[followed]
+        if not reach.size:
+            return False
 
-    def _wall_share(self, pts: np.ndarray, open_rad: np.ndarray, pose: np.ndarray) -> float:
-        """Share (0–1) of one scan's beams, with a return or without, through the map's walls at ``pose``."""
-        r = np.hypot(pts[:, 0], pts[:, 1])
-        far = r > SEE_THROUGH_CLEAR_M
-        crossed = np.concatenate((
-            self._crossing(pts[far] / r[far, None], r[far] - SEE_THROUGH_CLEAR_M, pose),
-            self._crossing(np.column_stack((np.cos(open_rad), np.sin(open_rad))), np.full(open_rad.size, OPEN_BEAM_M),
-                           pose)))
-        return float(np.mean(crossed)) if crossed.size else 0.0
+        def share(at: np.ndarray) -> float:
+            return float(np.mean(self._crossing(directions, reach, at)))
+
+        here = share(pose)
+        return here > OPEN_THROUGH_MARGIN and any(
+            share(compose(pose, np.array([step, 0.0, 0.0]))) < here - OPEN_THROUGH_MARGIN for step in NEARBY_STEPS_M)
 
     def _update(self, measured: np.ndarray, pose: np.ndarray, pose_cov: np.ndarray) -> bool:
         """Fuse a scan's ``map_from_local`` (3,), from its matched ``pose`` (3,) with ``pose_cov``, into
@@ -599,6 +597,17 @@ class Localizer:
         self._cov = (np.eye(3) - gain) @ self._cov
         self._cov = 0.5 * (self._cov + self._cov.T)
         return True
+
+
+def _beams(points_xy_m: np.ndarray, open_bearings_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One scan's beams as the wall tests follow them: unit directions (N + K, 2), robot frame; how
+    far each is followed (N + K,), m — a return up to :data:`SEE_THROUGH_CLEAR_M` short of it (≤ 0
+    for one that close), a beam with no return :data:`OPEN_BEAM_M`; and which have no return (N + K,)."""
+    r = np.hypot(points_xy_m[:, 0], points_xy_m[:, 1])
+    directions = np.vstack((points_xy_m / np.maximum(r, 1e-9)[:, None],
+                            np.column_stack((np.cos(open_bearings_rad), np.sin(open_bearings_rad)))))
+    reach = np.concatenate((r - SEE_THROUGH_CLEAR_M, np.full(open_bearings_rad.size, OPEN_BEAM_M)))
+    return directions, reach, np.arange(reach.size) >= r.size
 
 
 def _share(hits: list[np.ndarray], empty: float) -> float:
